@@ -1,0 +1,173 @@
+"""The `farm` command line. Bad input ends in one line `farm: error: ...`, exit 2."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from workers import Case, InitialLaw, InputError, make_arena, run_games, simulate_games
+from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
+
+
+class CliError(Exception):
+    """A user error the CLI reports in one line."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, no usage dump
+        raise CliError(message if self.prog == "farm" else f"{self.prog.split()[-1]}: {message}")
+
+
+def _floats(text: str, field: str, n: int | None = None) -> list[float]:
+    try:
+        values = [float(x) for x in text.replace(";", ",").split(",") if x.strip()]
+    except ValueError:
+        raise CliError(f"{field}: expected comma-separated numbers, got {text!r}") from None
+    if n is not None and len(values) != n:
+        raise CliError(f"{field}: expected {n} numbers, got {text!r}")
+    return values
+
+
+def _points(text: str, field: str) -> np.ndarray:
+    v = _floats(text, field)
+    if len(v) == 0 or len(v) % 2:
+        raise CliError(f"{field}: expected x,y pairs like '4,5;8,5', got {text!r}")
+    return np.array(v).reshape(-1, 2)
+
+
+def _load_json(path: str, field: str):
+    try:
+        return json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise CliError(f"{field}: no such file {path!r}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise CliError(f"{field}: {path!r} is not valid JSON ({e.__class__.__name__})") from None
+
+
+def _add_game_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--pursuer-policy", default="area_min", help=f"one of {', '.join(sorted(PURSUER_POLICIES))}")
+    p.add_argument("--evader-policy", default="centroid", help=f"one of {', '.join(sorted(EVADER_POLICIES))}")
+    p.add_argument("--capture-radius", type=float, default=0.25)
+    p.add_argument("--dt", type=float, default=0.01)
+    p.add_argument("--t-max", type=float, default=60.0)
+    p.add_argument("--target", default="0,5", help="target point of `target` evaders, 'x,y'")
+    p.add_argument("--arena", help="JSON file with the arena's vertices [[x, y], ...] (default: [0,10]^2 square)")
+
+
+def cmd_game(a) -> int:
+    arena_vertices = _load_json(a.arena, "--arena") if a.arena else None
+    arena = make_arena(arena_vertices)
+    target = tuple(_floats(a.target, "--target", 2))
+    if a.positions:
+        data = _load_json(a.positions, "--positions")
+        if not isinstance(data, dict) or not {"pursuers", "evaders"} <= set(data):
+            raise CliError("--positions: JSON must be an object with 'pursuers' and 'evaders' lists of [x, y]")
+        pursuers, evaders = data["pursuers"], data["evaders"]
+    elif a.pursuers or a.evaders:
+        if not (a.pursuers and a.evaders):
+            raise CliError("--pursuers and --evaders go together")
+        pursuers, evaders = _points(a.pursuers, "--pursuers"), _points(a.evaders, "--evaders")
+    else:
+        case = Case(
+            a.n_pursuers, a.n_evaders, pursuer_policy=a.pursuer_policy, evader_policy=a.evader_policy,
+            capture_radius=a.capture_radius, dt=a.dt, t_max=a.t_max, target=target,
+            arena=arena_vertices, law=InitialLaw(kind=a.law),
+        ).validate()
+        from workers.montecarlo import sample_initial_positions
+
+        p, e = sample_initial_positions(case, a.seed, 0, 1)
+        pursuers, evaders = p[0], e[0]
+    try:
+        p = np.array(pursuers, dtype=np.float64)[None]
+        e = np.array(evaders, dtype=np.float64)[None]
+    except (TypeError, ValueError):
+        raise CliError("positions: expected lists of [x, y] pairs") from None
+    res = simulate_games(
+        p, e, pursuer_policy=a.pursuer_policy, evader_policy=a.evader_policy,
+        capture_radius=a.capture_radius, dt=a.dt, t_max=a.t_max, target=target, arena=arena,
+        record=bool(a.plot),
+    )
+    print(f"{p.shape[1]} pursuer(s) {a.pursuer_policy} vs {e.shape[1]} evader(s) {a.evader_policy}")
+    for i, t in enumerate(res.capture_times[0]):
+        shown = f"{t:.2f} s" if np.isfinite(t) else f"not captured by t_max = {a.t_max:g} s"
+        print(f"  evader {i} at ({e[0, i, 0]:.2f}, {e[0, i, 1]:.2f}): {shown}")
+    if a.plot:
+        from farm.plots import default_frames, plot_game
+
+        frames = None
+        if a.plot_times:
+            frames = [int(round(t / res.dt)) for t in _floats(a.plot_times, "--plot-times")]
+            if any(f < 0 for f in frames):
+                raise CliError("--plot-times: times must be >= 0")
+            frames = [min(f, int(res.steps[0])) for f in frames]
+        frames = frames or default_frames(res, 0)
+        path = plot_game(res, a.plot, frames=frames)
+        print(f"figure: {path}")
+    return 0
+
+
+def cmd_pe_table(a) -> int:
+    from farm.pe_table import format_tables, write_pe_tables
+
+    if a.games < 2:
+        raise CliError(f"--games: need at least 2 games per case for a CI, got {a.games}")
+    t0 = time.perf_counter()
+    written, summary = write_pe_tables(
+        Path(a.out), a.games, a.seed, a.format, progress=lambda m: print("  " + m, file=sys.stderr),
+        figures=not a.no_figures,
+    )
+    print(format_tables(summary))
+    print("Our numbers come from the model of SPEC.md; the paper's evader target point and runs are unknown.")
+    for path in written:
+        print(f"wrote {path}")
+    print(f"({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="farm", description="swarm-farm: swarm-to-swarm engagement planning and learning")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    g = sub.add_parser("game", help="play one pursuit-evasion game and print capture times")
+    src = g.add_argument_group("initial positions (default: sampled)")
+    src.add_argument("--positions", help="JSON file {\"pursuers\": [[x, y], ...], \"evaders\": [[x, y], ...]}")
+    src.add_argument("--pursuers", help="pursuer positions 'x,y;x,y;...'")
+    src.add_argument("--evaders", help="evader positions 'x,y;x,y;...'")
+    src.add_argument("--n-pursuers", type=int, default=3)
+    src.add_argument("--n-evaders", type=int, default=1)
+    src.add_argument("--law", choices=["boxes", "uniform"], default="boxes", help="boxes: the paper's start boxes")
+    src.add_argument("--seed", type=int, default=0)
+    _add_game_options(g)
+    g.add_argument("--plot", help="write a PNG of the trajectories and Voronoi cells here")
+    g.add_argument("--plot-times", help="times in s of the panels, e.g. '0,1,2' (default: start, middle, end)")
+    g.set_defaults(func=cmd_game)
+
+    t = sub.add_parser("pe-table", help="the paper's Tables 1 and 2 with figures")
+    t.add_argument("--games", type=int, default=50, help="Monte Carlo games per case")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--out", default="results/pe-table")
+    t.add_argument("--format", choices=["csv", "parquet"], default="csv")
+    t.add_argument("--no-figures", action="store_true")
+    t.set_defaults(func=cmd_pe_table)
+    return parser
+
+
+def main(argv=None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        return args.func(args)
+    except (CliError, InputError) as e:
+        print(f"farm: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("farm: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,87 @@
+"""The paper's pursuit-evasion tables (section 4.1; SPEC.md section 3)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pandas as pd
+
+from workers import Case, run_case, run_games
+
+from farm.output import write_table
+
+# (table, n_pursuers, pursuer policy, evader policy, the paper's mean capture time in s)
+PAPER_CASES = [
+    ("Table 1: pure-distance pursuit", 1, "pure_pursuit", "target", 3.373),
+    ("Table 1: pure-distance pursuit", 3, "pure_pursuit", "target", 2.856),
+    ("Table 1: pure-distance pursuit", 5, "pure_pursuit", "target", 2.0),
+    ("Table 2: area minimization", 1, "area_min", "constant_area", 3.3103),
+    ("Table 2: area minimization", 3, "area_min", "centroid", 3.276),
+    ("Table 2: area minimization", 5, "area_min", "centroid", 3.222),
+]
+
+COLUMNS = ["mean", "std", "ci95_low", "ci95_high", "min", "max"]
+
+
+def pe_tables(n_games: int = 50, seed: int = 0, base: Case | None = None, progress=None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Run every paper case; returns (summary, per_game) DataFrames."""
+    base = base or Case(1, 1)
+    rows, games = [], []
+    for table, n_p, pp, ep, paper in PAPER_CASES:
+        case = replace(base, n_pursuers=n_p, n_evaders=1, pursuer_policy=pp, evader_policy=ep)
+        per_game, summary = run_case(case, n_games, seed)
+        row = {
+            "table": table,
+            "n_pursuers": n_p,
+            "pursuer_policy": pp,
+            "evader_policy": ep,
+            "games": summary["n_games"],
+            "not_captured": summary["last_capture_n_censored"],
+        }
+        row.update({c: summary[f"last_capture_{c}"] for c in COLUMNS})
+        row["paper_mean"] = paper
+        row["case_key"] = case.key()
+        rows.append(row)
+        per_game.insert(0, "n_pursuers", n_p)
+        per_game.insert(0, "table", table)
+        games.append(per_game)
+        if progress:
+            progress(f"{table}, {n_p} pursuer(s): mean {row['mean']:.3f} s (paper {paper})")
+    return pd.DataFrame(rows), pd.concat(games, ignore_index=True)
+
+
+def format_tables(summary: pd.DataFrame) -> str:
+    """The tables as text: one block per table, the paper's figure beside ours."""
+    lines = []
+    for table, block in summary.groupby("table", sort=False):
+        lines.append(table + f" (capture time, s; {int(block['games'].iloc[0])} games per case)")
+        lines.append(f"{'case':<12}{'mean':>8}{'std':>8}{'95% CI':>18}{'min':>8}{'max':>8}{'paper':>9}")
+        for _, r in block.iterrows():
+            ci = f"[{r['ci95_low']:.3f}, {r['ci95_high']:.3f}]"
+            case = f"{r['n_pursuers']} pursuer" + ("s" if r["n_pursuers"] > 1 else "")
+            miss = f"  ({r['not_captured']} not captured)" if r["not_captured"] else ""
+            lines.append(
+                f"{case:<12}{r['mean']:>8.3f}{r['std']:>8.3f}{ci:>18}{r['min']:>8.2f}{r['max']:>8.2f}"
+                f"{r['paper_mean']:>9.4g}{miss}"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_pe_tables(out: Path, n_games: int, seed: int, fmt: str, progress=None, figures: bool = True) -> list[Path]:
+    """Run, print-ready summary and per-game files plus one figure per case."""
+    from farm.plots import plot_game
+
+    summary, per_game = pe_tables(n_games, seed, progress=progress)
+    out.mkdir(parents=True, exist_ok=True)
+    written = [write_table(summary, out / "pe_tables", fmt), write_table(per_game, out / "pe_games", fmt)]
+    if figures:
+        for table, n_p, pp, ep, _ in PAPER_CASES:
+            case = Case(n_p, 1, pursuer_policy=pp, evader_policy=ep)
+            res = run_games(case, seed, 0, 1, record=True)
+            name = f"fig_{pp}_vs_{ep}_{n_p}p.png"
+            written.append(
+                plot_game(res, out / name, title=f"{n_p} pursuer(s) {pp} vs evader {ep} (game 0, seed {seed})")
+            )
+    return written, summary

@@ -1,0 +1,80 @@
+"""The `farm` CLI, run as a real subprocess: outputs, figures, and one-line errors."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+FARM = [sys.executable, "-m", "farm.cli"]
+
+
+def farm(*args, cwd=None):
+    return subprocess.run(FARM + [str(a) for a in args], capture_output=True, text=True, cwd=cwd, timeout=600)
+
+
+def test_game_from_flags_with_plot(tmp_path):
+    out = tmp_path / "g.png"
+    r = farm("game", "--pursuers", "4,5;4,2", "--evaders", "8,5", "--plot", out, "--plot-times", "0,1,2")
+    assert r.returncode == 0, r.stderr
+    assert "evader 0 at (8.00, 5.00):" in r.stdout and " s" in r.stdout
+    assert out.stat().st_size > 10_000 and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_game_from_json_matches_api(tmp_path):
+    import numpy as np
+
+    from workers import simulate_games
+
+    pos = {"pursuers": [[3.5, 2.0], [4.5, 7.0]], "evaders": [[8.0, 5.0], [7.5, 1.0]]}
+    f = tmp_path / "pos.json"
+    f.write_text(json.dumps(pos))
+    r = farm("game", "--positions", f, "--evader-policy", "constant_area")
+    assert r.returncode == 0, r.stderr
+    res = simulate_games(np.array([pos["pursuers"]]), np.array([pos["evaders"]]), evader_policy="constant_area")
+    for t in res.capture_times[0]:
+        assert f"{t:.2f} s" in r.stdout
+
+
+def test_pe_table_small(tmp_path):
+    r = farm("pe-table", "--games", 4, "--out", tmp_path, "--format", "parquet")
+    assert r.returncode == 0, r.stderr
+    assert "Table 1: pure-distance pursuit" in r.stdout and "Table 2: area minimization" in r.stdout
+    assert "3.373" in r.stdout and "3.31" in r.stdout
+    df = pd.read_parquet(tmp_path / "pe_tables.parquet")
+    assert len(df) == 6 and (df["games"] == 4).all()
+    assert {"mean", "std", "ci95_low", "ci95_high", "min", "max", "paper_mean"} <= set(df.columns)
+    assert (df["min"] <= df["mean"]).all() and (df["mean"] <= df["max"]).all()
+    assert len(list(tmp_path.glob("fig_*.png"))) == 6
+    games = pd.read_parquet(tmp_path / "pe_games.parquet")
+    assert len(games) == 24
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["game", "--pursuers", "4,5", "--evaders", "18,5"], "evaders: agent 0 of game 0 at (18, 5) is outside the arena"),
+        (["game", "--pursuers", "4,5", "--evaders", "8,5", "--dt", "-1"], "dt: must be positive"),
+        (["game", "--pursuers", "4,5", "--evaders", "8"], "--evaders: expected x,y pairs"),
+        (["game", "--pursuers", "4,nan", "--evaders", "8,5"], "pursuers: positions must be finite"),
+        (["game", "--pursuer-policy", "chase"], "pursuer_policy: unknown policy 'chase'"),
+        (["game", "--n-pursuers", "0"], "n_pursuers: must be a whole number >= 1"),
+        (["game", "--positions", "/nonexistent.json"], "--positions: no such file"),
+        (["game", "--arena", "ARENA_BAD"], "arena: polygon must be strictly convex"),
+        (["game", "--t-max", "abc"], "argument --t-max: invalid float value"),
+        (["pe-table", "--games", "1"], "--games: need at least 2"),
+        (["nope"], "invalid choice: 'nope'"),
+    ],
+)
+def test_bad_cli_input_is_one_line(args, message, tmp_path):
+    bad_arena = tmp_path / "arena.json"
+    bad_arena.write_text(json.dumps([[0, 0], [10, 0], [5, 5], [10, 10], [0, 10]]))
+    args = [str(bad_arena) if a == "ARENA_BAD" else a for a in args]
+    r = farm(*args)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith("farm: error: ") and message in lines[0]
+    assert "Traceback" not in r.stderr

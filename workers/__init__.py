@@ -1,0 +1,48 @@
+"""swarm-farm's data plane: pure numpy pursuit-evasion kernels (no Ray, no torch).
+
+    from workers import simulate_games
+    res = simulate_games(pursuers, evaders, pursuer_policy="area_min", evader_policy="centroid")
+    res.capture_times  # (B, n_e) float64, NaN where not captured
+"""
+
+from workers.arena import DEFAULT_ARENA, Arena, make_arena
+from workers.engine import ENGINE_VERSION, GameResults, simulate_games
+from workers.errors import InputError
+from workers.geometry import Cells, voronoi_cells
+from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
+
+__all__ = [
+    "simulate_games",
+    "GameResults",
+    "ENGINE_VERSION",
+    "InputError",
+    "Arena",
+    "DEFAULT_ARENA",
+    "make_arena",
+    "Cells",
+    "voronoi_cells",
+    "PURSUER_POLICIES",
+    "EVADER_POLICIES",
+]
+
+from workers.montecarlo import (  # noqa: E402
+    PAPER_LAW,
+    Case,
+    InitialLaw,
+    game_statistics,
+    run_case,
+    run_games,
+    sample_initial_positions,
+    summarize_case,
+)
+
+__all__ += [
+    "Case",
+    "InitialLaw",
+    "PAPER_LAW",
+    "sample_initial_positions",
+    "run_games",
+    "run_case",
+    "game_statistics",
+    "summarize_case",
+]

@@ -1,0 +1,151 @@
+"""The bounded convex arena: validation, containment and projection."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from workers.errors import InputError
+
+__all__ = ["Arena", "DEFAULT_ARENA", "make_arena"]
+
+_INSIDE_TOL = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class Arena:
+    """A convex polygon, vertices counter-clockwise.
+
+    vertices: (k, 2) float64; normals: (k, 2) float64 outward unit normal of edge
+    i (from vertex i to vertex i+1); offsets: (k,) float64, so that a point x is
+    inside when normals @ x <= offsets.
+    """
+
+    vertices: np.ndarray
+    normals: np.ndarray
+    offsets: np.ndarray
+
+    def __post_init__(self):
+        box = (self.vertices.min(axis=0), self.vertices.max(axis=0)) if self.is_axis_box else None
+        object.__setattr__(self, "_box", box)
+
+    @property
+    def k(self) -> int:
+        return len(self.vertices)
+
+    @property
+    def area(self) -> float:
+        v = self.vertices
+        w = np.roll(v, -1, axis=0)
+        return 0.5 * float(np.sum(v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]))
+
+    @property
+    def is_default_square(self) -> bool:
+        return self is DEFAULT_ARENA
+
+    def signed_distances(self, points: np.ndarray) -> np.ndarray:
+        """points: (..., 2) float64 -> (..., k) float64, positive outside edge i."""
+        return (
+            points[..., None, 0] * self.normals[:, 0]
+            + points[..., None, 1] * self.normals[:, 1]
+            - self.offsets
+        )
+
+    def contains(self, points: np.ndarray, tol: float = _INSIDE_TOL) -> np.ndarray:
+        """points: (..., 2) float64 -> (...) bool, True inside or on the boundary."""
+        return np.all(self.signed_distances(points) <= tol, axis=-1)
+
+    @property
+    def is_axis_box(self) -> bool:
+        """True for an axis-aligned rectangle, where projection is a clip."""
+        return self.k == 4 and bool(np.all(np.abs(self.normals) % 1.0 == 0.0))
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Nearest point of the arena. points: (..., 2) float64 -> (..., 2) float64."""
+        if self._box is not None:
+            return np.clip(points, self._box[0], self._box[1])
+        outside = ~self.contains(points, tol=0.0)
+        if not outside.any():
+            return points
+        out = points.copy()
+        p = points[outside]  # (m, 2)
+        a = self.vertices  # (k, 2)
+        ab = np.roll(a, -1, axis=0) - a  # (k, 2)
+        t = ((p[:, None, 0] - a[:, 0]) * ab[:, 0] + (p[:, None, 1] - a[:, 1]) * ab[:, 1]) / (
+            ab[:, 0] ** 2 + ab[:, 1] ** 2
+        )
+        t = np.clip(t, 0.0, 1.0)  # (m, k)
+        foot = a + t[..., None] * ab  # (m, k, 2)
+        d2 = (foot[..., 0] - p[:, None, 0]) ** 2 + (foot[..., 1] - p[:, None, 1]) ** 2
+        best = np.argmin(d2, axis=1)
+        out[outside] = foot[np.arange(len(p)), best]
+        return out
+
+    def sample_uniform(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Uniform points in the arena by rejection from its bounding box: shape + (2,) float64."""
+        lo = self.vertices.min(axis=0)
+        hi = self.vertices.max(axis=0)
+        n = int(np.prod(shape))
+        out = np.empty((0, 2))
+        while len(out) < n:
+            need = n - len(out)
+            cand = lo + (hi - lo) * rng.random((max(2 * need, 16), 2))
+            out = np.concatenate([out, cand[self.contains(cand, tol=0.0)]])
+        return out[:n].reshape(*shape, 2)
+
+
+def make_arena(vertices=None) -> Arena:
+    """Validate a convex polygon and return an Arena (None gives the square [0, 10]^2).
+
+    vertices: (k, 2) array-like, k >= 3, in either orientation; collinear vertices
+    are rejected, as are repeated ones and non-convex or self-intersecting polygons.
+    """
+    if vertices is None:
+        return DEFAULT_ARENA
+    if isinstance(vertices, Arena):
+        return vertices
+    try:
+        v = np.array(vertices, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("arena: vertices must be numbers of shape (k, 2)") from None
+    if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
+        raise InputError(f"arena: vertices must have shape (k, 2) with k >= 3, got {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise InputError("arena: vertices must be finite")
+    w = np.roll(v, -1, axis=0)
+    signed_area = 0.5 * float(np.sum(v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]))
+    scale = float(np.max(np.abs(v))) or 1.0
+    if abs(signed_area) <= 1e-12 * scale**2:
+        raise InputError("arena: polygon is degenerate (zero area)")
+    if signed_area < 0:
+        v = v[::-1].copy()
+    e = np.roll(v, -1, axis=0) - v
+    lengths = np.hypot(e[:, 0], e[:, 1])
+    if np.any(lengths <= 1e-12 * scale):
+        raise InputError("arena: polygon has repeated vertices")
+    e_next = np.roll(e, -1, axis=0)
+    turn = (e[:, 0] * e_next[:, 1] - e[:, 1] * e_next[:, 0]) / (lengths * np.roll(lengths, -1))
+    if np.any(turn <= 1e-12):
+        raise InputError("arena: polygon must be strictly convex (no reflex or collinear vertices)")
+    # A star polygon turns left everywhere yet winds more than once.
+    total_turn = np.sum(np.arctan2(turn, (e * e_next).sum(axis=1) / (lengths * np.roll(lengths, -1))))
+    if total_turn > 2 * np.pi + 1e-6:
+        raise InputError("arena: polygon is self-intersecting")
+    normals = np.stack([e[:, 1], -e[:, 0]], axis=1) / lengths[:, None]
+    offsets = normals[:, 0] * v[:, 0] + normals[:, 1] * v[:, 1]
+    for a in (v, normals, offsets):
+        a.setflags(write=False)
+    return Arena(v, normals, offsets)
+
+
+def _square(size: float) -> Arena:
+    v = np.array([[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]])
+    n = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
+    o = np.array([0.0, size, size, 0.0])
+    for a in (v, n, o):
+        a.setflags(write=False)
+    return Arena(v, n, o)
+
+
+DEFAULT_ARENA = _square(10.0)

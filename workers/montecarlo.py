@@ -1,0 +1,244 @@
+"""Monte Carlo cases: initial-position laws, per-game statistics, per-case summaries.
+
+Game i of a case draws its initial positions from its own generator,
+``numpy.random.default_rng([seed, i])``, so a case's numbers do not depend on
+how its games are cut into batches, shards or workers.
+
+Censoring (SPEC.md section 4): an evader not captured by t_max has capture time
+NaN. Per game, `first_capture` is NaN when nobody was captured, `last_capture`
+(the game's end) is NaN unless everybody was, `mean_capture` averages the
+captured evaders only; fractions count uncaptured evaders as not captured. Per
+case, time statistics are over the games where the quantity is finite, and
+`n_censored` says how many games were left out.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Literal
+
+import numpy as np
+import pandas as pd
+
+from workers.arena import make_arena
+from workers.engine import ENGINE_VERSION, simulate_games
+from workers.errors import InputError
+from workers.policies import get_evader_policy, get_pursuer_policy
+
+__all__ = [
+    "InitialLaw",
+    "PAPER_LAW",
+    "Case",
+    "sample_initial_positions",
+    "run_games",
+    "game_statistics",
+    "summarize_case",
+    "run_case",
+    "TIME_METRICS",
+]
+
+Box = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max
+TIME_METRICS = ("first_capture", "mean_capture", "last_capture")
+QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
+
+
+@dataclass(frozen=True)
+class InitialLaw:
+    """How initial positions are drawn, independently and uniformly.
+
+    kind "boxes": pursuers in pursuer_box, evaders in evader_box (each
+    (x_min, x_max, y_min, y_max)); kind "uniform": everyone uniform in the arena.
+    """
+
+    kind: Literal["boxes", "uniform"] = "boxes"
+    pursuer_box: Box = (3.0, 5.0, 0.0, 10.0)
+    evader_box: Box = (7.0, 9.0, 0.0, 10.0)
+
+
+PAPER_LAW = InitialLaw()
+
+
+@dataclass(frozen=True)
+class Case:
+    """Everything that changes a Monte Carlo case's numbers (SPEC.md section 4)."""
+
+    n_pursuers: int
+    n_evaders: int
+    pursuer_policy: str = "area_min"
+    evader_policy: str = "centroid"
+    capture_radius: float = 0.25
+    dt: float = 0.01
+    t_max: float = 60.0
+    tau: float = 5.0
+    target: tuple[float, float] = (0.0, 5.0)
+    arena: tuple[tuple[float, float], ...] | None = None
+    law: InitialLaw = field(default_factory=InitialLaw)
+    engine_version: str = ENGINE_VERSION
+
+    def validate(self) -> "Case":
+        for name in ("n_pursuers", "n_evaders"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                raise InputError(f"{name}: must be a whole number >= 1, got {v!r}")
+        get_pursuer_policy(self.pursuer_policy)
+        get_evader_policy(self.evader_policy)
+        for name in ("capture_radius", "dt", "t_max", "tau"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise InputError(f"{name}: must be positive and finite, got {v!r}")
+        arena = make_arena(self.arena)
+        if self.law.kind == "boxes":
+            for name in ("pursuer_box", "evader_box"):
+                box = getattr(self.law, name)
+                if len(box) != 4 or box[0] > box[1] or box[2] > box[3]:
+                    raise InputError(f"law.{name}: must be (x_min, x_max, y_min, y_max), got {box!r}")
+                corners = np.array([[box[0], box[2]], [box[1], box[2]], [box[1], box[3]], [box[0], box[3]]])
+                if not arena.contains(corners).all():
+                    raise InputError(f"law.{name}: {box!r} is not inside the arena")
+        elif self.law.kind != "uniform":
+            raise InputError(f"law.kind: must be 'boxes' or 'uniform', got {self.law.kind!r}")
+        return self
+
+    def to_dict(self) -> dict:
+        return json.loads(json.dumps(asdict(self)))
+
+    def key(self) -> str:
+        """A stable hash of every parameter, the engine's version included."""
+        blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def sample_initial_positions(case: Case, seed: int, start: int, stop: int):
+    """Initial positions of games start..stop-1 of a case.
+
+    Returns pursuers (stop-start, n_p, 2) and evaders (stop-start, n_e, 2) float64;
+    game i uses default_rng([seed, i]) alone.
+    """
+    n_p, n_e = case.n_pursuers, case.n_evaders
+    arena = make_arena(case.arena)
+    pursuers = np.empty((stop - start, n_p, 2))
+    evaders = np.empty((stop - start, n_e, 2))
+    for row, game in enumerate(range(start, stop)):
+        rng = np.random.default_rng([seed, game])
+        if case.law.kind == "uniform":
+            pursuers[row] = arena.sample_uniform(rng, (n_p,))
+            evaders[row] = arena.sample_uniform(rng, (n_e,))
+        else:
+            pursuers[row] = _in_box(rng, case.law.pursuer_box, n_p)
+            evaders[row] = _in_box(rng, case.law.evader_box, n_e)
+    return pursuers, evaders
+
+
+def _in_box(rng: np.random.Generator, box: Box, n: int) -> np.ndarray:
+    lo = np.array([box[0], box[2]])
+    hi = np.array([box[1], box[3]])
+    return lo + (hi - lo) * rng.random((n, 2))
+
+
+def run_games(case: Case, seed: int, start: int, stop: int, *, record: bool = False):
+    """Simulate games start..stop-1 of a case in one batch; returns GameResults."""
+    pursuers, evaders = sample_initial_positions(case, seed, start, stop)
+    return simulate_games(
+        pursuers,
+        evaders,
+        pursuer_policy=case.pursuer_policy,
+        evader_policy=case.evader_policy,
+        capture_radius=case.capture_radius,
+        dt=case.dt,
+        t_max=case.t_max,
+        target=case.target,
+        arena=case.arena,
+        record=record,
+    )
+
+
+def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0) -> pd.DataFrame:
+    """Per-game statistics. capture_times: (B, n_e) float64, NaN = not captured.
+
+    Columns: game, first_capture, mean_capture, last_capture, frac_captured,
+    frac_captured_tau, all_captured_tau.
+    """
+    ct = np.asarray(capture_times, dtype=np.float64)
+    captured = np.isfinite(ct)
+    n_captured = captured.sum(axis=1)
+    some = n_captured > 0
+    within = captured & (ct <= tau)
+    with np.errstate(invalid="ignore"):
+        first = np.where(some, np.nanmin(np.where(some[:, None], ct, 0.0), axis=1), np.nan)
+        mean = np.where(some, np.nansum(ct, axis=1) / np.maximum(n_captured, 1), np.nan)
+        last = np.where(captured.all(axis=1), np.max(np.where(captured, ct, 0.0), axis=1), np.nan)
+    return pd.DataFrame(
+        {
+            "game": np.arange(first_game, first_game + len(ct), dtype=np.int64),
+            "first_capture": first,
+            "mean_capture": mean,
+            "last_capture": last,
+            "frac_captured": n_captured / ct.shape[1],
+            "frac_captured_tau": within.sum(axis=1) / ct.shape[1],
+            "all_captured_tau": within.all(axis=1),
+        }
+    )
+
+
+def summarize_case(per_game: pd.DataFrame) -> dict:
+    """Per-case summary of game_statistics rows: a flat dict of floats and ints.
+
+    For each time metric m: m_mean, m_std (ddof=1), m_ci95_low/high (Student t
+    on the mean), m_min, m_max, m_q05..m_q95, m_n_censored; plus n_games,
+    frac_captured_mean, frac_captured_tau_mean, p_all_captured_tau.
+    """
+    from scipy import stats
+
+    out: dict = {"n_games": int(len(per_game))}
+    for m in TIME_METRICS:
+        x = per_game[m].to_numpy(dtype=np.float64)
+        x = x[np.isfinite(x)]
+        n = len(x)
+        out[f"{m}_n_censored"] = int(len(per_game) - n)
+        if n == 0:
+            for s in ("mean", "std", "ci95_low", "ci95_high", "min", "max"):
+                out[f"{m}_{s}"] = math.nan
+            for q in QUANTILES:
+                out[f"{m}_q{int(q * 100):02d}"] = math.nan
+            continue
+        mean = float(np.mean(x))
+        std = float(np.std(x, ddof=1)) if n > 1 else math.nan
+        half = float(stats.t.ppf(0.975, n - 1) * std / math.sqrt(n)) if n > 1 else math.nan
+        out.update(
+            {
+                f"{m}_mean": mean,
+                f"{m}_std": std,
+                f"{m}_ci95_low": mean - half,
+                f"{m}_ci95_high": mean + half,
+                f"{m}_min": float(np.min(x)),
+                f"{m}_max": float(np.max(x)),
+            }
+        )
+        for q, v in zip(QUANTILES, np.quantile(x, QUANTILES)):
+            out[f"{m}_q{int(q * 100):02d}"] = float(v)
+    out["frac_captured_mean"] = float(per_game["frac_captured"].mean())
+    out["frac_captured_tau_mean"] = float(per_game["frac_captured_tau"].mean())
+    out["p_all_captured_tau"] = float(per_game["all_captured_tau"].mean())
+    return out
+
+
+def run_case(case: Case, n_games: int, seed: int, *, batch_size: int = 1024, progress=None):
+    """Run a whole case in batches; returns (per_game DataFrame, summary dict).
+
+    progress: optional callable(games_done) called after each batch.
+    """
+    case.validate()
+    if not isinstance(n_games, (int, np.integer)) or n_games < 1:
+        raise InputError(f"n_games: must be a whole number >= 1, got {n_games!r}")
+    frames = []
+    for start in range(0, n_games, batch_size):
+        stop = min(n_games, start + batch_size)
+        res = run_games(case, seed, start, stop)
+        frames.append(game_statistics(res.capture_times, case.tau, first_game=start))
+        if progress is not None:
+            progress(stop)
+    per_game = pd.concat(frames, ignore_index=True)
+    return per_game, summarize_case(per_game)
