@@ -93,3 +93,38 @@ def test_batch_composition_does_not_change_a_cell(rng):
         alone = all_cells(pts[b : b + 1], None).area_centroid()
         assert np.array_equal(alone[0], together[0][b * 9 : (b + 1) * 9])
         assert np.array_equal(alone[1], together[1][b * 9 : (b + 1) * 9])
+
+
+def test_warm_start_from_last_steps_structure_equals_clipping(rng):
+    """Cells rebuilt from a hint (last step's labels) equal cells clipped from scratch,
+    and a hint that no longer fits (a new neighbour, a dead agent) is rejected."""
+    from workers import DEFAULT_ARENA
+
+    pts = rng.random((40, 8, 2)) * 10
+    live = np.ones((40, 8), dtype=bool)
+    g, a = np.nonzero(live)
+    before = voronoi_cells(pts, live, g, a, DEFAULT_ARENA)
+    moved = np.clip(pts + rng.normal(scale=0.01, size=pts.shape), 0, 10)
+    live[0, 3] = False  # agent 3 of game 0 leaves: cells that named it must be rebuilt
+    keep = live[g, a]
+    g, a, hint = g[keep], a[keep], before.labels[keep]
+    warm = voronoi_cells(moved, live, g, a, DEFAULT_ARENA, hint=hint)
+    cold = voronoi_cells(moved, live, g, a, DEFAULT_ARENA)
+    wa, wc = warm.area_centroid()
+    ca, cc = cold.area_centroid()
+    np.testing.assert_allclose(wa, ca, atol=1e-9)
+    np.testing.assert_allclose(wc, cc, atol=1e-9)
+    from workers.geometry import _from_hint
+
+    d2 = ((moved[g] - moved[g, a][:, None]) ** 2).sum(-1)
+    d2 = np.where(live[g] & (d2 > 0), d2, np.inf)
+    accepted = _from_hint(DEFAULT_ARENA, moved[g, a], moved[g][..., 0], moved[g][..., 1], d2, hint).count > 0
+    names_dead = (g == 0) & np.any(hint == 3, axis=1)
+    assert names_dead.any() and not accepted[names_dead].any()
+    assert accepted.mean() > 0.7
+    for c in range(len(g)):
+        wl, cl = warm.edges()[0][c], cold.edges()[0][c]
+        w = {int(l): L for l, L in zip(warm.labels[c], wl) if l >= 0 and L > NEIGHBOUR_EDGE_MIN}
+        k = {int(l): L for l, L in zip(cold.labels[c], cl) if l >= 0 and L > NEIGHBOUR_EDGE_MIN}
+        assert w.keys() == k.keys()
+        assert 3 not in w or g[c] != 0

@@ -16,7 +16,7 @@ import numpy as np
 
 from workers.arena import Arena, make_arena
 from workers.errors import InputError
-from workers.geometry import voronoi_cells, Cells
+from workers.geometry import PAD, Cells, voronoi_cells
 from workers.policies import StepContext, get_evader_policy, get_pursuer_policy
 from workers.policies.context import pursuer_evader_distance
 
@@ -178,6 +178,7 @@ def simulate_games(
 
     act = np.arange(n_games)
     dist = capture(act, p, e, 0)
+    hints = np.full((n_games, n_e, 1), PAD, dtype=np.int64)
     running = alive.any(axis=1)
     frames_p, frames_e = ([p.copy()], [e.copy()]) if record else (None, None)
 
@@ -188,9 +189,19 @@ def simulate_games(
             if len(act) == 0:
                 break
         pa, ea, alive_a = p[act], e[act], alive[act]
-        ctx = StepContext(pa, ea, alive_a, arena=arena, dt=dt, v_max=V_MAX, target=goal, distance=dist)
+        ctx = StepContext(
+            pa, ea, alive_a, arena=arena, dt=dt, v_max=V_MAX, target=goal, distance=dist, hint=hints[act]
+        )
         u_p = p_fn(ctx)
         u_e = np.where(alive_a[..., None], e_fn(ctx), 0.0)
+        if hasattr(ctx, "cell_labels"):
+            width = ctx.cell_labels.shape[2]
+            if width > hints.shape[2]:
+                hints = np.concatenate(
+                    [hints, np.full((n_games, n_e, width - hints.shape[2]), PAD, dtype=np.int64)], axis=2
+                )
+            hints[act, :, :width] = ctx.cell_labels
+            hints[act, :, width:] = PAD
         pa = arena.project(pa + dt * u_p)
         ea = arena.project(ea + dt * u_e)
         p[act], e[act] = pa, ea

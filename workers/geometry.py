@@ -7,7 +7,15 @@ site's cell is final once the next agent is farther than twice the cell's
 radius (its bisector cannot reach the cell), and finished cells drop out.
 
 Every edge of a cell carries the label of the agent whose bisector it lies on
-(-1 for the arena's boundary), so shared edges with neighbours come for free.
+(-1 - e for edge e of the arena), so shared edges with neighbours come for free.
+
+Warm start: from one step to the next a cell's structure (the cyclic list of
+lines its edges lie on) rarely changes. Given last step's labels as a hint, the
+vertices are re-intersected from those lines in one vectorized pass and the
+result is accepted only if it is provably the cell: every vertex inside every
+half-plane and every edge of non-negative length in counter-clockwise order
+(a convex polygon bounded by the constraints' own lines that satisfies all
+constraints is their intersection). Cells that fail are clipped from scratch.
 Sums run left to right over the vertex axis (``cumsum``), so a cell's numbers do
 not depend on how many other cells or how much padding share its batch.
 """
@@ -25,6 +33,8 @@ __all__ = ["Cells", "voronoi_cells", "NEIGHBOUR_EDGE_MIN"]
 NEIGHBOUR_EDGE_MIN = 1e-9
 _COINCIDENT = 1e-12
 _CLIP_TOL = 1e-12
+_VERIFY_TOL = 1e-10
+PAD = -(1 << 40)  # label of padding slots
 
 
 @dataclass
@@ -36,8 +46,8 @@ class Cells:
     count: (C,) int64 number of valid vertices, the padding slots holding copies
     of vertex 0 (so vertex i+1 of slot count-1 is vertex 0 without a modulo, and
     padding edges have zero length); labels: (C, M) int64, label of edge i (from
-    vertex i to vertex i+1): the agent index on its other side, -1 for the arena
-    boundary, -2 in the padding.
+    vertex i to vertex i+1): the agent index on its other side, -1 - e for edge
+    e of the arena, PAD in the padding.
     """
 
     site: np.ndarray
@@ -90,14 +100,14 @@ class _Polygons:
         self.x = np.repeat(arena.vertices[None, :, 0], n, axis=0)
         self.y = np.repeat(arena.vertices[None, :, 1], n, axis=0)
         self.count = np.full(n, k, dtype=np.int64)
-        self.labels = np.full((n, k), -1, dtype=np.int64)
+        self.labels = np.repeat(-1 - np.arange(k, dtype=np.int64)[None], n, axis=0)
 
     def widen(self, m: int) -> None:
         pad = m - self.x.shape[1]
         if pad > 0:
             self.x = np.concatenate([self.x, np.repeat(self.x[:, :1], pad, axis=1)], axis=1)
             self.y = np.concatenate([self.y, np.repeat(self.y[:, :1], pad, axis=1)], axis=1)
-            self.labels = np.concatenate([self.labels, np.full((len(self.x), pad), -2, dtype=np.int64)], axis=1)
+            self.labels = np.concatenate([self.labels, np.full((len(self.x), pad), PAD, dtype=np.int64)], axis=1)
 
 
 def voronoi_cells(
@@ -106,20 +116,23 @@ def voronoi_cells(
     site_game: np.ndarray,
     site_agent: np.ndarray,
     arena: Arena,
+    hint: np.ndarray | None = None,
 ) -> Cells:
     """Bounded Voronoi cells of chosen sites among the live agents of each game.
 
     points: (B, n, 2) float64 agent positions; live: (B, n) bool agents that take
     part; site_game, site_agent: (C,) int64 which cells to build (each must be
-    live). Agents coincident with the site (closer than 1e-12) are ignored for
-    its cell. Returns Cells of C sites, labels indexing the n agents.
+    live); hint: optional (C, H) int64 labels of each site's cell at the last
+    step (PAD-padded at the end; a row of PAD means none). Agents coincident with
+    the site (closer than 1e-12) are ignored for its cell. Returns Cells of C
+    sites, labels indexing the n agents.
     """
     site_game = np.asarray(site_game, dtype=np.int64)
     site_agent = np.asarray(site_agent, dtype=np.int64)
     n_cells = len(site_game)
     site = points[site_game, site_agent]  # (C, 2)
-    poly = _Polygons(arena, n_cells)
     if n_cells == 0:
+        poly = _Polygons(arena, 0)
         return Cells(site, poly.x, poly.y, poly.count, poly.labels)
 
     ox = points[site_game, :, 0]  # (C, n)
@@ -128,11 +141,104 @@ def voronoi_cells(
     d2 = (ox - sx[:, None]) ** 2 + (oy - sy[:, None]) ** 2
     usable = live[site_game] & (d2 >= _COINCIDENT**2)
     d2 = np.where(usable, d2, np.inf)
+
+    if hint is None:
+        return _clip_cells(arena, site, ox, oy, d2)
+    warm = _from_hint(arena, site, ox, oy, d2, np.asarray(hint, dtype=np.int64))
+    ok = warm.count > 0
+    if ok.all():
+        return warm
+    cold = _clip_cells(arena, site[~ok], ox[~ok], oy[~ok], d2[~ok])
+    m = max(warm.x.shape[1], cold.x.shape[1])
+    x, y, labels = (_pad_to(a, m) for a in (warm.x, warm.y, warm.labels))
+    count = warm.count.copy()
+    x[~ok], y[~ok], labels[~ok] = _pad_to(cold.x, m), _pad_to(cold.y, m), _pad_to(cold.labels, m)
+    count[~ok] = cold.count
+    return Cells(site, x, y, count, labels)
+
+
+def _pad_to(a: np.ndarray, m: int) -> np.ndarray:
+    """Widen (C, M) vertex coordinates (with copies of column 0) or labels (with PAD) to m columns."""
+    pad = m - a.shape[1]
+    if pad <= 0:
+        return a.copy()
+    fill = np.full((len(a), pad), PAD, dtype=a.dtype) if a.dtype == np.int64 else np.repeat(a[:, :1], pad, axis=1)
+    return np.concatenate([a, fill], axis=1)
+
+
+def _lines(arena: Arena, site, ox, oy, labels):
+    """Outward unit normals nx, ny and offsets c (each like labels) of the
+    constraint lines named by labels (C, M): inside means nx*x + ny*y <= c."""
+    c_idx = np.arange(len(labels))[:, None]
+    agent = np.maximum(labels, 0)
+    qx, qy = ox[c_idx, agent], oy[c_idx, agent]
+    px, py = site[:, 0, None], site[:, 1, None]
+    nx, ny = qx - px, qy - py
+    norm = np.hypot(nx, ny)
+    norm = np.where(norm > 0, norm, 1.0)
+    nx, ny = nx / norm, ny / norm
+    off = nx * (0.5 * (px + qx)) + ny * (0.5 * (py + qy))
+    edge = np.clip(-1 - labels, 0, arena.k - 1)
+    is_arena = labels < 0
+    nx = np.where(is_arena, arena.normals[edge, 0], nx)
+    ny = np.where(is_arena, arena.normals[edge, 1], ny)
+    off = np.where(is_arena, arena.offsets[edge], off)
+    return nx, ny, off
+
+
+def _from_hint(arena: Arena, site, ox, oy, d2, hint) -> Cells:
+    """Cells rebuilt from last step's structure; count 0 where the hint is not the cell."""
+    count = np.count_nonzero(hint != PAD, axis=1)
+    m = max(int(count.max()), 1)
+    labels = hint[:, :m]
+    nx, ny, off = _lines(arena, site, ox, oy, labels)
+    slot = np.arange(m)
+    valid = slot < count[:, None]
+    prev = np.where(slot == 0, count[:, None] - 1, slot - 1)
+    pnx, pny, poff = (np.take_along_axis(a, prev, axis=1) for a in (nx, ny, off))
+    det = pnx * ny - pny * nx
+    good_det = np.abs(det) > 1e-12
+    det = np.where(good_det, det, 1.0)
+    x = (poff * ny - off * pny) / det
+    y = (pnx * off - nx * poff) / det
+    first_x, first_y = x[:, :1], y[:, :1]
+    x = np.where(valid, x, first_x)
+    y = np.where(valid, y, first_y)
+
+    agent_usable = np.take_along_axis(np.isfinite(d2), np.maximum(labels, 0), axis=1) | (labels < 0)
+    ok = (count >= 3) & np.all(~valid | (good_det & agent_usable), axis=1)
+    # Every vertex inside every live agent's half-plane and the arena.
+    px, py = site[:, 0, None], site[:, 1, None]
+    usable = np.isfinite(d2)
+    inv_norm = np.where(usable, 1.0 / np.sqrt(np.where(usable, d2, 1.0)), 0.0)
+    ax, ay = (ox - px) * inv_norm, (oy - py) * inv_norm  # (C, n) unit normals, 0 if unusable
+    aoff = np.where(usable, 0.5 * (ox * ox + oy * oy - px * px - py * py) * inv_norm, 1.0)
+    s_agent = x[:, :, None] * ax[:, None, :] + y[:, :, None] * ay[:, None, :] - aoff[:, None, :]
+    ok &= ~np.any(s_agent > _VERIFY_TOL, axis=(1, 2))
+    if arena.is_axis_box:
+        (lo_x, lo_y), (hi_x, hi_y) = arena.vertices.min(axis=0), arena.vertices.max(axis=0)
+        t = _VERIFY_TOL
+        ok &= np.all((x >= lo_x - t) & (x <= hi_x + t) & (y >= lo_y - t) & (y <= hi_y + t), axis=1)
+    else:
+        ok &= np.all(arena.signed_distances(np.stack([x, y], axis=-1)) <= _VERIFY_TOL, axis=(1, 2))
+    # Every edge runs counter-clockwise along its own line (non-negative length).
+    xn, yn = _take_next(x), _take_next(y)
+    along = (xn - x) * (-ny) + (yn - y) * nx
+    ok &= np.all(~valid | (along >= -_VERIFY_TOL), axis=1)
+
+    count = np.where(ok, count, 0)
+    return Cells(site, x, y, count, np.where(valid, labels, PAD))
+
+
+def _clip_cells(arena: Arena, site, ox, oy, d2) -> Cells:
+    """Cells clipped from the arena, nearest agents first (see the module doc)."""
+    n_cells = len(site)
+    poly = _Polygons(arena, n_cells)
     order = np.argsort(d2, axis=1, kind="stable")
     d2_sorted = np.take_along_axis(d2, order, axis=1)
-
+    sx, sy = site[:, 0], site[:, 1]
     active = np.arange(n_cells)
-    for rank in range(points.shape[1]):
+    for rank in range(ox.shape[1]):
         cand_d2 = d2_sorted[active, rank]
         if rank >= 2:  # the nearest agents nearly always cut: skip the test
             rx = poly.x[active] - sx[active, None]
@@ -145,28 +251,33 @@ def voronoi_cells(
             if len(active) == 0:
                 break
         agent = order[active, rank]
-        _clip(poly, active, sx[active], sy[active], ox[active, agent], oy[active, agent], agent)
+        rows = None if len(active) == n_cells else active
+        _clip(poly, rows, sx[active], sy[active], ox[active, agent], oy[active, agent], agent)
     return Cells(site, poly.x, poly.y, poly.count, poly.labels)
 
 
 def _clip(poly: _Polygons, rows, px, py, qx, qy, agent) -> None:
     """Clip the polygons `rows` by the half-planes closer to p than to q, in place.
 
-    rows: (A,) int64; px, py, qx, qy: (A,) float64; agent: (A,) int64 label of
-    the new edge.
+    rows: (A,) int64, or None for all; px, py, qx, qy: (A,) float64; agent: (A,)
+    int64 label of the new edge.
     """
     nx, ny = qx - px, qy - py
     norm = np.hypot(nx, ny)
     nx, ny = (nx / norm)[:, None], (ny / norm)[:, None]
     mx, my = (0.5 * (px + qx))[:, None], (0.5 * (py + qy))[:, None]
-    x, y = poly.x[rows], poly.y[rows]
+    x, y = (poly.x, poly.y) if rows is None else (poly.x[rows], poly.y[rows])
     s = (x - mx) * nx + (y - my) * ny
     inside = s <= _CLIP_TOL
     cut = ~np.all(inside, axis=1)
     if not cut.any():
         return
     if not cut.all():
-        rows, x, y, s, inside, agent = rows[cut], x[cut], y[cut], s[cut], inside[cut], agent[cut]
+        rows = np.flatnonzero(cut) if rows is None else rows[cut]
+        x, y, s, inside, agent = x[cut], y[cut], s[cut], inside[cut], agent[cut]
+    everything = rows is None
+    if everything:
+        rows = slice(None)
     cnt = poly.count[rows]
     lab = poly.labels[rows]
     valid = np.arange(x.shape[1]) < cnt[:, None]
@@ -175,19 +286,22 @@ def _clip(poly: _Polygons, rows, px, py, qx, qy, agent) -> None:
     single_run = np.count_nonzero(exits, axis=1) == 1
     n_inside = np.count_nonzero(valid & inside, axis=1)
     poly.widen(int(np.where(single_run, n_inside + 2, 2 * cnt).max()))
-    parts = [(single_run, _clip_run), (~single_run, _clip_general)]
     if single_run.all():
-        parts = [(slice(None), _clip_run)]
-    for f, clip in parts:
+        _clip_run(poly, rows, x, y, s, valid, inside, inside_next, cnt, lab, agent, everything)
+        return
+    if everything:
+        rows = np.arange(len(x))
+    for f, clip in [(single_run, _clip_run), (~single_run, _clip_general)]:
         clip(poly, rows[f], x[f], y[f], s[f], valid[f], inside[f], inside_next[f], cnt[f], lab[f], agent[f])
 
 
-def _clip_run(poly, rows, x, y, s, valid, inside, inside_next, cnt, lab, agent) -> None:
+def _clip_run(poly, rows, x, y, s, valid, inside, inside_next, cnt, lab, agent, everything=False) -> None:
     """Convex polygons whose inside vertices form one cyclic run (the usual case):
-    the result is [entry point, the run, exit point], one gather, no scatter."""
-    if len(rows) == 0:
+    the result is [entry point, the run, exit point], one gather, no scatter.
+    everything: rows is slice(None), every polygon is replaced."""
+    if len(x) == 0:
         return
-    r = np.arange(len(rows))
+    r = np.arange(len(x))
     i_out = np.argmax(valid & inside & ~inside_next, axis=1)
     i_in = np.argmax(valid & ~inside & inside_next, axis=1)
     i = np.concatenate([i_in, i_out])
@@ -209,10 +323,13 @@ def _clip_run(poly, rows, x, y, s, valid, inside, inside_next, cnt, lab, agent) 
     src = np.where(slot < last, (i_in[:, None] + slot) % cnt[:, None], m)
     src[:, 0] = m
     src = np.where(slot == last, m + 1, src)
-    poly.x[rows] = np.take_along_axis(ext_x, src, axis=1)
-    poly.y[rows] = np.take_along_axis(ext_y, src, axis=1)
-    poly.labels[rows] = np.where(slot > last, -2, np.take_along_axis(ext_l, src, axis=1))
-    poly.count[rows] = n_inside + 2
+    new_x = np.take_along_axis(ext_x, src, axis=1)
+    new_y = np.take_along_axis(ext_y, src, axis=1)
+    new_l = np.where(slot > last, PAD, np.take_along_axis(ext_l, src, axis=1))
+    if everything:
+        poly.x, poly.y, poly.labels, poly.count = new_x, new_y, new_l, n_inside + 2
+    else:
+        poly.x[rows], poly.y[rows], poly.labels[rows], poly.count[rows] = new_x, new_y, new_l, n_inside + 2
 
 
 def _clip_general(poly, rows, x, y, s, valid, inside, inside_next, cnt, lab, agent) -> None:
@@ -233,7 +350,7 @@ def _clip_general(poly, rows, x, y, s, valid, inside, inside_next, cnt, lab, age
     new_count = end[:, -1]
     m = poly.x.shape[1]
     out_x, out_y = np.empty((len(rows), m)), np.empty((len(rows), m))
-    out_l = np.full((len(rows), m), -2, dtype=np.int64)
+    out_l = np.full((len(rows), m), PAD, dtype=np.int64)
     r, c = np.nonzero(emit_vertex)
     out_x[r, start[r, c]], out_y[r, start[r, c]], out_l[r, start[r, c]] = x[r, c], y[r, c], lab[r, c]
     r, c = np.nonzero(emit_cross)

@@ -8,7 +8,7 @@ from functools import cached_property
 import numpy as np
 
 from workers.arena import Arena
-from workers.geometry import NEIGHBOUR_EDGE_MIN, voronoi_cells
+from workers.geometry import NEIGHBOUR_EDGE_MIN, PAD, voronoi_cells
 
 HEADING_MIN = 1e-12
 
@@ -35,14 +35,19 @@ class StepContext:
     """State of A running games at one step.
 
     pursuers: (A, n_p, 2) float64; evaders: (A, n_e, 2) float64; alive: (A, n_e)
-    bool (live evaders); target: (2,) float64 goal of `target` evaders.
+    bool (live evaders); target: (2,) float64 goal of `target` evaders;
+    distance: optional precomputed `distance`; hint: optional (A, n_e, H) int64
+    labels of each evader's cell at the last step (warm start, see geometry).
+    After the cells are built, cell_labels (A, n_e, M) int64 holds this step's.
     """
 
     def __init__(
-        self, pursuers, evaders, alive, *, arena: Arena, dt: float, v_max: float, target, distance=None
+        self, pursuers, evaders, alive, *, arena: Arena, dt: float, v_max: float, target, distance=None,
+        hint=None,
     ):
         if distance is not None:
             self.distance = distance
+        self.hint = hint
         self.pursuers = pursuers
         self.evaders = evaders
         self.alive = alive
@@ -66,7 +71,10 @@ class StepContext:
         points = np.concatenate([self.pursuers, self.evaders], axis=1)
         live = np.concatenate([np.ones((a, n_p), dtype=bool), self.alive], axis=1)
         game, evader = np.nonzero(self.alive)
-        cells = voronoi_cells(points, live, game, n_p + evader, self.arena)
+        hint = None if self.hint is None else self.hint[game, evader]
+        cells = voronoi_cells(points, live, game, n_p + evader, self.arena, hint=hint)
+        self.cell_labels = np.full((a, n_e, cells.labels.shape[1]), PAD, dtype=np.int64)
+        self.cell_labels[game, evader] = cells.labels
         area, centroid = cells.area_centroid()
         length, mid = cells.edges()
 
