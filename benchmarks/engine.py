@@ -23,9 +23,9 @@ from workers.reference import reference_game  # noqa: E402
 
 # name, n_p, n_e, evader policy, engine games, reference games
 CASES = [
-    ("1v1 area_min/constant_area", 1, 1, "constant_area", 1000, 8),
-    ("3v1 area_min/centroid", 3, 1, "centroid", 1000, 6),
-    ("5v1 area_min/centroid", 5, 1, "centroid", 1000, 6),
+    ("1v1 area_min/constant_area", 1, 1, "constant_area", 2000, 8),
+    ("3v1 area_min/centroid", 3, 1, "centroid", 2000, 6),
+    ("5v1 area_min/centroid", 5, 1, "centroid", 2000, 6),
     ("20v10 area_min/centroid", 20, 10, "centroid", 16, 2),
     ("100v50 area_min/centroid", 100, 50, "centroid", 3, 1),
 ]

@@ -166,32 +166,28 @@ def _pad_to(a: np.ndarray, m: int) -> np.ndarray:
     return np.concatenate([a, fill], axis=1)
 
 
-def _lines(arena: Arena, site, ox, oy, labels):
-    """Outward unit normals nx, ny and offsets c (each like labels) of the
-    constraint lines named by labels (C, M): inside means nx*x + ny*y <= c."""
-    c_idx = np.arange(len(labels))[:, None]
-    agent = np.maximum(labels, 0)
-    qx, qy = ox[c_idx, agent], oy[c_idx, agent]
-    px, py = site[:, 0, None], site[:, 1, None]
-    nx, ny = qx - px, qy - py
-    norm = np.hypot(nx, ny)
-    norm = np.where(norm > 0, norm, 1.0)
-    nx, ny = nx / norm, ny / norm
-    off = nx * (0.5 * (px + qx)) + ny * (0.5 * (py + qy))
-    edge = np.clip(-1 - labels, 0, arena.k - 1)
-    is_arena = labels < 0
-    nx = np.where(is_arena, arena.normals[edge, 0], nx)
-    ny = np.where(is_arena, arena.normals[edge, 1], ny)
-    off = np.where(is_arena, arena.offsets[edge], off)
-    return nx, ny, off
-
-
 def _from_hint(arena: Arena, site, ox, oy, d2, hint) -> Cells:
     """Cells rebuilt from last step's structure; count 0 where the hint is not the cell."""
     count = np.count_nonzero(hint != PAD, axis=1)
     m = max(int(count.max()), 1)
     labels = hint[:, :m]
-    nx, ny, off = _lines(arena, site, ox, oy, labels)
+    n = ox.shape[1]
+    # Constraint lines nx*x + ny*y <= off: the live agents' bisectors (C, n) (unit
+    # normals, zero for unusable agents), then the arena's edges.
+    px, py = site[:, 0, None], site[:, 1, None]
+    usable = np.isfinite(d2)
+    inv_norm = np.where(usable, 1.0 / np.sqrt(np.where(usable, d2, 1.0)), 0.0)
+    ax, ay = (ox - px) * inv_norm, (oy - py) * inv_norm
+    aoff = np.where(usable, 0.5 * (ox * ox + oy * oy - px * px - py * py) * inv_norm, 1.0)
+    line = np.where(labels >= 0, labels, n - 1 - labels)
+    line = np.where(labels == PAD, 0, line)
+    line_usable = np.take_along_axis(usable, np.minimum(line, n - 1), axis=1) | (labels < 0)
+
+    def pick(agent_values, arena_values):
+        table = np.concatenate([agent_values, np.broadcast_to(arena_values, (len(site), arena.k))], axis=1)
+        return np.take_along_axis(table, line, axis=1)
+
+    nx, ny, off = pick(ax, arena.normals[:, 0]), pick(ay, arena.normals[:, 1]), pick(aoff, arena.offsets)
     slot = np.arange(m)
     valid = slot < count[:, None]
     prev = np.where(slot == 0, count[:, None] - 1, slot - 1)
@@ -199,20 +195,13 @@ def _from_hint(arena: Arena, site, ox, oy, d2, hint) -> Cells:
     det = pnx * ny - pny * nx
     good_det = np.abs(det) > 1e-12
     det = np.where(good_det, det, 1.0)
-    x = (poff * ny - off * pny) / det
-    y = (pnx * off - nx * poff) / det
-    first_x, first_y = x[:, :1], y[:, :1]
-    x = np.where(valid, x, first_x)
-    y = np.where(valid, y, first_y)
+    x = np.where(valid, (poff * ny - off * pny) / det, 0.0)
+    y = np.where(valid, (pnx * off - nx * poff) / det, 0.0)
+    x = np.where(valid, x, x[:, :1])
+    y = np.where(valid, y, y[:, :1])
+    ok = (count >= 3) & np.all(~valid | (good_det & line_usable), axis=1)
 
-    agent_usable = np.take_along_axis(np.isfinite(d2), np.maximum(labels, 0), axis=1) | (labels < 0)
-    ok = (count >= 3) & np.all(~valid | (good_det & agent_usable), axis=1)
     # Every vertex inside every live agent's half-plane and the arena.
-    px, py = site[:, 0, None], site[:, 1, None]
-    usable = np.isfinite(d2)
-    inv_norm = np.where(usable, 1.0 / np.sqrt(np.where(usable, d2, 1.0)), 0.0)
-    ax, ay = (ox - px) * inv_norm, (oy - py) * inv_norm  # (C, n) unit normals, 0 if unusable
-    aoff = np.where(usable, 0.5 * (ox * ox + oy * oy - px * px - py * py) * inv_norm, 1.0)
     s_agent = x[:, :, None] * ax[:, None, :] + y[:, :, None] * ay[:, None, :] - aoff[:, None, :]
     ok &= ~np.any(s_agent > _VERIFY_TOL, axis=(1, 2))
     if arena.is_axis_box:
