@@ -13,6 +13,9 @@ import numpy as np
 from workers import Case, InitialLaw, InputError, make_arena, run_games, simulate_games
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
+from farm.config import ConfigError
+from farm.sweep import SweepError
+
 
 class CliError(Exception):
     """A user error the CLI reports in one line."""
@@ -129,6 +132,25 @@ def cmd_pe_table(a) -> int:
     return 0
 
 
+def cmd_sweep(a) -> int:
+    from farm.config import load_sweep_config
+    from farm.sweep import changed_fields, format_summary, print_info, run_sweep
+
+    if a.workers is not None and a.workers < 1:
+        raise CliError(f"--workers: must be >= 1, got {a.workers}")
+    config = load_sweep_config(a.config)
+    out = Path(a.out) if a.out else Path("results") / "sweeps" / config.name
+    summary, info = run_sweep(
+        config, out, address=a.address, workers=a.workers, use_ray=not a.no_ray,
+        show_progress=not a.quiet, metrics_port=a.metrics_port,
+    )
+    print_info(info)
+    print(f"{config.name}: {len(summary)} point(s), {int(summary['n_games'].sum())} games")
+    print(format_summary(summary, changed_fields(config)))
+    print(f"results: {out}/summary.parquet, {out}/summary.csv, {out}/shards/")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="farm", description="swarm-farm: swarm-to-swarm engagement planning and learning")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -154,6 +176,16 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--format", choices=["csv", "parquet"], default="csv")
     t.add_argument("--no-figures", action="store_true")
     t.set_defaults(func=cmd_pe_table)
+
+    s = sub.add_parser("sweep", help="run a parametric Monte Carlo sweep on Ray (resumable)")
+    s.add_argument("config", help="sweep YAML, e.g. configs/smoke.yaml")
+    s.add_argument("--out", help="results folder (default results/sweeps/<name>)")
+    s.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
+    s.add_argument("--workers", type=int, help="shards running at once (default: the cluster's CPUs)")
+    s.add_argument("--metrics-port", type=int, help="local Ray only: Prometheus export port")
+    s.add_argument("--no-ray", action="store_true", help="run the shards in this process, without Ray")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(func=cmd_sweep)
     return parser
 
 
@@ -161,7 +193,7 @@ def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)
-    except (CliError, InputError) as e:
+    except (CliError, InputError, ConfigError, SweepError) as e:
         print(f"farm: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -1,7 +1,7 @@
 """Monte Carlo cases: initial-position laws, per-game statistics, per-case summaries.
 
 Game i of a case draws its initial positions from its own generator,
-``numpy.random.default_rng([seed, i])``, so a case's numbers do not depend on
+``numpy.random.default_rng([*seed, i])`` (seed an int or a tuple of ints), so a case's numbers do not depend on
 how its games are cut into batches, shards or workers.
 
 Censoring (SPEC.md section 4): an evader not captured by t_max has capture time
@@ -111,18 +111,28 @@ class Case:
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def sample_initial_positions(case: Case, seed: int, start: int, stop: int):
+def _seed_words(seed) -> list[int]:
+    words = list(seed) if isinstance(seed, (tuple, list)) else [seed]
+    for w in words:
+        if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 0:
+            raise InputError(f"seed: must be a whole number >= 0 (or a tuple of them), got {seed!r}")
+    return [int(w) for w in words]
+
+
+def sample_initial_positions(case: Case, seed, start: int, stop: int):
     """Initial positions of games start..stop-1 of a case.
 
+    seed: int or tuple of ints (a sweep uses (sweep seed, point index)).
     Returns pursuers (stop-start, n_p, 2) and evaders (stop-start, n_e, 2) float64;
-    game i uses default_rng([seed, i]) alone.
+    game i uses default_rng([*seed, i]) alone.
     """
+    words = _seed_words(seed)
     n_p, n_e = case.n_pursuers, case.n_evaders
     arena = make_arena(case.arena)
     pursuers = np.empty((stop - start, n_p, 2))
     evaders = np.empty((stop - start, n_e, 2))
     for row, game in enumerate(range(start, stop)):
-        rng = np.random.default_rng([seed, game])
+        rng = np.random.default_rng([*words, game])
         if case.law.kind == "uniform":
             pursuers[row] = arena.sample_uniform(rng, (n_p,))
             evaders[row] = arena.sample_uniform(rng, (n_e,))
@@ -138,7 +148,7 @@ def _in_box(rng: np.random.Generator, box: Box, n: int) -> np.ndarray:
     return lo + (hi - lo) * rng.random((n, 2))
 
 
-def run_games(case: Case, seed: int, start: int, stop: int, *, record: bool = False):
+def run_games(case: Case, seed, start: int, stop: int, *, record: bool = False):
     """Simulate games start..stop-1 of a case in one batch; returns GameResults."""
     pursuers, evaders = sample_initial_positions(case, seed, start, stop)
     return simulate_games(
@@ -225,7 +235,7 @@ def summarize_case(per_game: pd.DataFrame) -> dict:
     return out
 
 
-def run_case(case: Case, n_games: int, seed: int, *, batch_size: int = 1024, progress=None):
+def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024, progress=None):
     """Run a whole case in batches; returns (per_game DataFrame, summary dict).
 
     progress: optional callable(games_done) called after each batch.

@@ -1,0 +1,249 @@
+"""Typed sweep configs (YAML): unknown keys and bad values are rejected with one
+line naming the field. Every default lives here or in workers.Case.
+
+    name: team-sizes
+    seed: 0
+    games_per_point: 50
+    shard_games: null          # games per Ray task; null: chosen from the team size
+    base:                      # the game every point starts from (workers.Case fields)
+      n_pursuers: 3
+      n_evaders: 1
+      pursuer_policy: area_min
+      evader_policy: centroid
+    vary:                      # each block present is one axis of a cartesian product
+      grid: {n_pursuers: [1, 2, 3], evader_policy: [centroid, constant_area]}
+      zip: {capture_radius: [0.2, 0.3], dt: [0.01, 0.005]}     # lists in step
+      random: {n: 8, ranges: {capture_radius: [0.1, 0.5]}}     # n uniform draws
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from workers import ENGINE_VERSION, Case, InitialLaw, InputError
+
+__all__ = ["SweepConfig", "Point", "load_sweep_config", "ConfigError", "VARIABLE_FIELDS"]
+
+VARIABLE_FIELDS = (
+    "n_pursuers",
+    "n_evaders",
+    "pursuer_policy",
+    "evader_policy",
+    "capture_radius",
+    "dt",
+    "t_max",
+    "tau",
+    "target",
+)
+_INT_FIELDS = {"n_pursuers", "n_evaders"}
+_FLOAT_FIELDS = {"capture_radius", "dt", "t_max", "tau"}
+
+
+class ConfigError(ValueError):
+    """A bad config: one line naming the file, the field and the problem."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class LawModel(_Strict):
+    kind: Literal["boxes", "uniform"] = "boxes"
+    pursuer_box: tuple[float, float, float, float] = (3.0, 5.0, 0.0, 10.0)
+    evader_box: tuple[float, float, float, float] = (7.0, 9.0, 0.0, 10.0)
+
+
+class GameModel(_Strict):
+    """The base game: the fields of workers.Case."""
+
+    n_pursuers: int = Field(3, ge=1, le=10_000)
+    n_evaders: int = Field(1, ge=1, le=10_000)
+    pursuer_policy: str = "area_min"
+    evader_policy: str = "centroid"
+    capture_radius: float = Field(0.25, gt=0, allow_inf_nan=False)
+    dt: float = Field(0.01, gt=0, allow_inf_nan=False)
+    t_max: float = Field(60.0, gt=0, allow_inf_nan=False)
+    tau: float = Field(5.0, gt=0, allow_inf_nan=False)
+    target: tuple[float, float] = (0.0, 5.0)
+    arena: list[tuple[float, float]] | None = None
+    law: LawModel = LawModel()
+
+
+class RandomModel(_Strict):
+    n: int = Field(ge=1, le=100_000)
+    ranges: dict[str, tuple[float, float]]
+
+    @field_validator("ranges")
+    @classmethod
+    def _ranges(cls, v):
+        for name, (lo, hi) in v.items():
+            if name not in _INT_FIELDS | _FLOAT_FIELDS:
+                raise ValueError(f"{name!r} cannot be drawn at random (numeric fields: "
+                                 f"{', '.join(sorted(_INT_FIELDS | _FLOAT_FIELDS))})")
+            if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+                raise ValueError(f"{name}: range must be [low, high] with low <= high")
+        return v
+
+
+class VaryModel(_Strict):
+    grid: dict[str, list[Any]] | None = None
+    zip: dict[str, list[Any]] | None = None
+    random: RandomModel | None = None
+
+    @field_validator("grid", "zip")
+    @classmethod
+    def _known_fields(cls, v):
+        if v is None:
+            return v
+        for name, values in v.items():
+            if name not in VARIABLE_FIELDS:
+                raise ValueError(f"{name!r} cannot vary (choose from {', '.join(VARIABLE_FIELDS)})")
+            if len(values) == 0:
+                raise ValueError(f"{name}: needs at least one value")
+        return v
+
+    @model_validator(mode="after")
+    def _zip_lengths(self):
+        if self.zip:
+            lengths = {len(v) for v in self.zip.values()}
+            if len(lengths) > 1:
+                raise ValueError(f"zip: lists must have the same length, got {sorted(lengths)}")
+        names = [set(b) for b in (self.grid or {}, self.zip or {}, (self.random.ranges if self.random else {}))]
+        for a, b in itertools.combinations(names, 2):
+            if a & b:
+                raise ValueError(f"{sorted(a & b)[0]}: varies in two blocks")
+        return self
+
+
+class SweepConfig(_Strict):
+    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
+    seed: int = Field(0, ge=0)
+    games_per_point: int = Field(50, ge=1, le=10_000_000)
+    shard_games: int | None = Field(None, ge=1, le=100_000)
+    base: GameModel = GameModel()
+    vary: VaryModel = VaryModel()
+
+    def points(self) -> list["Point"]:
+        """The resolved points of the sweep, in a fixed order."""
+        axes: list[list[dict]] = []
+        v = self.vary
+        if v.grid:
+            names = list(v.grid)
+            axes.append([dict(zip(names, combo)) for combo in itertools.product(*v.grid.values())])
+        if v.zip:
+            names = list(v.zip)
+            axes.append([dict(zip(names, row)) for row in zip(*v.zip.values())])
+        if v.random:
+            rng = np.random.default_rng([self.seed, 0x5EED])
+            draws = []
+            for _ in range(v.random.n):
+                d = {}
+                for name, (lo, hi) in v.random.ranges.items():
+                    d[name] = int(rng.integers(int(lo), int(hi) + 1)) if name in _INT_FIELDS else float(rng.uniform(lo, hi))
+                draws.append(d)
+            axes.append(draws)
+        combos = [{}] if not axes else [dict(kv for part in parts for kv in part.items()) for parts in itertools.product(*axes)]
+        out = []
+        base = self.base.model_dump()
+        for index, changes in enumerate(combos):
+            fields = {**base, **changes}
+            try:
+                case = _case_from(fields)
+            except (InputError, ValidationError, TypeError, ValueError) as e:
+                where = ", ".join(f"{k}={v!r}" for k, v in changes.items())
+                prefix = f"vary: point {index} ({where})" if changes else "base"
+                raise ConfigError(f"{prefix}: {_first_line(e)}") from None
+            shard = self.shard_games or default_shard_games(case)
+            out.append(Point(index, changes, case, self.games_per_point, shard))
+        return out
+
+    def sweep_id(self) -> str:
+        """Hash of the resolved sweep: every point's case key, games, shards and seed."""
+        blob = json.dumps(
+            {"seed": self.seed, "points": [p.identity() for p in self.points()], "engine": ENGINE_VERSION},
+            sort_keys=True,
+        )
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _first_line(e: Exception) -> str:
+    if isinstance(e, ValidationError):
+        err = e.errors()[0]
+        loc = ".".join(str(x) for x in err["loc"])
+        return f"{loc}: {err['msg']}" if loc else err["msg"]
+    return str(e).splitlines()[0]
+
+
+def _case_from(fields: dict) -> Case:
+    g = GameModel(**fields)  # re-validate values coming from `vary`
+    law = InitialLaw(kind=g.law.kind, pursuer_box=tuple(g.law.pursuer_box), evader_box=tuple(g.law.evader_box))
+    arena = None if g.arena is None else tuple(tuple(float(c) for c in v) for v in g.arena)
+    return Case(
+        n_pursuers=g.n_pursuers,
+        n_evaders=g.n_evaders,
+        pursuer_policy=g.pursuer_policy,
+        evader_policy=g.evader_policy,
+        capture_radius=g.capture_radius,
+        dt=g.dt,
+        t_max=g.t_max,
+        tau=g.tau,
+        target=tuple(g.target),
+        arena=arena,
+        law=law,
+    ).validate()
+
+
+def default_shard_games(case: Case) -> int:
+    """Games per Ray task: about half a second of work on one core, never under ~10 ms."""
+    agents = case.n_pursuers + case.n_evaders
+    return int(min(256, max(1, round(1000 / agents**1.5))))
+
+
+class Point:
+    """One point of a sweep: its index, what it changes, its Case, and its shards."""
+
+    def __init__(self, index: int, changes: dict, case: Case, games: int, shard_games: int):
+        self.index, self.changes, self.case = index, changes, case
+        self.games, self.shard_games = games, shard_games
+
+    def shards(self) -> list[tuple[int, int, int]]:
+        """(shard number, first game, end game) of every shard of the point."""
+        return [(k, s, min(self.games, s + self.shard_games)) for k, s in enumerate(range(0, self.games, self.shard_games))]
+
+    def identity(self) -> dict:
+        return {"index": self.index, "case": self.case.key(), "games": self.games, "shard_games": self.shard_games}
+
+
+def load_sweep_config(path: str | Path) -> SweepConfig:
+    """Read and validate a sweep YAML; raises ConfigError with one line."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark else ""
+        raise ConfigError(f"{path}: not valid YAML{where}") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: must be a mapping of sweep fields")
+    try:
+        config = SweepConfig(**raw)
+    except ValidationError as e:
+        raise ConfigError(f"{path}: {_first_line(e)}") from None
+    except TypeError as e:
+        raise ConfigError(f"{path}: {e}") from None
+    try:
+        config.points()
+    except ConfigError as e:
+        raise ConfigError(f"{path}: {e}") from None
+    return config

@@ -1,0 +1,185 @@
+"""The farm as a user runs it: `farm sweep` subprocesses on real Ray clusters
+started with `ray start` on loopback, a driver killed by SIGKILL, a second node
+lost mid-sweep, and `ray job submit`."""
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from farm.config import load_sweep_config
+from farm.sweep import SweepRun, run_sweep
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+ENV = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "RAY_AUTH_MODE": "disabled",
+       "PYTHONUNBUFFERED": "1"}
+ENV.pop("RAY_ADDRESS", None)
+
+SWEEP = """
+name: cluster-test
+seed: 3
+games_per_point: 64
+shard_games: 8
+base: {n_evaders: 2, t_max: 30}
+vary:
+  grid: {n_pursuers: [3, 5], evader_policy: [centroid, constant_area]}
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def config_path(tmp_path):
+    p = tmp_path / "sweep.yaml"
+    p.write_text(textwrap.dedent(SWEEP))
+    return p
+
+
+def in_process_games(config_path, tmp_path):
+    config = load_sweep_config(config_path)
+    out = tmp_path / "in-process"
+    run_sweep(config, out, use_ray=False, show_progress=False)
+    return SweepRun(config, out).read_games()
+
+
+def wait_for_shards(out: Path, n: int, proc, timeout=180):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if (out / "shards").exists() and len(list((out / "shards").glob("*.parquet"))) >= n:
+            return
+        if proc.poll() is not None:
+            raise AssertionError(f"the sweep ended early: {proc.returncode}")
+        time.sleep(0.1)
+    raise AssertionError("shards did not appear in time")
+
+
+class Groups:
+    """Process groups started here, killed at the end (Ray daemons included)."""
+
+    def __init__(self):
+        self.pgids = []
+        self.temp_dirs = []
+
+    def popen(self, args, **kw):
+        proc = subprocess.Popen(args, env=ENV, start_new_session=True, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True, **kw)
+        self.pgids.append(proc.pid)
+        return proc
+
+    def kill(self, pgid):
+        try:
+            os.killpg(pgid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+    def close(self):
+        for pgid in self.pgids:
+            self.kill(pgid)
+        for d in self.temp_dirs:
+            shutil.rmtree(d, ignore_errors=True)
+
+
+@pytest.fixture
+def groups():
+    g = Groups()
+    yield g
+    g.close()
+
+
+def ray_start(groups, *args):
+    proc = groups.popen([str(BIN / "ray"), "start", "--node-ip-address=127.0.0.1", *args])
+    out, _ = proc.communicate(timeout=180)
+    assert proc.returncode == 0, out
+    return proc.pid
+
+
+def start_head(groups, tmp_path, cpus, dashboard_port=None):
+    port = free_port()
+    temp = tempfile.mkdtemp(prefix="rt", dir="/tmp")  # Unix socket paths must stay under 108 bytes
+    groups.temp_dirs.append(temp)
+    args = ["--head", f"--port={port}", f"--num-cpus={cpus}", f"--temp-dir={temp}",
+            "--disable-usage-stats"]
+    if dashboard_port:
+        args += ["--include-dashboard=true", "--dashboard-host=127.0.0.1", f"--dashboard-port={dashboard_port}"]
+    else:
+        args += ["--include-dashboard=false"]
+    ray_start(groups, *args)
+    return f"127.0.0.1:{port}"
+
+
+def test_driver_sigkill_then_rerun_equals_uninterrupted(groups, config_path, tmp_path):
+    out = tmp_path / "out"
+    farm = [sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out), "--workers", "2", "--quiet"]
+    driver = groups.popen(farm)
+    wait_for_shards(out, 4, driver)
+    groups.kill(driver.pid)  # the driver and the local Ray it started
+    driver.wait(timeout=60)
+    stored = len(list((out / "shards").glob("*.parquet")))
+    assert 4 <= stored < 32
+    rerun = subprocess.run(farm, env=ENV, capture_output=True, text=True, timeout=600)
+    assert rerun.returncode == 0, rerun.stderr
+    runs = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
+    assert runs[-1]["skipped"] >= stored and runs[-1]["done"] == 32 - runs[-1]["skipped"]
+    got = SweepRun(load_sweep_config(config_path), out).read_games()
+    pd.testing.assert_frame_equal(got, in_process_games(config_path, tmp_path))
+
+
+def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
+    address = start_head(groups, tmp_path, cpus=1)
+    second = ray_start(groups, f"--address={address}", "--num-cpus=1")
+    out = tmp_path / "out"
+    driver = groups.popen([sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out),
+                           "--address", address, "--workers", "2", "--quiet"])
+    wait_for_shards(out, 6, driver)
+    groups.kill(second)  # the second node: its raylet and its workers
+    text, _ = driver.communicate(timeout=600)
+    assert driver.returncode == 0, text
+    run = json.loads((out / "runs.jsonl").read_text().splitlines()[-1])
+    assert len(run["nodes"]) == 2, run  # both nodes stored shards
+    assert run["done"] == 32
+    got = SweepRun(load_sweep_config(config_path), out).read_games()
+    pd.testing.assert_frame_equal(got, in_process_games(config_path, tmp_path))
+
+
+def test_ray_job_submit_smoke_sweep(groups, tmp_path):
+    dashboard = free_port()
+    start_head(groups, tmp_path, cpus=2, dashboard_port=dashboard)
+    out = tmp_path / "job-out"
+    url = f"http://127.0.0.1:{dashboard}"
+    job_id = f"smoke-{os.getpid()}"
+    submit = subprocess.run(
+        [str(BIN / "ray"), "job", "submit", "--address", url, "--working-dir", ".", "--submission-id", job_id,
+         "--no-wait", "--", "farm", "sweep", "configs/smoke.yaml", "--out", str(out), "--quiet"],
+        cwd=REPO, env=ENV, capture_output=True, text=True, timeout=300,
+    )
+    assert submit.returncode == 0, submit.stdout + submit.stderr
+    deadline, status = time.time() + 300, ""
+    while time.time() < deadline:
+        status = subprocess.run([str(BIN / "ray"), "job", "status", "--address", url, job_id], env=ENV,
+                                capture_output=True, text=True, timeout=60).stdout.upper()
+        if any(s in status for s in ("SUCCEEDED", "FAILED", "STOPPED")):
+            break
+        time.sleep(1)
+    logs = subprocess.run([str(BIN / "ray"), "job", "logs", "--address", url, job_id], env=ENV,
+                          capture_output=True, text=True, timeout=60).stdout
+    assert "SUCCEEDED" in status, status + logs
+    assert "smoke: 4 point(s), 160 games" in logs
+    summary = pd.read_parquet(out / "summary.parquet")
+    assert len(summary) == 4 and (summary["n_games"] == 40).all()
+    run = json.loads((out / "runs.jsonl").read_text().splitlines()[-1])
+    assert run["workers"] == 2 and run["done"] == 16

@@ -1,0 +1,109 @@
+"""Sweep configs: resolution of points, and one-line errors for bad ones."""
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from farm.config import ConfigError, load_sweep_config
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def write(tmp_path, text):
+    p = tmp_path / "sweep.yaml"
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+def test_shipped_configs_load():
+    sizes = load_sweep_config(REPO / "configs/team_sizes.yaml").points()
+    assert len(sizes) == 20 * 10 * 2
+    assert {(p.case.n_pursuers, p.case.n_evaders) for p in sizes} == {(a, b) for a in range(1, 21) for b in range(1, 11)}
+    assert {(p.case.pursuer_policy, p.case.evader_policy) for p in sizes} == {("area_min", "centroid"), ("pure_pursuit", "target")}
+    paper = load_sweep_config(REPO / "configs/paper_tables.yaml").points()
+    assert [(p.case.n_pursuers, p.case.pursuer_policy, p.case.evader_policy) for p in paper] == [
+        (1, "pure_pursuit", "target"), (3, "pure_pursuit", "target"), (5, "pure_pursuit", "target"),
+        (1, "area_min", "constant_area"), (3, "area_min", "centroid"), (5, "area_min", "centroid"),
+    ]
+    radius = load_sweep_config(REPO / "configs/capture_radius.yaml").points()
+    assert [p.case.capture_radius for p in radius][:3] == [0.05, 0.1, 0.15]
+    for name in ("smoke", "paper_tables", "team_sizes", "capture_radius"):
+        assert load_sweep_config(REPO / f"configs/{name}.yaml").sweep_id()
+
+
+def test_grid_zip_random_product(tmp_path):
+    cfg = load_sweep_config(write(tmp_path, """
+        name: t
+        games_per_point: 10
+        vary:
+          grid: {n_pursuers: [1, 2, 3]}
+          zip: {capture_radius: [0.2, 0.3], dt: [0.01, 0.02]}
+          random: {n: 4, ranges: {tau: [2.0, 6.0], n_evaders: [1, 3]}}
+    """))
+    points = cfg.points()
+    assert len(points) == 3 * 2 * 4
+    assert {(p.case.capture_radius, p.case.dt) for p in points} == {(0.2, 0.01), (0.3, 0.02)}
+    taus = {p.case.tau for p in points}
+    assert len(taus) == 4 and all(2.0 <= t <= 6.0 for t in taus)
+    assert {p.case.n_evaders for p in points} <= {1, 2, 3}
+    assert [p.changes for p in cfg.points()] == [p.changes for p in points]  # random draws are seeded
+    assert points[0].shards()[-1][2] == 10
+
+
+def test_sweep_id_changes_with_what_changes_numbers(tmp_path):
+    a = load_sweep_config(write(tmp_path, "name: t\nseed: 1\n")).sweep_id()
+    b = load_sweep_config(write(tmp_path, "name: t\nseed: 2\n")).sweep_id()
+    c = load_sweep_config(write(tmp_path, "name: t\nseed: 1\nbase: {dt: 0.02}\n")).sweep_id()
+    d = load_sweep_config(write(tmp_path, "name: u\nseed: 1\n")).sweep_id()
+    assert len({a, b, c}) == 3 and a == d
+
+
+BAD = [
+    ("name: t\ncolour: red\n", "colour: Extra inputs are not permitted"),
+    ("name: t\nbase: {n_pursuers: 0}\n", "base.n_pursuers: Input should be greater than or equal to 1"),
+    ("name: t\nbase: {dt: -1}\n", "base.dt: Input should be greater than 0"),
+    ("name: t\nbase: {pursuer_policy: chase}\n", "base: pursuer_policy: unknown policy 'chase'"),
+    ("name: t\nbase: {speed: 2}\n", "base.speed: Extra inputs are not permitted"),
+    ("name: t\nvary: {grid: {speed: [1, 2]}}\n", "'speed' cannot vary"),
+    ("name: t\nvary: {zip: {dt: [0.1, 0.2], tau: [1]}}\n", "zip: lists must have the same length"),
+    ("name: t\nvary: {grid: {evader_policy: [centroid, hide]}}\n", "vary: point 1 (evader_policy='hide'): evader_policy: unknown policy 'hide'"),
+    ("name: t\nvary: {grid: {n_evaders: [1, -1]}}\n", "vary: point 1 (n_evaders=-1)"),
+    ("name: t\nvary: {random: {n: 3, ranges: {dt: [0.2, 0.1]}}}\n", "dt: range must be [low, high]"),
+    ("name: t\ngames_per_point: many\n", "games_per_point: Input should be a valid integer"),
+    ("name: 'a b'\n", "name: String should match pattern"),
+    ("- just\n- a list\n", "must be a mapping"),
+    ("name: [unclosed\n", "not valid YAML (line"),
+]
+
+
+@pytest.mark.parametrize("text,message", BAD)
+def test_bad_config_one_line(tmp_path, text, message):
+    path = write(tmp_path, text)
+    with pytest.raises(ConfigError) as err:
+        load_sweep_config(path)
+    assert message in str(err.value), str(err.value)
+    assert "\n" not in str(err.value) and str(err.value).startswith(str(path))
+
+
+def test_cli_bad_config_is_one_line_and_keeps_results(tmp_path):
+    good = write(tmp_path, "name: t\ngames_per_point: 4\nbase: {n_pursuers: 2, t_max: 10}\n")
+    out = tmp_path / "out"
+    run = lambda *a: subprocess.run([sys.executable, "-m", "farm.cli", *map(str, a)], capture_output=True, text=True, timeout=300)
+    r = run("sweep", good, "--out", out, "--no-ray", "--quiet")
+    assert r.returncode == 0, r.stderr
+    before = {p.name: p.read_bytes() for p in (out / "shards").iterdir()}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: t\nbase: {n_pursuers: 3}\n")
+    for args, message in [
+        (("sweep", bad, "--out", out, "--no-ray"), "holds sweep"),
+        (("sweep", tmp_path / "nope.yaml"), "no such config file"),
+        (("sweep", good, "--workers", "0"), "--workers: must be >= 1"),
+        (("sweep", good, "--out", good), "exists and is not a folder"),
+    ]:
+        r = run(*args)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert message in r.stderr and "Traceback" not in r.stderr
+    assert {p.name: p.read_bytes() for p in (out / "shards").iterdir()} == before
