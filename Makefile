@@ -20,12 +20,14 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/farm pe-table --games 50 --out $(RESULTS)/pe-table
 	$(VENV)/bin/farm game --n-pursuers 5 --n-evaders 1 --seed 1 --plot $(RESULTS)/game_5v1.png
+	$(VENV)/bin/farm sweep configs/smoke.yaml --out $(RESULTS)/sweep-smoke
 
 test: $(STAMP)
 	$(PY) -m pytest -q
 
 bench: $(STAMP)
 	$(PY) benchmarks/engine.py
+	$(PY) benchmarks/farm.py
 
 clean:
 	rm -rf $(VENV) results .pytest_cache
