@@ -14,6 +14,7 @@ from workers import Case, InitialLaw, InputError, make_arena, run_games, simulat
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
 from farm.config import ConfigError
+from farm.service.store import StoreCorruptError
 from farm.sweep import SweepError
 
 
@@ -151,6 +152,33 @@ def cmd_sweep(a) -> int:
     return 0
 
 
+def cmd_table(a) -> int:
+    from farm.service.table import fill_table, load_table_config, plot_heatmaps, table_frames
+
+    args = list(a.args)
+    show = bool(args) and args[0] == "show"
+    if show:
+        args = args[1:]
+    if len(args) != 1:
+        raise CliError("table: usage: farm table CONFIG | farm table show CONFIG")
+    config = load_table_config(args[0])
+    if a.workers is not None and a.workers < 1:
+        raise CliError(f"--workers: must be >= 1, got {a.workers}")
+    if not show:
+        info = fill_table(config, store=a.store, address=a.address, workers=a.workers, show_progress=not a.quiet)
+        print(f"{config.name}: {info['cases']} cases, {info['computed']} computed, the rest from the store "
+              f"({info['seconds']:.1f} s)")
+    out = Path(a.plot_dir or Path(a.store or config.store).parent / "tables")
+    for settings, mean, frac in table_frames(config, store=a.store):
+        print(f"\n{settings.pursuer_policy} vs {settings.evader_policy}: mean capture time (s)")
+        print(mean.to_string(float_format=lambda x: f"{x:.2f}", na_rep="-"))
+        print(f"fraction of evaders captured within tau = {settings.tau:g} s")
+        print(frac.to_string(float_format=lambda x: f"{x:.2f}", na_rep="-"))
+        name = f"{config.name}_{settings.pursuer_policy}_vs_{settings.evader_policy}.png"
+        print(f"heatmaps: {plot_heatmaps(settings, mean, frac, out / name)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="farm", description="swarm-farm: swarm-to-swarm engagement planning and learning")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -186,6 +214,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-ray", action="store_true", help="run the shards in this process, without Ray")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=cmd_sweep)
+
+    tb = sub.add_parser("table", help="fill the capture-time store (farm table CONFIG) or show it (farm table show CONFIG)")
+    tb.add_argument("args", nargs="+", metavar="[show] CONFIG")
+    tb.add_argument("--store", help="SQLite store (default: the config's `store`)")
+    tb.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
+    tb.add_argument("--workers", type=int, help="local Ray only: CPUs")
+    tb.add_argument("--plot-dir", help="where heatmaps go (default: next to the store, tables/)")
+    tb.add_argument("--quiet", action="store_true")
+    tb.set_defaults(func=cmd_table)
     return parser
 
 
@@ -193,7 +230,7 @@ def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)
-    except (CliError, InputError, ConfigError, SweepError) as e:
+    except (CliError, InputError, ConfigError, SweepError, StoreCorruptError) as e:
         print(f"farm: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -19,6 +19,11 @@ EXPORTED = {
     "ray_swarm_farm_shards_failed_total": "shard attempts that failed: worker or node died, error (counter)",
     "ray_swarm_farm_shards_retried_total": "shards resubmitted after a failure (counter)",
     "ray_swarm_farm_pending_shards": "shards queued or running (gauge)",
+    "ray_swarm_farm_service_hits_total": "capture-time service: keys answered from the cache (counter)",
+    "ray_swarm_farm_service_misses_total": "capture-time service: keys not in the cache (counter)",
+    "ray_swarm_farm_service_computations_total": "capture-time service: cases computed on the farm (counter)",
+    "ray_swarm_farm_service_compute_seconds_total": "capture-time service: seconds spent computing cases (counter)",
+    "ray_swarm_farm_service_inflight": "capture-time service: cases being computed now (gauge)",
 }
 
 
@@ -81,3 +86,33 @@ class DriverMetrics:
 
     def pending(self, n: int) -> None:
         self._pending.set(n, tags=self.tags)
+
+
+class ServiceMetrics:
+    """The capture-time service's hits, misses, computations, compute seconds, in-flight."""
+
+    def __init__(self):
+        from ray.util.metrics import Counter, Gauge
+
+        d = EXPORTED
+        self._hits = Counter("swarm_farm_service_hits", description=d["ray_swarm_farm_service_hits_total"])
+        self._misses = Counter("swarm_farm_service_misses", description=d["ray_swarm_farm_service_misses_total"])
+        self._computations = Counter("swarm_farm_service_computations",
+                                     description=d["ray_swarm_farm_service_computations_total"])
+        self._seconds = Counter("swarm_farm_service_compute_seconds",
+                                description=d["ray_swarm_farm_service_compute_seconds_total"])
+        self._inflight = Gauge("swarm_farm_service_inflight", description=d["ray_swarm_farm_service_inflight"])
+
+    def hit(self) -> None:
+        self._hits.inc(1)
+
+    def miss(self) -> None:
+        self._misses.inc(1)
+
+    def computed(self, seconds: float) -> None:
+        self._computations.inc(1)
+        if seconds > 0:
+            self._seconds.inc(seconds)
+
+    def inflight(self, n: int) -> None:
+        self._inflight.set(n)

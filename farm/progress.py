@@ -6,12 +6,12 @@ import sys
 
 
 class GameProgress:
-    def __init__(self, total: int, done: int = 0, *, enabled: bool = True, desc: str = "games"):
+    def __init__(self, total: int, done: int = 0, *, enabled: bool = True, desc: str = "games", unit: str = "game"):
         self.bar = None
         if enabled:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=total, initial=done, unit="game", desc=desc, file=sys.stderr,
+            self.bar = tqdm(total=total, initial=done, unit=unit, desc=desc, file=sys.stderr,
                             smoothing=0.1, dynamic_ncols=True, mininterval=0.5)
 
     def update(self, n: int) -> None:

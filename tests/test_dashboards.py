@@ -20,6 +20,11 @@ DASHBOARD_JSON = DASHBOARDS / "grafana_swarm_farm.json"
 PROMETHEUS_YML = DASHBOARDS / "prometheus.yml"
 DISCOVERY_FILE = "prom_metrics_service_discovery.json"
 FARM_PREFIX = "ray_swarm_farm_"
+# The capture-time service is shared by all sweeps and trainers: its metrics carry no
+# `sweep` label, so the `$sweep` filter applies only to the other farm metrics.
+SERVICE_PREFIX = "ray_swarm_farm_service_"
+SERVICE_METRICS = frozenset(n for n in EXPORTED if n.startswith(SERVICE_PREFIX))
+SWEEP_METRICS = frozenset(EXPORTED) - SERVICE_METRICS
 
 _STRING = re.compile(r'"(?:[^"\\]|\\.)*"|\'(?:[^\'\\]|\\.)*\'|`[^`]*`')
 _MATCHERS = re.compile(r"\{[^{}]*\}")  # label matchers: {sweep=~"$sweep"}
@@ -92,6 +97,9 @@ def dashboard_metric_names() -> set[str]:
     ("label_values(ray_swarm_farm_games_simulated_total, sweep)", {"ray_swarm_farm_games_simulated_total"}),
     ("label_values(ray_node_cpu_count{SessionName=~\"$s\"}, ray_io_cluster)", {"ray_node_cpu_count"}),
     ("vector(1)", set()),
+    ("sum(rate(ray_swarm_farm_service_hits_total[1m])) / (sum(rate(ray_swarm_farm_service_hits_total[1m]))"
+     " + sum(rate(ray_swarm_farm_service_misses_total[1m])))",
+     {"ray_swarm_farm_service_hits_total", "ray_swarm_farm_service_misses_total"}),
 ])
 def test_metric_names_extractor(expr, names):
     assert metric_names(expr) == names
@@ -144,11 +152,39 @@ def test_panels_do_not_overlap():
                 cells[(x, y)] = p["title"]
 
 
+def test_exported_split_into_sweep_and_service_metrics():
+    assert SERVICE_METRICS and SWEEP_METRICS
+    assert SERVICE_METRICS | SWEEP_METRICS == set(EXPORTED)
+
+
 def test_farm_panels_filter_by_sweep():
+    """Every selector of a sweep-labelled farm metric filters by `$sweep`; service metrics
+    (no `sweep` label) never do, or picking a sweep would blank their panels."""
     for expr in panel_exprs():
-        if FARM_PREFIX in expr:
-            for name in metric_names(expr) & set(EXPORTED):
-                assert re.search(re.escape(name) + r'\{[^}]*sweep=~"\$sweep"', expr), expr
+        names = metric_names(expr)
+        for name in names & SWEEP_METRICS:
+            selectors = re.findall(re.escape(name) + r"(?![A-Za-z0-9_:])(\{[^{}]*\})?", expr)
+            assert selectors and all('sweep=~"$sweep"' in sel for sel in selectors), expr
+        for name in names & SERVICE_METRICS:
+            assert not re.search(re.escape(name) + r"\{[^{}]*\bsweep\b", expr), expr
+            assert "$sweep" not in expr and not re.search(r"\bby\s*\([^()]*\bsweep\b", expr), expr
+
+
+def test_service_row_below_the_others():
+    panels = list(iter_panels())
+    rows = [p for p in panels if p["type"] == "row"]
+    service_rows = [r for r in rows if r["title"].startswith("Capture-time service")]
+    assert len(service_rows) == 1
+    row = service_rows[0]
+    assert row["id"] >= 40 and row["gridPos"]["y"] == max(r["gridPos"]["y"] for r in rows)
+    service_panels = [p for p in panels if p["type"] != "row" and metric_names(" ".join(
+        t["expr"] for t in p["targets"])) & SERVICE_METRICS]
+    assert service_panels
+    others_bottom = max(p["gridPos"]["y"] + p["gridPos"]["h"] for p in panels
+                        if p["id"] < 40)
+    assert row["gridPos"]["y"] >= others_bottom
+    for p in service_panels:
+        assert p["id"] > row["id"] and p["gridPos"]["y"] > row["gridPos"]["y"], p["title"]
 
 
 def test_farm_metric_names_match_exported():

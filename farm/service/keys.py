@@ -1,0 +1,85 @@
+"""What the capture-time service is asked: the key of a case's statistics.
+
+A key holds everything that changes the numbers (SPEC.md section 4): team sizes,
+policies, arena, r_c, dt, t_max, tau, initial-position law, games per case, the
+seed and the engine's version (inside workers.Case), so stale results are never
+served after the engine changes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from workers import ENGINE_VERSION, Case, InitialLaw, InputError
+
+__all__ = ["ServiceSettings", "StatsKey"]
+
+
+@dataclass(frozen=True)
+class ServiceSettings:
+    """Everything of a key but the team sizes; defaults are SPEC.md section 5's."""
+
+    pursuer_policy: str = "area_min"
+    evader_policy: str = "centroid"
+    capture_radius: float = 0.25
+    dt: float = 0.01
+    t_max: float = 60.0
+    tau: float = 5.0
+    target: tuple[float, float] = (0.0, 5.0)
+    arena: tuple[tuple[float, float], ...] | None = None
+    law: InitialLaw = field(default_factory=InitialLaw)
+    games: int = 50
+    seed: int = 0
+
+    def key(self, n_pursuers: int, n_evaders: int) -> "StatsKey":
+        sizes = []
+        for name, v in (("n_pursuers", n_pursuers), ("n_evaders", n_evaders)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise InputError(f"{name}: must be a whole number >= 1, got {v!r}")
+            sizes.append(int(v))
+        n_pursuers, n_evaders = sizes
+        if isinstance(self.games, bool) or not isinstance(self.games, int) or self.games < 2:
+            raise InputError(f"games: must be a whole number >= 2, got {self.games!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise InputError(f"seed: must be a whole number >= 0, got {self.seed!r}")
+        case = Case(
+            n_pursuers, n_evaders, pursuer_policy=self.pursuer_policy, evader_policy=self.evader_policy,
+            capture_radius=self.capture_radius, dt=self.dt, t_max=self.t_max, tau=self.tau,
+            target=tuple(self.target), arena=self.arena, law=self.law,
+        ).validate()
+        return StatsKey(case, self.games, self.seed)
+
+    def with_(self, **changes) -> "ServiceSettings":
+        return replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class StatsKey:
+    """One case's statistics: the Case (engine version inside), games and seed."""
+
+    case: Case
+    games: int
+    seed: int
+
+    @property
+    def sizes(self) -> tuple[int, int]:
+        return self.case.n_pursuers, self.case.n_evaders
+
+    def to_dict(self) -> dict:
+        return {"case": self.case.to_dict(), "games": self.games, "seed": self.seed}
+
+    def digest(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+
+    def settings_digest(self) -> str:
+        d = self.to_dict()
+        d["case"] = {k: v for k, v in d["case"].items() if k not in ("n_pursuers", "n_evaders")}
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+    @property
+    def stale(self) -> bool:
+        return self.case.engine_version != ENGINE_VERSION

@@ -1,0 +1,44 @@
+"""The service without Ray: same store, same numbers, computed in this process
+(unit tests, small scripts)."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+from farm.service.core import compute_in_process, estimate
+from farm.service.keys import StatsKey
+from farm.service.store import StatsStore
+
+
+class LocalService:
+    def __init__(self, store_path):
+        self.store = StatsStore(store_path)
+        self.cache = self.store.load_all()
+        self.counts = Counter()
+        self.computations: Counter = Counter()
+
+    def get_many(self, keys: list[StatsKey], estimate_missing: bool = False) -> list[dict]:
+        out = []
+        for key in keys:
+            d = key.digest()
+            value = self.cache.get(d)
+            if value is not None:
+                self.counts["hits"] += 1
+                out.append(value)
+                continue
+            self.counts["misses"] += 1
+            if estimate_missing:
+                guess = estimate(key, self.store.neighbours(key))
+                if guess is not None:
+                    out.append(guess)
+                    continue
+            value = compute_in_process(key)
+            self.store.put(key, value)
+            self.cache[d] = value
+            self.computations[d] += 1
+            out.append(value)
+        return out
+
+    def stats(self) -> dict:
+        return {**self.counts, "computations": dict(self.computations), "stored": len(self.cache),
+                "corrupt_rows": list(self.store.corrupt_rows)}

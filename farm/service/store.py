@@ -1,0 +1,134 @@
+"""The service's persistent store: SQLite in WAL mode.
+
+Why SQLite/WAL rather than Parquet: the service writes one small row per case,
+often, from one process, while others may read; SQLite commits each row
+atomically (a crash mid-write leaves the last committed state), readers never
+block the writer in WAL mode, and it is one file in the standard library.
+Every row carries a SHA-256 of its key and value: a row damaged on disk is
+reported and never served (it is recomputed); a file that is not a sound SQLite
+database stops the store with one clear line.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import sqlite3
+import threading
+import time
+from pathlib import Path
+
+from farm.service.keys import StatsKey
+
+log = logging.getLogger(__name__)
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS stats (
+    key TEXT PRIMARY KEY,
+    settings TEXT NOT NULL,
+    n_pursuers INTEGER NOT NULL,
+    n_evaders INTEGER NOT NULL,
+    key_json TEXT NOT NULL,
+    value_json TEXT NOT NULL,
+    checksum TEXT NOT NULL,
+    created REAL NOT NULL
+);
+CREATE INDEX IF NOT EXISTS stats_settings ON stats (settings);
+"""
+
+
+class StoreCorruptError(RuntimeError):
+    """The store's file is damaged: one line naming it."""
+
+
+def _checksum(key: str, key_json: str, value_json: str) -> str:
+    return hashlib.sha256(f"{key}\n{key_json}\n{value_json}".encode()).hexdigest()
+
+
+class StatsStore:
+    """key digest -> statistics dict, on disk."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.corrupt_rows: list[str] = []
+        self._lock = threading.Lock()
+        try:
+            self.db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None, timeout=30)
+            self.db.execute("PRAGMA journal_mode=WAL")
+            self.db.execute("PRAGMA synchronous=NORMAL")
+            ok = self.db.execute("PRAGMA quick_check").fetchone()[0]
+            if ok != "ok":
+                raise sqlite3.DatabaseError(ok)
+            self.db.executescript(SCHEMA)
+        except sqlite3.DatabaseError as e:
+            raise StoreCorruptError(
+                f"{self.path}: the capture-time store is damaged ({str(e).splitlines()[0]}); "
+                "move it aside and its cases will be recomputed"
+            ) from None
+
+    def close(self) -> None:
+        self.db.close()
+
+    def _row_value(self, key, key_json, value_json, checksum) -> dict | None:
+        if _checksum(key, key_json, value_json) != checksum:
+            log.error("capture-time store %s: row %s fails its checksum; not served, will be recomputed", self.path, key)
+            self.corrupt_rows.append(key)
+            return None
+        return json.loads(value_json)
+
+    def get(self, key: StatsKey) -> dict | None:
+        digest = key.digest()
+        with self._lock:
+            row = self.db.execute("SELECT key, key_json, value_json, checksum FROM stats WHERE key = ?",
+                                  (digest,)).fetchone()
+        return None if row is None else self._row_value(*row)
+
+    def put(self, key: StatsKey, value: dict) -> None:
+        digest = key.digest()
+        key_json = json.dumps(key.to_dict(), sort_keys=True)
+        value_json = json.dumps(value, sort_keys=True)
+        n_p, n_e = key.sizes
+        with self._lock:
+            self.db.execute(
+                "INSERT OR REPLACE INTO stats VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (digest, key.settings_digest(), n_p, n_e, key_json, value_json,
+                 _checksum(digest, key_json, value_json), time.time()),
+            )
+
+    def load_all(self) -> dict[str, dict]:
+        """Every sound row: digest -> value (damaged rows are reported and left out)."""
+        with self._lock:
+            rows = self.db.execute("SELECT key, key_json, value_json, checksum FROM stats").fetchall()
+        out = {}
+        for row in rows:
+            value = self._row_value(*row)
+            if value is not None:
+                out[row[0]] = value
+        return out
+
+    def neighbours(self, key: StatsKey) -> list[tuple[int, int, dict]]:
+        """Stored cases with the same settings as key: (n_p, n_e, value)."""
+        with self._lock:
+            rows = self.db.execute(
+                "SELECT n_pursuers, n_evaders, key, key_json, value_json, checksum FROM stats WHERE settings = ?",
+                (key.settings_digest(),),
+            ).fetchall()
+        out = []
+        for n_p, n_e, *rest in rows:
+            value = self._row_value(*rest)
+            if value is not None:
+                out.append((n_p, n_e, value))
+        return out
+
+    def table(self) -> list[dict]:
+        """All sound rows with their keys, for `farm table show`."""
+        with self._lock:
+            rows = self.db.execute("SELECT key, key_json, value_json, checksum FROM stats").fetchall()
+        out = []
+        for row in rows:
+            value = self._row_value(*row)
+            if value is not None:
+                out.append({"key": json.loads(row[1]), "value": value})
+        return out

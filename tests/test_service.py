@@ -1,0 +1,207 @@
+"""The capture-time service: store, keys, client memo, the Ray actor (restart,
+single-flight under 8 concurrent clients, estimates, metrics), bad input."""
+
+import math
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from dataclasses import replace
+
+import pytest
+
+from farm.service import CaptureTimeClient, ServiceSettings, StatsStore, StoreCorruptError
+from farm.service.core import compute_in_process
+from workers import Case, InitialLaw, InputError, run_case
+
+FAST = ServiceSettings(games=6, t_max=20.0)
+
+
+def same(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(
+        (x == y) or (isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y))
+        for x, y in ((a[k], b[k]) for k in a)
+    )
+
+
+def test_value_is_the_case_statistics(tmp_path):
+    client = CaptureTimeClient(FAST, local_store=tmp_path / "s.sqlite")
+    v = client.get(3, 2)
+    case = Case(3, 2, t_max=20.0)
+    per_game, summary = run_case(case, 6, seed=(0,))
+    for k, x in summary.items():
+        assert v[k] == pytest.approx(x, nan_ok=True)
+    assert v["expected_frac_captured_tau"] == summary["frac_captured_tau_mean"]
+    assert v["n_games"] == 6 and v["estimate"] is False
+    for name in ("first_capture", "mean_capture", "last_capture"):
+        for s in ("mean", "std", "q05", "q50", "q95"):
+            assert f"{name}_{s}" in v
+
+
+def test_miss_computes_stores_and_reloads(tmp_path):
+    path = tmp_path / "s.sqlite"
+    a = CaptureTimeClient(FAST, local_store=path)
+    v = a.get(2, 1)
+    assert a.local.stats()["computations"] == {a.key(2, 1).digest(): 1}
+    assert a.get(2, 1) is v  # memo hit
+    b = CaptureTimeClient(FAST, local_store=path)
+    assert same(b.get(2, 1), v) and b.local.stats()["computations"] == {}
+
+
+def test_keys_differing_in_any_parameter_never_collide():
+    base = FAST.key(3, 2)
+    variants = [
+        FAST.key(2, 2), FAST.key(3, 1), replace(FAST, pursuer_policy="pure_pursuit").key(3, 2),
+        replace(FAST, evader_policy="target").key(3, 2), replace(FAST, capture_radius=0.3).key(3, 2),
+        replace(FAST, dt=0.02).key(3, 2), replace(FAST, t_max=21.0).key(3, 2), replace(FAST, tau=4.0).key(3, 2),
+        replace(FAST, target=(0.0, 4.0)).key(3, 2), replace(FAST, games=7).key(3, 2), replace(FAST, seed=1).key(3, 2),
+        replace(FAST, arena=((0, 0), (10, 0), (10, 10), (0, 10))).key(3, 2),
+        replace(FAST, law=InitialLaw(kind="uniform")).key(3, 2),
+    ]
+    digests = {base.digest()} | {k.digest() for k in variants}
+    assert len(digests) == len(variants) + 1
+    stale = replace(base, case=replace(base.case, engine_version="0.0.1"))
+    assert stale.digest() != base.digest() and stale.stale and not base.stale
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [((-1, 2), "n_pursuers: must be a whole number >= 1"), ((2, 0), "n_evaders: must be"),
+     ((2.5, 1), "n_pursuers"), ((True, 1), "n_pursuers")],
+)
+def test_bad_team_sizes(tmp_path, args, message):
+    path = tmp_path / "s.sqlite"
+    client = CaptureTimeClient(FAST, local_store=path)
+    client.get(1, 1)
+    with pytest.raises(InputError, match=message):
+        client.get(*args)
+    assert CaptureTimeClient(FAST, local_store=path).local.stats()["stored"] == 1
+
+
+def test_bad_settings(tmp_path):
+    with pytest.raises(InputError, match="pursuer_policy: unknown policy"):
+        replace(FAST, pursuer_policy="chase").key(1, 1)
+    with pytest.raises(InputError, match="games: must be a whole number >= 2"):
+        replace(FAST, games=1).key(1, 1)
+    with pytest.raises(InputError, match="capture_radius"):
+        replace(FAST, capture_radius=-1.0).key(1, 1)
+
+
+def test_damaged_row_is_reported_and_never_served(tmp_path):
+    path = tmp_path / "s.sqlite"
+    good = CaptureTimeClient(FAST, local_store=path).get(2, 2)
+    db = sqlite3.connect(path)
+    db.execute("UPDATE stats SET value_json = replace(value_json, '\"n_games\": 6', '\"n_games\": 7')")
+    db.commit()
+    db.close()
+    client = CaptureTimeClient(FAST, local_store=path)
+    assert client.local.stats()["corrupt_rows"]  # reported on load
+    v = client.get(2, 2)  # recomputed, not the damaged row
+    assert v["n_games"] == 6 and same(v, good)
+    assert client.local.stats()["computations"]
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage"])
+def test_damaged_store_file_is_detected(tmp_path, damage):
+    path = tmp_path / "s.sqlite"
+    client = CaptureTimeClient(FAST, local_store=path)
+    for n in range(1, 4):
+        client.get(n, 1)
+    client.local.store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    client.local.store.close()
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2] if damage == "truncate" else data[:100] + b"\x00garbage" * 500)
+    with pytest.raises(StoreCorruptError, match="the capture-time store is damaged"):
+        StatsStore(path)
+    config = tmp_path / "t.yaml"
+    config.write_text(f"name: t\nstore: {path}\nn_pursuers: [1]\nn_evaders: [1]\n")
+    r = subprocess.run([sys.executable, "-m", "farm.cli", "table", "show", str(config)], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "damaged" in r.stderr
+
+
+def test_estimate_from_neighbours_is_flagged(tmp_path):
+    client = CaptureTimeClient(FAST, local_store=tmp_path / "s.sqlite")
+    a, b = client.get(2, 1), client.get(4, 1)
+    est = client.get_many([(3, 1)], estimate=True)[0]
+    assert est["estimate"] is True and "(2,1)" in est["estimate_method"] and "(4,1)" in est["estimate_method"]
+    assert est["mean_capture_mean"] == pytest.approx(0.5 * (a["mean_capture_mean"] + b["mean_capture_mean"]))
+    assert client.get(3, 1)["estimate"] is False  # estimates are not memoized
+
+
+# ---------------------------------------------------------------- on Ray
+
+
+@pytest.fixture(scope="module")
+def ray_local():
+    import ray
+
+    from tests_support import free_port
+
+    port = free_port()
+    ray.init(num_cpus=2, namespace="swarm-farm", include_dashboard=False, _node_ip_address="127.0.0.1",
+             _metrics_export_port=port, _system_config={"metrics_report_interval_ms": 500},
+             logging_level="ERROR", log_to_driver=False)
+    yield port
+    ray.shutdown()
+
+
+def test_actor_miss_restart_and_single_flight(ray_local, tmp_path):
+    import ray
+
+    from farm.service import get_service
+
+    store = tmp_path / "s.sqlite"
+    service = get_service(store, name="svc-test")
+    client = CaptureTimeClient(FAST, service=service)
+    v = client.get(2, 2)
+    assert ray.get(service.stats.remote())["computations"] == {FAST.key(2, 2).digest(): 1}
+    assert same(v, compute_in_process(FAST.key(2, 2)))  # the farm computes what one process does
+
+    ray.kill(service, no_restart=True)
+    time.sleep(0.5)
+    service = get_service(store, name="svc-test")
+    stats = ray.get(service.stats.remote())
+    assert stats["stored"] == 1 and stats["computations"] == {}
+    assert same(CaptureTimeClient(FAST, service=service).get(2, 2), v)
+
+    # 8 concurrent clients, overlapping keys: each key computed exactly once.
+    pairs = [(n_p, n_e) for n_p in (1, 2, 3) for n_e in (1, 3)]
+    results = [None] * 8
+
+    def ask(i):
+        c = CaptureTimeClient(FAST, service=get_service(store, name="svc-test"))
+        mine = pairs[i % 3:] + pairs[: i % 3]
+        results[i] = dict(zip(mine, c.get_many(mine)))
+
+    threads = [threading.Thread(target=ask, args=(i,)) for i in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=600)
+    stats = ray.get(service.stats.remote())
+    new = {FAST.key(*p).digest() for p in pairs} - {FAST.key(2, 2).digest()}
+    assert stats["computations"] == {d: 1 for d in new}
+    for p in pairs:
+        assert all(same(r[p], results[0][p]) for r in results)
+
+    # Estimates answer at once while the exact value is computed in the background.
+    est = CaptureTimeClient(FAST, service=service).get_many([(4, 1)], estimate=True)[0]
+    assert est["estimate"] is True and "nearest stored" in est["estimate_method"]
+    deadline = time.time() + 120
+    while FAST.key(4, 1).digest() not in ray.get(service.stats.remote())["computations"] and time.time() < deadline:
+        time.sleep(0.2)
+    assert CaptureTimeClient(FAST, service=service).get(4, 1)["estimate"] is False
+
+    # hits, misses, in-flight and compute seconds reach Prometheus.
+    from farm.metrics import EXPORTED
+
+    wanted = {m for m in EXPORTED if "_service_" in m}
+    deadline, missing = time.time() + 60, wanted
+    while missing and time.time() < deadline:
+        text = urllib.request.urlopen(f"http://127.0.0.1:{ray_local}/metrics", timeout=10).read().decode()
+        missing = {m for m in wanted if f"\n{m}{{" not in text and f"\n{m} " not in text}
+        time.sleep(1)
+    assert not missing, sorted(missing)
