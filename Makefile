@@ -21,6 +21,7 @@ demo: $(STAMP)
 	$(VENV)/bin/farm pe-table --games 50 --out $(RESULTS)/pe-table
 	$(VENV)/bin/farm game --n-pursuers 5 --n-evaders 1 --seed 1 --plot $(RESULTS)/game_5v1.png
 	$(VENV)/bin/farm sweep configs/smoke.yaml --out $(RESULTS)/sweep-smoke
+	$(VENV)/bin/farm table configs/table_small.yaml --store $(RESULTS)/capture_times.sqlite
 
 test: $(STAMP)
 	$(PY) -m pytest -q
@@ -28,6 +29,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/engine.py
 	$(PY) benchmarks/farm.py
+	$(PY) benchmarks/service.py
 
 clean:
 	rm -rf $(VENV) results .pytest_cache

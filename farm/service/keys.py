@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -72,8 +73,12 @@ class StatsKey:
     def to_dict(self) -> dict:
         return {"case": self.case.to_dict(), "games": self.games, "seed": self.seed}
 
-    def digest(self) -> str:
+    @cached_property
+    def _digest(self) -> str:
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+
+    def digest(self) -> str:
+        return self._digest
 
     def settings_digest(self) -> str:
         d = self.to_dict()
