@@ -14,6 +14,7 @@ from workers import Case, InitialLaw, InputError, make_arena, run_games, simulat
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
 from farm.config import ConfigError
+from farm.report import ReportError
 from farm.service.store import StoreCorruptError
 from farm.sweep import SweepError
 
@@ -179,6 +180,14 @@ def cmd_table(a) -> int:
     return 0
 
 
+def cmd_report(a) -> int:
+    from farm.report import write_report
+
+    path = write_report(a.results_dir, a.output)
+    print(f"report: {path.resolve()}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="farm", description="swarm-farm: swarm-to-swarm engagement planning and learning")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -223,6 +232,11 @@ def build_parser() -> argparse.ArgumentParser:
     tb.add_argument("--plot-dir", help="where heatmaps go (default: next to the store, tables/)")
     tb.add_argument("--quiet", action="store_true")
     tb.set_defaults(func=cmd_table)
+
+    r = sub.add_parser("report", help="one self-contained HTML page of everything in a results folder")
+    r.add_argument("results_dir")
+    r.add_argument("-o", "--output", help="where the HTML goes (default RESULTS_DIR/report.html)")
+    r.set_defaults(func=cmd_report)
     return parser
 
 
@@ -230,7 +244,7 @@ def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)
-    except (CliError, InputError, ConfigError, SweepError, StoreCorruptError) as e:
+    except (CliError, InputError, ConfigError, SweepError, StoreCorruptError, ReportError) as e:
         print(f"farm: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

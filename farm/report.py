@@ -1,0 +1,375 @@
+"""`farm report RESULTS_DIR`: one self-contained HTML page of everything a run produced.
+
+Images and data are inline (data: URIs, inline CSS and script), so the page
+opens anywhere without network access. Sections with no data say which command
+would produce them. The page is built whole in memory and written atomically:
+bad input never leaves a partial file.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import sqlite3
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from workers import ENGINE_VERSION
+
+__all__ = ["ReportError", "build_report", "write_report"]
+
+
+class ReportError(ValueError):
+    """Bad input for the report: one line naming the file or folder."""
+
+
+def _read_table(path: Path) -> pd.DataFrame:
+    try:
+        return pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
+    except Exception as e:  # any reader failure means the file is damaged
+        raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
+
+
+def _png(path: Path) -> bytes:
+    data = path.read_bytes()
+    if not data.startswith(b"\x89PNG\r\n\x1a\n"):
+        raise ReportError(f"{path}: not a PNG image")
+    return data
+
+
+def _img(data: bytes, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(data).decode()}">'
+
+
+def _fig_bytes(fig) -> bytes:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _table(df: pd.DataFrame) -> str:
+    inner = df.to_html(index=False, border=0, classes="t", float_format=lambda x: f"{x:.3f}", na_rep="-")
+    return f"<div class=scroll>{inner}</div>"
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+# ----- sections -------------------------------------------------------------------
+
+
+def _pe_section(root: Path) -> str | None:
+    files = sorted(root.rglob("pe_tables.csv")) + sorted(root.rglob("pe_tables.parquet"))
+    if not files:
+        return None
+    parts = []
+    for path in files:
+        df = _read_table(path)
+        need = {"table", "n_pursuers", "mean", "std", "ci95_low", "ci95_high", "min", "max", "paper_mean"}
+        if not need <= set(df.columns):
+            raise ReportError(f"{path}: not a PE table (missing {', '.join(sorted(need - set(df.columns)))})")
+        view = df[["table", "n_pursuers", "pursuer_policy", "evader_policy", "games", "mean", "std", "ci95_low",
+                   "ci95_high", "min", "max", "paper_mean"]].rename(columns={"paper_mean": "paper"})
+        plt = _plt()
+        fig, ax = plt.subplots(figsize=(8, 3.4))
+        labels = [f"{t.split(':')[0]}\n{n}p" for t, n in zip(df["table"], df["n_pursuers"])]
+        x = range(len(df))
+        ax.bar([i - 0.2 for i in x], df["mean"], 0.4, yerr=[df["mean"] - df["ci95_low"], df["ci95_high"] - df["mean"]],
+               label="this model (95% CI)", color="tab:blue")
+        ax.bar([i + 0.2 for i in x], df["paper"] if "paper" in df else df["paper_mean"], 0.4, label="paper",
+               color="tab:gray")
+        ax.set_xticks(list(x), labels, fontsize=8)
+        ax.set_ylabel("mean capture time (s)")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        figs = "".join(_img(_png(p), p.name) for p in sorted(path.parent.glob("fig_*.png")))
+        parts.append(
+            f"<p class=src>{html.escape(str(path))}</p>{_table(view)}{_img(_fig_bytes(fig), 'PE table chart')}"
+            f"<h3>Trajectories with Voronoi cells (game 0 of each case)</h3><div class=grid>{figs}</div>"
+        )
+    return "".join(parts)
+
+
+def _game_figures(root: Path, used: set[Path]) -> str | None:
+    pngs = [p for p in sorted(root.rglob("*.png")) if p not in used and "tables" not in p.parts
+            and not p.name.startswith("fig_")]
+    if not pngs:
+        return None
+    used.update(pngs)
+    return "<div class=grid>" + "".join(
+        f"<figure>{_img(_png(p), p.name)}<figcaption>{html.escape(str(p.relative_to(root)))}</figcaption></figure>"
+        for p in pngs
+    ) + "</div>"
+
+
+def _sweep_section(root: Path) -> str | None:
+    manifests = sorted(root.rglob("sweep.json"))
+    if not manifests:
+        return None
+    parts = []
+    for manifest in manifests:
+        folder = manifest.parent
+        doc = _read_json(manifest)
+        if not isinstance(doc, dict) or "config" not in doc:
+            raise ReportError(f"{manifest}: not a sweep manifest")
+        summary_path = folder / "summary.parquet"
+        if not summary_path.exists():
+            parts.append(f"<h3>{html.escape(doc['config'].get('name', folder.name))}</h3>"
+                         "<p>No summary yet: rerun <code>farm sweep</code> on this folder to finish it.</p>")
+            continue
+        summary = _read_table(summary_path)
+        changed = []
+        vary = doc["config"].get("vary") or {}
+        for block in ("grid", "zip"):
+            changed += [k for k in (vary.get(block) or {}) if k not in changed]
+        if vary.get("random"):
+            changed += [k for k in vary["random"]["ranges"] if k not in changed]
+        cols = ["point", *changed, "n_games", "last_capture_mean", "last_capture_ci95_low", "last_capture_ci95_high",
+                "last_capture_n_censored", "frac_captured_tau_mean", "p_all_captured_tau"]
+        view = summary[[c for c in cols if c in summary.columns]]
+        chart = _sweep_chart(summary, changed)
+        runs = (folder / "runs.jsonl")
+        run_lines = runs.read_text().splitlines() if runs.exists() else []
+        parts.append(
+            f"<h3>{html.escape(doc['config'].get('name', folder.name))} <small>sweep {html.escape(doc.get('sweep_id', '?'))}, "
+            f"engine {html.escape(str(doc.get('engine_version', '?')))}</small></h3>"
+            f"<p class=src>{html.escape(str(folder))}</p>{chart}{_table(view)}"
+            f"<details><summary>configuration</summary><pre>{html.escape(json.dumps(doc['config'], indent=2))}</pre></details>"
+            f"<details><summary>runs ({len(run_lines)})</summary><pre>{html.escape(chr(10).join(run_lines))}</pre></details>"
+        )
+    return "".join(parts)
+
+
+def _sweep_chart(summary: pd.DataFrame, changed: list[str]) -> str:
+    plt = _plt()
+    y = "last_capture_mean"
+    if {"n_pursuers", "n_evaders"} <= set(changed):
+        others = [c for c in changed if c not in ("n_pursuers", "n_evaders")]
+        groups = list(summary.groupby(others)) if others else [((), summary)]
+        out = []
+        for name, g in groups:
+            grid = g.pivot_table(index="n_pursuers", columns="n_evaders", values=y)
+            fig, ax = plt.subplots(figsize=(5.5, 4))
+            im = ax.imshow(grid.to_numpy(dtype=float), origin="lower", aspect="auto", cmap="viridis")
+            ax.set_xticks(range(len(grid.columns)), grid.columns)
+            ax.set_yticks(range(len(grid.index)), grid.index)
+            ax.set_xlabel("evaders")
+            ax.set_ylabel("pursuers")
+            ax.set_title(f"mean time to capture all (s) {name if others else ''}", fontsize=9)
+            fig.colorbar(im, ax=ax)
+            fig.tight_layout()
+            out.append(_img(_fig_bytes(fig), "sweep heatmap"))
+        return "<div class=grid>" + "".join(out) + "</div>"
+    numeric = [c for c in changed if pd.api.types.is_numeric_dtype(summary[c])]
+    if not numeric:
+        return ""
+    x = numeric[0]
+    others = [c for c in changed if c != x]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for name, g in (summary.groupby(others) if others else [("", summary)]):
+        g = g.sort_values(x)
+        ax.errorbar(g[x], g[y], yerr=[g[y] - g["last_capture_ci95_low"], g["last_capture_ci95_high"] - g[y]],
+                    marker="o", capsize=3, label=", ".join(map(str, name)) if isinstance(name, tuple) else str(name))
+    ax.set_xlabel(x)
+    ax.set_ylabel("mean time to capture all (s)")
+    if others:
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _img(_fig_bytes(fig), "sweep chart")
+
+
+def _service_section(root: Path) -> str | None:
+    stores = sorted(root.rglob("*.sqlite"))
+    if not stores:
+        return None
+    from farm.service.store import StatsStore, StoreCorruptError
+
+    parts = []
+    for path in stores:
+        try:
+            store = StatsStore(path)
+            rows = store.table()
+            store.close()
+        except (StoreCorruptError, sqlite3.Error) as e:
+            raise ReportError(str(e).splitlines()[0]) from None
+        if not rows:
+            continue
+        records = []
+        for r in rows:
+            case = r["key"]["case"]
+            v = r["value"]
+            records.append({"pursuer_policy": case["pursuer_policy"], "evader_policy": case["evader_policy"],
+                            "n_pursuers": case["n_pursuers"], "n_evaders": case["n_evaders"],
+                            "games": r["key"]["games"], "tau": case["tau"],
+                            "mean_capture": v.get("mean_capture_mean"),
+                            "frac_within_tau": v.get("expected_frac_captured_tau"),
+                            "p_all_within_tau": v.get("p_all_captured_tau"),
+                            "engine": case["engine_version"]})
+        df = pd.DataFrame(records).sort_values(["pursuer_policy", "evader_policy", "n_pursuers", "n_evaders"])
+        figs = []
+        plt = _plt()
+        for (pp, ep), g in df.groupby(["pursuer_policy", "evader_policy"]):
+            grid = g.pivot_table(index="n_pursuers", columns="n_evaders", values="mean_capture")
+            fig, ax = plt.subplots(figsize=(5.5, 4))
+            im = ax.imshow(grid.to_numpy(dtype=float), origin="lower", aspect="auto", cmap="viridis")
+            ax.set_xticks(range(len(grid.columns)), grid.columns)
+            ax.set_yticks(range(len(grid.index)), grid.index)
+            ax.set_xlabel("evaders")
+            ax.set_ylabel("pursuers")
+            ax.set_title(f"{pp} vs {ep}: mean capture time (s)", fontsize=9)
+            fig.colorbar(im, ax=ax)
+            fig.tight_layout()
+            figs.append(_img(_fig_bytes(fig), f"{pp} vs {ep} heatmap"))
+        parts.append(f"<p class=src>{html.escape(str(path))}: {len(df)} cases</p><div class=grid>{''.join(figs)}</div>"
+                     f"<details><summary>all cases</summary>{_table(df)}</details>")
+    return "".join(parts) or None
+
+
+def _training_section(root: Path) -> str | None:
+    curves = sorted(root.rglob("evaluations.npz"))
+    if not curves:
+        return None
+    import numpy as np
+
+    plt = _plt()
+    out = []
+    for path in curves:
+        try:
+            data = np.load(path)
+            steps, results = data["timesteps"], data["results"]
+        except Exception as e:
+            raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        mean, std = results.mean(axis=1), results.std(axis=1)
+        ax.plot(steps, mean, color="tab:blue")
+        ax.fill_between(steps, mean - std, mean + std, alpha=0.2, color="tab:blue")
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel("evaluation return")
+        fig.tight_layout()
+        out.append(f"<p class=src>{html.escape(str(path))}</p>{_img(_fig_bytes(fig), 'training curve')}")
+    return "".join(out)
+
+
+def _eval_section(root: Path) -> str | None:
+    tables = sorted(root.rglob("eval_table.csv"))
+    if not tables:
+        return None
+    return "".join(f"<p class=src>{html.escape(str(p))}</p>{_table(_read_table(p))}" for p in tables)
+
+
+def _density_section(root: Path) -> str | None:
+    pngs = sorted(root.rglob("density_*.png"))
+    if not pngs:
+        return None
+    return "<div class=grid>" + "".join(_img(_png(p), p.name) for p in pngs) + "</div>"
+
+
+SECTIONS = [
+    ("pe", "The paper's pursuit-evasion tables", "farm pe-table --out RESULTS_DIR/pe-table"),
+    ("sweeps", "Sweeps", "farm sweep configs/smoke.yaml --out RESULTS_DIR/sweep-smoke"),
+    ("service", "Capture-time service table", "farm table configs/table_small.yaml --store RESULTS_DIR/capture_times.sqlite"),
+    ("training", "Training curves", "farm train CONFIG (the allocation trainer)"),
+    ("density", "Density maps of an evaluation episode", "farm eval RUN_DIR"),
+    ("eval", "Evaluation against the baselines", "farm eval RUN_DIR"),
+    ("games", "Game figures", "farm game --plot RESULTS_DIR/game.png"),
+]
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1200px;color:#222;padding:0 1em}
+h1{margin-bottom:.2em} h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:2em}
+small{color:#777;font-weight:normal} .src{color:#777;font-size:.85em;font-family:monospace}
+table.t{border-collapse:collapse;font-size:.85em;margin:.6em 0} table.t td,table.t th{padding:.25em .6em;border-bottom:1px solid #eee;text-align:right}
+table.t th{background:#f5f5f5} img{max-width:100%;margin:.3em 0} .grid{display:flex;flex-wrap:wrap;gap:1em}
+.grid img{max-width:560px} .missing{color:#999;font-style:italic} pre{background:#f7f7f7;padding:.6em;overflow:auto;font-size:.8em}
+#selfcheck{font-size:.8em;color:#777} .scroll{overflow-x:auto}
+"""
+
+SELF_CHECK = """
+<script>
+window.__errors = [];
+window.addEventListener('error', function (e) { window.__errors.push(String(e.message || (e.target && e.target.src) || e)); }, true);
+window.addEventListener('load', function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length;
+  var s = document.getElementById('selfcheck');
+  s.setAttribute('data-images', imgs.length); s.setAttribute('data-loaded', ok);
+  s.setAttribute('data-errors', window.__errors.length);
+  s.textContent = ok + '/' + imgs.length + ' images loaded, ' + window.__errors.length + ' errors';
+});
+</script>
+"""
+
+
+def build_report(results_dir: str | Path) -> str:
+    """The report's HTML for a results folder; raises ReportError on bad input."""
+    root = Path(results_dir)
+    if not root.exists():
+        raise ReportError(f"{root}: no such folder")
+    if not root.is_dir():
+        raise ReportError(f"{root}: not a folder")
+    used: set[Path] = set()
+    found = {
+        "pe": _pe_section(root),
+        "sweeps": _sweep_section(root),
+        "service": _service_section(root),
+        "training": _training_section(root),
+        "density": _density_section(root),
+        "eval": _eval_section(root),
+    }
+    used.update(root.rglob("fig_*.png"))
+    found["games"] = _game_figures(root, used)
+    if not any(found.values()):
+        raise ReportError(
+            f"{root}: no results found (looked for pe_tables.*, sweep folders, capture-time stores, "
+            "training runs, figures); run `make demo` or a farm command first"
+        )
+    body = []
+    for key, title, command in SECTIONS:
+        content = found[key]
+        if content:
+            body.append(f"<h2>{html.escape(title)}</h2>{content}")
+        else:
+            body.append(f"<h2>{html.escape(title)}</h2><p class=missing>No data in this folder: "
+                        f"<code>{html.escape(command)}</code> would produce it.</p>")
+    stamp = time.strftime("%Y-%m-%d %H:%M:%S")
+    return (
+        "<!doctype html><html lang=en><head><meta charset=utf-8>"
+        f"<meta name=viewport content='width=device-width,initial-scale=1'><title>swarm-farm report: {html.escape(root.name)}</title>"
+        f"<style>{CSS}</style>{SELF_CHECK}</head><body>"
+        f"<h1>swarm-farm report</h1><p class=src>{html.escape(str(root.resolve()))} &middot; generated {stamp} "
+        f"&middot; engine {html.escape(ENGINE_VERSION)}</p><p id=selfcheck></p>"
+        + "".join(body)
+        + "</body></html>"
+    )
+
+
+def write_report(results_dir, out=None) -> Path:
+    """Build the report and write it atomically; returns its path."""
+    from farm.output import atomic_write_bytes
+
+    page = build_report(results_dir)
+    path = Path(out) if out else Path(results_dir) / "report.html"
+    if path.exists() and path.is_dir():
+        raise ReportError(f"-o: {path} is a folder")
+    atomic_write_bytes(path, page.encode())
+    return path
