@@ -1,0 +1,58 @@
+"""Density maps of an allocation episode (paper figures 6-9): defenders blue, intruders red."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _rgb(D: np.ndarray, I: np.ndarray) -> np.ndarray:
+    """(N, N) densities -> (N, N, 3) float image: blue for defenders, red for intruders."""
+    d = D / max(float(D.max()), 1e-12)
+    i = I / max(float(I.max()), 1e-12) if I.max() > 0 else I
+    img = np.ones(D.shape + (3,))
+    img[..., 0] -= 0.85 * d
+    img[..., 1] -= 0.85 * np.maximum(d, i)
+    img[..., 2] -= 0.85 * i
+    return np.clip(img, 0, 1)
+
+
+def density_frame(D: np.ndarray, I: np.ndarray, step: int) -> np.ndarray:
+    """One (H, W, 3) uint8 frame for env.render()."""
+    img = _rgb(D, I)
+    scale = 32
+    return (np.kron(img, np.ones((scale, scale, 1))) * 255).astype(np.uint8)
+
+
+def plot_episode(frames: list[tuple[np.ndarray, np.ndarray]], path: str | Path, title: str = "") -> Path:
+    """frames: (D, I) pairs (N, N) per step; one panel per step with the masses written in."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    k = len(frames)
+    fig, axes = plt.subplots(1, k, figsize=(2.4 * k, 2.9), squeeze=False)
+    for step, (ax, (D, I)) in enumerate(zip(axes[0], frames)):
+        ax.imshow(_rgb(D, I), origin="upper")
+        n = D.shape[0]
+        for r in range(n):
+            for c in range(n):
+                text = []
+                if D[r, c] > 0.005:
+                    text.append(f"D {D[r, c]:.2f}")
+                if I[r, c] > 0.005:
+                    text.append(f"I {I[r, c]:.2f}")
+                ax.text(c, r, "\n".join(text), ha="center", va="center", fontsize=7)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"step {step}", fontsize=9)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
