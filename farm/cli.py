@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from workers import Case, InitialLaw, InputError, make_arena, run_games, simulate_games
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
@@ -188,6 +189,73 @@ def cmd_report(a) -> int:
     return 0
 
 
+def cmd_train(a) -> int:
+    from farm.alloc.train import load_train_config, train
+
+    config = load_train_config(a.config)
+    if a.timesteps is not None:
+        if a.timesteps < 1:
+            raise CliError(f"--timesteps: must be >= 1, got {a.timesteps}")
+        config = config.model_copy(update={"td3": config.td3.model_copy(update={"n_timesteps": a.timesteps})})
+    if a.service:
+        config = config.model_copy(update={"service": config.service.model_copy(update={"mode": a.service})})
+    out = Path(a.out or Path("results") / "runs" / config.name)
+    if config.service.mode == "ray":
+        from farm.runtime import ray_cluster
+
+        with ray_cluster(config.service.address):
+            metrics = train(config, out, resume=a.resume, show_progress=not a.quiet)
+    else:
+        metrics = train(config, out, resume=a.resume, show_progress=not a.quiet)
+    print(json.dumps(metrics, indent=2))
+    print(f"run: {out}")
+    return 0
+
+
+def cmd_eval(a) -> int:
+    from farm.alloc.evaluate import GameFidelityClient, baselines, evaluate_policies, load_policy
+    from farm.alloc.train import TrainConfig, make_client
+    from farm.alloc.env import SwarmAllocationEnv
+    from farm.output import write_table
+    from farm.runtime import ray_cluster
+
+    run_dir = Path(a.run_dir)
+    if not (run_dir / "config.yaml").exists():
+        raise CliError(f"{run_dir}: not a training run (no config.yaml)")
+    import yaml
+
+    config = TrainConfig(**yaml.safe_load((run_dir / "config.yaml").read_text()))
+    if a.episodes < 1:
+        raise CliError(f"--episodes: must be >= 1, got {a.episodes}")
+    policies = {"td3": load_policy(run_dir), **baselines(config.env.grid_size)}
+    settings = SwarmAllocationEnv(config.env, client=object()).service_settings()
+    use_ray = config.service.mode == "ray" or a.fidelity == "games"
+    from contextlib import nullcontext
+
+    with (ray_cluster(config.service.address) if use_ray else nullcontext()):
+        client = make_client(config, settings)
+        table, per = evaluate_policies(config.env, policies, client, a.episodes, a.seed, out=run_dir)
+        write_table(table, run_dir / "eval_table", "csv")
+        print(table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+        if a.fidelity == "games":
+            games_client = GameFidelityClient(settings, client, seed=a.seed)
+            gtable, _ = evaluate_policies(config.env, policies, games_client, a.episodes, a.seed)
+            diffs = pd.DataFrame(games_client.differences)
+            write_table(gtable, run_dir / "eval_table_games", "csv")
+            write_table(diffs, run_dir / "fidelity_differences", "csv")
+            print("\n--fidelity games (every engaged cell's game simulated each step):")
+            print(gtable.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+            merged = table.merge(gtable, on="policy", suffixes=("_service", "_games"))
+            print("return, games minus service: " + ", ".join(
+                f"{r.policy} {r.return_mean_games - r.return_mean_service:+.3f}" for r in merged.itertuples()))
+            if len(diffs):
+                err = (diffs["game_frac_tau"] - diffs["service_frac_tau"]).abs()
+                print(f"fraction captured within tau, |game - service| over {len(diffs)} engagements: "
+                      f"mean {err.mean():.3f}, max {err.max():.3f}")
+    print(f"wrote {run_dir / 'eval_table.csv'} and density maps density_<policy>.png")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="farm", description="swarm-farm: swarm-to-swarm engagement planning and learning")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -237,6 +305,22 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("results_dir")
     r.add_argument("-o", "--output", help="where the HTML goes (default RESULTS_DIR/report.html)")
     r.set_defaults(func=cmd_report)
+
+    tr = sub.add_parser("train", help="train the TD3 allocator (rewards from the capture-time service)")
+    tr.add_argument("config", help="training YAML, e.g. configs/train/paper_3x3_c1_0.yaml")
+    tr.add_argument("--out", help="run folder (default results/runs/<name>)")
+    tr.add_argument("--resume", action="store_true", help="go on from the run folder's last checkpoint")
+    tr.add_argument("--timesteps", type=int, help="override td3.n_timesteps")
+    tr.add_argument("--service", choices=["ray", "local"], help="override service.mode")
+    tr.add_argument("--quiet", action="store_true")
+    tr.set_defaults(func=cmd_train)
+
+    ev = sub.add_parser("eval", help="the trained policy against the baselines on the same seeded episodes")
+    ev.add_argument("run_dir")
+    ev.add_argument("--episodes", type=int, default=20)
+    ev.add_argument("--seed", type=int, default=1000)
+    ev.add_argument("--fidelity", choices=["service", "games"], default="service")
+    ev.set_defaults(func=cmd_eval)
     return parser
 
 

@@ -84,11 +84,13 @@ class SwarmAllocationEnv(gym.Env):
         self.breached = 0.0
 
     def service_settings(self):
+        from workers import InitialLaw
+
         from farm.service import ServiceSettings
 
         c = self.config
         return ServiceSettings(pursuer_policy=c.pursuer_policy, evader_policy=c.evader_policy, tau=c.tau,
-                               t_max=c.t_max, games=c.games, seed=c.seed)
+                               t_max=c.t_max, games=c.games, seed=c.seed, law=InitialLaw(kind=c.law))
 
     # ----- the MDP ------------------------------------------------------------------
     def move_probabilities(self, action: np.ndarray) -> np.ndarray:

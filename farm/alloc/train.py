@@ -1,0 +1,276 @@
+"""`farm train CONFIG`: TD3 (stable-baselines3, actor and critics 400-300) on the
+allocation env, rewards from the capture-time service.
+
+Config (RL-Zoo-style hyperparameters under `td3`):
+
+    name: paper-3x3-c1-0
+    seed: 0
+    env: {grid_size: 3, n_defenders: 100, n_intruders: 50, c_distribution: 1.0, c_capture: 0.0}
+    td3: {n_timesteps: 30000, learning_rate: 0.001, buffer_size: 200000, learning_starts: 1000,
+          batch_size: 256, tau: 0.005, gamma: 0.95, train_freq: 1, gradient_steps: 1,
+          noise_type: normal, noise_std: 0.2, policy_kwargs: {net_arch: [400, 300]}}
+    eval: {freq: 2000, episodes: 10}
+    checkpoint_freq: 5000
+    service: {mode: ray, store: results/capture_times.sqlite, address: null, warm_lattice: true}
+
+A run folder holds model.zip, config.yaml, metrics.json, evaluations.npz (the
+training curve), checkpoints/ (with the replay buffer, for --resume), best/ and
+tb/ (TensorBoard).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from farm.alloc.config import AllocConfig
+from farm.config import ConfigError, _first_line
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class TD3Params(_Strict):
+    n_timesteps: int = Field(30_000, ge=1)
+    policy: Literal["MlpPolicy"] = "MlpPolicy"
+    learning_rate: float = Field(1e-3, gt=0)
+    buffer_size: int = Field(200_000, ge=1)
+    learning_starts: int = Field(1000, ge=0)
+    batch_size: int = Field(256, ge=1)
+    tau: float = Field(0.005, gt=0, le=1)
+    gamma: float = Field(0.95, ge=0, le=1)
+    train_freq: int = Field(1, ge=1)
+    gradient_steps: int = Field(1, ge=-1)
+    policy_delay: int = Field(2, ge=1)
+    noise_type: Literal["normal", "none"] = "normal"
+    noise_std: float = Field(0.2, ge=0)
+    policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}
+
+
+class EvalParams(_Strict):
+    freq: int = Field(2000, ge=1)
+    episodes: int = Field(10, ge=1)
+
+
+class ServiceParams(_Strict):
+    mode: Literal["ray", "local"] = "ray"
+    store: str = "results/capture_times.sqlite"
+    address: str | None = None
+    warm_lattice: bool = True
+
+
+class TrainConfig(_Strict):
+    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
+    seed: int = Field(0, ge=0)
+    env: AllocConfig = AllocConfig()
+    td3: TD3Params = TD3Params()
+    eval: EvalParams = EvalParams()
+    checkpoint_freq: int = Field(5000, ge=1)
+    service: ServiceParams = ServiceParams()
+
+
+def load_train_config(path) -> TrainConfig:
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except (yaml.YAMLError, UnicodeDecodeError):
+        raise ConfigError(f"{path}: not valid YAML") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: must be a mapping of training fields")
+    try:
+        return TrainConfig(**raw)
+    except ValidationError as e:
+        raise ConfigError(f"{path}: {_first_line(e)}") from None
+
+
+def lattice_pairs(env: AllocConfig) -> list[tuple[int, int]]:
+    from farm.alloc.env import LATTICE, snap
+
+    top_p, top_e = snap(env.n_defenders), snap(env.n_intruders)
+    return [(p, e) for p in LATTICE if p <= top_p for e in LATTICE if e <= top_e]
+
+
+def make_client(config: TrainConfig, settings):
+    """The capture-time client the envs share: through the Ray service (misses on
+    the farm) or in-process."""
+    from farm.service import CaptureTimeClient
+
+    if config.service.mode == "local":
+        return CaptureTimeClient(settings, local_store=config.service.store)
+    from farm.service import get_service
+
+    return CaptureTimeClient(settings, service=get_service(config.service.store))
+
+
+def warm(client, config: TrainConfig, progress: bool = True) -> int:
+    """Fill the store and the client's memo over the team-size lattice, with a progress bar;
+    on Ray the cases are computed in parallel on the farm."""
+    from farm.progress import GameProgress
+
+    if config.env.team_sizes != "lattice" or not config.service.warm_lattice:
+        return 0
+    pairs = lattice_pairs(config.env)
+    bar = GameProgress(len(pairs), enabled=progress, desc="capture-time lattice", unit="case")
+    if client.service is not None:
+        import ray
+
+        pending = [client.service.get_many.remote([client.key(*p)]) for p in pairs]
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            bar.update(len(ready))
+    else:
+        for p in pairs:
+            client.get_many([p])
+            bar.update(1)
+    bar.close()
+    client.get_many(pairs)
+    return len(pairs)
+
+
+class _Progress:
+    """SB3 callback: a tqdm bar of environment steps with steps/s and ETA."""
+
+    def __new__(cls, total: int, done: int, enabled: bool):
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        from farm.progress import GameProgress
+
+        class ProgressCallback(BaseCallback):
+            def _on_training_start(self):
+                self.bar = GameProgress(total, done, enabled=enabled, desc="steps", unit="step")
+                self.last = self.num_timesteps
+
+            def _on_step(self):
+                self.bar.update(self.num_timesteps - self.last)
+                self.last = self.num_timesteps
+                return True
+
+            def _on_training_end(self):
+                self.bar.close()
+
+        return ProgressCallback()
+
+
+def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
+    found = []
+    for p in (run_dir / "checkpoints").glob("rl_model_*_steps.zip"):
+        m = re.match(r"rl_model_(\d+)_steps\.zip", p.name)
+        if m:
+            found.append((int(m.group(1)), p))
+    if not found:
+        return None
+    steps, path = max(found)
+    return path, steps
+
+
+def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True) -> dict:
+    """Train (or resume) into run_dir; returns the metrics written to metrics.json."""
+    import torch
+    from stable_baselines3 import TD3
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    from farm.alloc.env import SwarmAllocationEnv
+
+    run_dir = Path(run_dir)
+    if run_dir.exists() and (run_dir / "config.yaml").exists() and not resume:
+        raise ConfigError(f"--out: {run_dir} already holds a run; use --resume or another folder")
+    if resume:
+        saved = run_dir / "config.yaml"
+        if not saved.exists():
+            raise ConfigError(f"--resume: {run_dir} holds no run to resume")
+        def comparable(d: dict) -> dict:  # the length of training may grow on resume
+            return {**d, "td3": {k: v for k, v in d["td3"].items() if k != "n_timesteps"}}
+
+        if comparable(yaml.safe_load(saved.read_text())) != comparable(json.loads(config.model_dump_json())):
+            raise ConfigError(f"--resume: {run_dir} was trained with another config")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(json.loads(config.model_dump_json()), sort_keys=False))
+    torch.set_num_threads(1)
+
+    env_probe = SwarmAllocationEnv(config.env, client=object())
+    client = make_client(config, env_probe.service_settings())
+    warm(client, config, progress=show_progress)
+    env = Monitor(SwarmAllocationEnv(config.env, client=client))
+    eval_env = Monitor(SwarmAllocationEnv(config.env, client=client))
+    p = config.td3
+    n_act = env.action_space.shape[0]
+    noise = NormalActionNoise(np.zeros(n_act), p.noise_std * np.ones(n_act)) if p.noise_type == "normal" else None
+
+    done_steps = 0
+    checkpoint = latest_checkpoint(run_dir) if resume else None
+    if checkpoint:
+        path, done_steps = checkpoint
+        model = TD3.load(path, env=env, tensorboard_log=str(run_dir / "tb"))
+        buffer = path.with_name(f"rl_model_replay_buffer_{done_steps}_steps.pkl")
+        if buffer.exists():
+            model.load_replay_buffer(buffer)
+    else:
+        model = TD3(
+            p.policy, env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
+            learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
+            train_freq=p.train_freq, gradient_steps=p.gradient_steps, policy_delay=p.policy_delay,
+            action_noise=noise, policy_kwargs=dict(p.policy_kwargs), tensorboard_log=str(run_dir / "tb"),
+            seed=config.seed, verbose=0, device="cpu",
+        )
+    remaining = max(0, p.n_timesteps - done_steps)
+    callbacks = CallbackList([
+        EvalCallback(eval_env, eval_freq=config.eval.freq, n_eval_episodes=config.eval.episodes,
+                     log_path=str(run_dir), best_model_save_path=str(run_dir / "best"), deterministic=True,
+                     verbose=0),
+        CheckpointCallback(save_freq=config.checkpoint_freq, save_path=str(run_dir / "checkpoints"),
+                           save_replay_buffer=True, verbose=0),
+        _Progress(p.n_timesteps, done_steps, show_progress),
+    ])
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=not checkpoint,
+                tb_log_name="td3")
+    wall = time.perf_counter() - t0
+    model.save(run_dir / "model.zip")
+    evals = np.load(run_dir / "evaluations.npz") if (run_dir / "evaluations.npz").exists() else None
+    metrics = {
+        "name": config.name,
+        "timesteps": int(model.num_timesteps),
+        "resumed_from": done_steps if checkpoint else None,
+        "wall_seconds": wall,
+        "steps_per_second": remaining / wall if wall > 0 else None,
+        "final_eval_mean_return": float(evals["results"][-1].mean()) if evals is not None else None,
+        "final_eval_std_return": float(evals["results"][-1].std()) if evals is not None else None,
+        "best_eval_mean_return": float(evals["results"].mean(axis=1).max()) if evals is not None else None,
+    }
+    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    if evals is not None:
+        plot_training_curve(evals["timesteps"], evals["results"], run_dir / "training_curve.png", config.name)
+    return metrics
+
+
+def plot_training_curve(steps, results, path: Path, title: str) -> Path:
+    """Evaluation return (mean and spread over episodes) against environment steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    mean, std = results.mean(axis=1), results.std(axis=1)
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    ax.plot(steps, mean, color="tab:blue", label="TD3 (deterministic eval)")
+    ax.fill_between(steps, mean - std, mean + std, color="tab:blue", alpha=0.2)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("episode return")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
