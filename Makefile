@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-stamp
 CONSTRAINTS ?= -c constraints-cpu.txt
 RESULTS ?= results/demo
 
-.PHONY: demo test bench install browser clean
+.PHONY: demo test bench experiments install browser clean
 
 $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -22,6 +22,9 @@ demo: $(STAMP)
 	$(VENV)/bin/farm game --n-pursuers 5 --n-evaders 1 --seed 1 --plot $(RESULTS)/game_5v1.png
 	$(VENV)/bin/farm sweep configs/smoke.yaml --out $(RESULTS)/sweep-smoke
 	$(VENV)/bin/farm table configs/table_small.yaml --store $(RESULTS)/capture_times.sqlite
+	rm -rf $(RESULTS)/runs/demo-3x3
+	$(VENV)/bin/farm train configs/train/demo_3x3.yaml --out $(RESULTS)/runs/demo-3x3
+	$(VENV)/bin/farm eval $(RESULTS)/runs/demo-3x3 --episodes 10
 	$(VENV)/bin/farm report $(RESULTS)
 
 # Debian's chromium renders the report in the tests; installed here when missing (needs root).
@@ -37,6 +40,17 @@ bench: $(STAMP)
 	$(PY) benchmarks/engine.py
 	$(PY) benchmarks/farm.py
 	$(PY) benchmarks/service.py
+	$(PY) benchmarks/alloc.py
+
+# The paper's allocation experiments: train, evaluate against the baselines, figures.
+EXPERIMENTS := paper_3x3_c1_0 paper_3x3_c1_1.5 paper_3x3_100v100 larger_5x5
+experiments: $(STAMP)
+	for e in $(EXPERIMENTS); do \
+	  $(VENV)/bin/farm train configs/train/$$e.yaml --out results/runs/$$e --resume 2>/dev/null || \
+	  $(VENV)/bin/farm train configs/train/$$e.yaml --out results/runs/$$e; \
+	  $(VENV)/bin/farm eval results/runs/$$e --episodes 20 || exit 1; \
+	done
+	$(VENV)/bin/farm report results
 
 clean:
 	rm -rf $(VENV) results .pytest_cache

@@ -6,8 +6,10 @@ Layout of a sweep's folder:
     shards/p00003-s00012.parquet     one file per shard: per-game statistics
     summary.parquet, summary.csv     one row per point
 
-Game g of point p draws its start from default_rng([seed, p, g]): the numbers do
-not depend on the number of workers, on shard boundaries or on interruptions.
+Game g of a point draws its start from default_rng([seed, h, g]), h a number
+taken from the point's case key: the numbers do not depend on the number of
+workers, on shard boundaries, on interruptions, or on where the point stands in
+the config.
 """
 
 from __future__ import annotations
@@ -54,9 +56,14 @@ class Shard:
         return self.stop - self.start
 
 
+def case_seed(case: Case, seed: int) -> tuple[int, int]:
+    """Seed words of a sweep point's games: the sweep's seed and the case's key."""
+    return seed, int(case.key()[:12], 16)
+
+
 def simulate_shard(case: Case, seed: int, shard: Shard) -> tuple[pd.DataFrame, int]:
     """Play one shard's games; returns its per-game rows and the game-steps simulated."""
-    res = run_games(case, (seed, shard.point), shard.start, shard.stop)
+    res = run_games(case, case_seed(case, seed), shard.start, shard.stop)
     df = game_statistics(res.capture_times, case.tau, first_game=shard.start)
     df.insert(0, "shard", np.int64(shard.number))
     df.insert(0, "point", np.int64(shard.point))

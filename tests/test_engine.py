@@ -192,3 +192,12 @@ def test_bad_input_one_line_error(bad, message):
 def test_clockwise_arena_is_accepted():
     res = simulate_games(np.array([[[4.0, 5.0]]]), np.array([[[8.0, 5.0]]]), arena=[[0, 0], [0, 10], [10, 10], [10, 0]])
     assert np.isfinite(res.capture_times).all()
+
+
+def test_t_max_is_never_exceeded():
+    """t_max = 0.015 with dt = 0.01 allows one step (round() would give two)."""
+    p, e = np.array([[[5.0, 5.0]]]), np.array([[[5.0 + 0.25 + 0.015, 5.0]]])
+    res = simulate_games(p, e, pursuer_policy="pure_pursuit", evader_policy="target", target=(9.9, 5.0), t_max=0.015)
+    assert res.steps[0] == 1 and np.isnan(res.capture_times[0, 0])
+    with pytest.raises(InputError, match="engine's limit"):
+        simulate_games(p, e, dt=1e-300)

@@ -128,3 +128,38 @@ def test_warm_start_from_last_steps_structure_equals_clipping(rng):
         k = {int(l): L for l, L in zip(cold.labels[c], cl) if l >= 0 and L > NEIGHBOUR_EDGE_MIN}
         assert w.keys() == k.keys()
         assert 3 not in w or g[c] != 0
+
+
+def test_warm_start_rejects_hints_that_are_not_the_cell():
+    """Three lines through one point pass the vertex and edge tests but enclose
+    nothing; a cut deeper than the clipper's tolerance must not be ignored."""
+    from workers import DEFAULT_ARENA
+    from workers.geometry import _from_hint
+
+    p = np.array([5.0, 5.0])
+    angles = [-0.3, 0.0, 0.3]
+    others = np.array([p + 2.0 * np.array([np.cos(a), np.sin(a)]) / np.cos(a) for a in angles])
+    pts = np.vstack([p, others])[None]
+    d2 = ((pts[0] - p) ** 2).sum(axis=1)[None]
+    d2[0, 0] = np.inf
+    hint = np.array([[1, 2, 3]])
+    assert _from_hint(DEFAULT_ARENA, pts[0, :1], pts[..., 0], pts[..., 1], d2, hint).count[0] == 0
+    live = np.ones((1, 4), dtype=bool)
+    warm = voronoi_cells(pts, live, np.array([0]), np.array([0]), DEFAULT_ARENA, hint=hint)
+    cold = voronoi_cells(pts, live, np.array([0]), np.array([0]), DEFAULT_ARENA)
+    assert warm.area_centroid()[0][0] == pytest.approx(cold.area_centroid()[0][0])
+    assert cold.area_centroid()[0][0] > 1.0
+
+    # q3's bisector cuts the tip of the cell by 5e-11: an edge of about 1e-8, so a neighbour.
+    a = 0.01
+    q1, q2 = p + 2 * np.array([np.cos(a), np.sin(a)]), p + 2 * np.array([np.cos(a), -np.sin(a)])
+    tip = p[0] + 1 / np.cos(a)
+    q3 = np.array([2 * (tip - 5e-11) - p[0], p[1]])
+    before = np.array([[p, q1, q2, [0.5, 0.5]]])
+    live = np.array([[True, True, True, False]])
+    hint = voronoi_cells(before, live, np.array([0]), np.array([0]), DEFAULT_ARENA).labels
+    after = np.array([[p, q1, q2, q3]])
+    live[0, 3] = True
+    warm = voronoi_cells(after, live, np.array([0]), np.array([0]), DEFAULT_ARENA, hint=hint)
+    length = warm.edges()[0][0]
+    assert np.any((warm.labels[0] == 3) & (length > NEIGHBOUR_EDGE_MIN))

@@ -90,3 +90,15 @@ def test_case_key_changes_with_every_parameter():
 def test_bad_case(case, message):
     with pytest.raises(InputError, match=message):
         case.validate()
+
+
+def test_capture_at_exactly_tau_counts_as_within_tau():
+    df = game_statistics(np.array([[35 * 0.01], [36 * 0.01]]), tau=0.35)
+    assert list(df["frac_captured_tau"]) == [1.0, 0.0]
+
+
+def test_case_numbers_have_one_spelling():
+    assert Case(3, 1, t_max=60).key() == Case(3, 1, t_max=60.0).key()
+    assert Case(3, 1, target=(0, 5)).key() == Case(3, 1).key()
+    with pytest.raises(InputError, match="target: must be a finite point"):
+        Case(3, 1, target=(float("nan"), 5.0)).validate()

@@ -10,6 +10,7 @@ it starts that close; captured evaders leave the game at once.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,8 +23,9 @@ from workers.policies.context import pursuer_evader_distance
 
 __all__ = ["ENGINE_VERSION", "GameResults", "simulate_games", "V_MAX"]
 
-ENGINE_VERSION = "1.0.0"
+ENGINE_VERSION = "1.1.0"
 V_MAX = 1.0
+MAX_STEPS = 10_000_000
 
 
 @dataclass
@@ -156,9 +158,11 @@ def simulate_games(
         raise InputError(f"target: must be a point (x, y), got {target!r}") from None
     if goal.shape != (2,) or not np.all(np.isfinite(goal)):
         raise InputError(f"target: must be a finite point (x, y), got {target!r}")
-    n_steps = int(round(t_max / dt))
+    n_steps = math.floor(t_max / dt + 1e-9)
     if n_steps < 1:
         raise InputError(f"t_max: {t_max} is shorter than one step dt={dt}")
+    if n_steps > MAX_STEPS:
+        raise InputError(f"t_max/dt: {n_steps} steps is more than the engine's limit of {MAX_STEPS}")
 
     n_games, n_e = e.shape[0], e.shape[1]
     capture_step = np.full((n_games, n_e), -1, dtype=np.int64)

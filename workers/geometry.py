@@ -12,10 +12,12 @@ Every edge of a cell carries the label of the agent whose bisector it lies on
 Warm start: from one step to the next a cell's structure (the cyclic list of
 lines its edges lie on) rarely changes. Given last step's labels as a hint, the
 vertices are re-intersected from those lines in one vectorized pass and the
-result is accepted only if it is provably the cell: every vertex inside every
-half-plane and every edge of non-negative length in counter-clockwise order
-(a convex polygon bounded by the constraints' own lines that satisfies all
-constraints is their intersection). Cells that fail are clipped from scratch.
+result is accepted only if it is provably the cell: the boundary turns left at
+every vertex and once around in all, it has positive area, every edge has
+non-negative length in counter-clockwise order, and every vertex is inside every
+half-plane to the clipper's own tolerance (a convex polygon of winding one
+bounded by the constraints' own lines that satisfies all constraints is their
+intersection). Cells that fail are clipped from scratch.
 Sums run left to right over the vertex axis (``cumsum``), so a cell's numbers do
 not depend on how many other cells or how much padding share its batch.
 """
@@ -33,7 +35,6 @@ __all__ = ["Cells", "voronoi_cells", "NEIGHBOUR_EDGE_MIN"]
 NEIGHBOUR_EDGE_MIN = 1e-9
 _COINCIDENT = 1e-12
 _CLIP_TOL = 1e-12
-_VERIFY_TOL = 1e-10
 PAD = -(1 << 40)  # label of padding slots
 
 
@@ -192,28 +193,34 @@ def _from_hint(arena: Arena, site, ox, oy, d2, hint) -> Cells:
     valid = slot < count[:, None]
     prev = np.where(slot == 0, count[:, None] - 1, slot - 1)
     pnx, pny, poff = (np.take_along_axis(a, prev, axis=1) for a in (nx, ny, off))
-    det = pnx * ny - pny * nx
-    good_det = np.abs(det) > 1e-12
+    det = pnx * ny - pny * nx  # > 0: the boundary turns left at vertex i
+    good_det = det > 1e-12
     det = np.where(good_det, det, 1.0)
     x = np.where(valid, (poff * ny - off * pny) / det, 0.0)
     y = np.where(valid, (pnx * off - nx * poff) / det, 0.0)
     x = np.where(valid, x, x[:, :1])
     y = np.where(valid, y, y[:, :1])
     ok = (count >= 3) & np.all(~valid | (good_det & line_usable), axis=1)
+    # The normals turn left at every vertex and once around in all: a convex polygon of winding one.
+    turning = np.where(valid, np.arctan2(det, pnx * nx + pny * ny), 0.0)
+    ok &= np.abs(np.cumsum(turning, axis=1)[:, -1] - 2 * np.pi) < 1e-6
 
     # Every vertex inside every live agent's half-plane and the arena.
     s_agent = x[:, :, None] * ax[:, None, :] + y[:, :, None] * ay[:, None, :] - aoff[:, None, :]
-    ok &= ~np.any(s_agent > _VERIFY_TOL, axis=(1, 2))
+    ok &= ~np.any(s_agent > _CLIP_TOL, axis=(1, 2))
     if arena.is_axis_box:
         (lo_x, lo_y), (hi_x, hi_y) = arena.vertices.min(axis=0), arena.vertices.max(axis=0)
-        t = _VERIFY_TOL
+        t = _CLIP_TOL
         ok &= np.all((x >= lo_x - t) & (x <= hi_x + t) & (y >= lo_y - t) & (y <= hi_y + t), axis=1)
     else:
-        ok &= np.all(arena.signed_distances(np.stack([x, y], axis=-1)) <= _VERIFY_TOL, axis=(1, 2))
+        ok &= np.all(arena.signed_distances(np.stack([x, y], axis=-1)) <= _CLIP_TOL, axis=(1, 2))
     # Every edge runs counter-clockwise along its own line (non-negative length).
     xn, yn = _take_next(x), _take_next(y)
     along = (xn - x) * (-ny) + (yn - y) * nx
-    ok &= np.all(~valid | (along >= -_VERIFY_TOL), axis=1)
+    ok &= np.all(~valid | (along >= -_CLIP_TOL), axis=1)
+    # And it has an interior (three lines through one point pass every test above).
+    cross = np.where(valid, (x - site[:, 0, None]) * (yn - site[:, 1, None]) - (xn - site[:, 0, None]) * (y - site[:, 1, None]), 0.0)
+    ok &= np.cumsum(cross, axis=1)[:, -1] > 1e-18
 
     count = np.where(ok, count, 0)
     return Cells(site, x, y, count, np.where(valid, labels, PAD))

@@ -78,6 +78,25 @@ class Case:
     law: InitialLaw = field(default_factory=InitialLaw)
     engine_version: str = ENGINE_VERSION
 
+    def __post_init__(self):
+        # One spelling per value, so that 60 and 60.0 give the same key.
+        def num(v):
+            return float(v) if isinstance(v, (int, float, np.number)) and not isinstance(v, bool) else v
+
+        for name in ("capture_radius", "dt", "t_max", "tau"):
+            object.__setattr__(self, name, num(getattr(self, name)))
+        for name in ("n_pursuers", "n_evaders"):
+            v = getattr(self, name)
+            if isinstance(v, np.integer):
+                object.__setattr__(self, name, int(v))
+        if isinstance(self.target, (tuple, list)):
+            object.__setattr__(self, "target", tuple(num(x) for x in self.target))
+        if isinstance(self.arena, (tuple, list)):
+            object.__setattr__(self, "arena", tuple(tuple(num(x) for x in v) for v in self.arena))
+        if isinstance(self.law, InitialLaw):
+            object.__setattr__(self, "law", InitialLaw(self.law.kind, tuple(num(x) for x in self.law.pursuer_box),
+                                                       tuple(num(x) for x in self.law.evader_box)))
+
     def validate(self) -> "Case":
         for name in ("n_pursuers", "n_evaders"):
             v = getattr(self, name)
@@ -89,6 +108,10 @@ class Case:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise InputError(f"{name}: must be positive and finite, got {v!r}")
+        target = self.target
+        if (not isinstance(target, tuple) or len(target) != 2
+                or not all(isinstance(x, float) and math.isfinite(x) for x in target)):
+            raise InputError(f"target: must be a finite point (x, y), got {target!r}")
         arena = make_arena(self.arena)
         if self.law.kind == "boxes":
             for name in ("pursuer_box", "evader_box"):
@@ -175,7 +198,7 @@ def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0) 
     captured = np.isfinite(ct)
     n_captured = captured.sum(axis=1)
     some = n_captured > 0
-    within = captured & (ct <= tau)
+    within = captured & (ct <= tau + 1e-9)  # capture times are step * dt: 35 * 0.01 > 0.35
     with np.errstate(invalid="ignore"):
         first = np.where(some, np.nanmin(np.where(some[:, None], ct, 0.0), axis=1), np.nan)
         mean = np.where(some, np.nansum(ct, axis=1) / np.maximum(n_captured, 1), np.nan)

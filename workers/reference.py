@@ -15,7 +15,7 @@ Contract (summary)
   within the radius before step 0 are captured at t = 0.  Captured evaders
   leave the game at once (no motion, no cell, not a target or neighbour).
 * The game stops when every evader is captured or after
-  ``round(t_max / dt)`` steps.  Uncaptured evaders get NaN.
+  ``floor(t_max / dt + 1e-9)`` steps.  Uncaptured evaders get NaN.
 
 Voronoi cells
 -------------
@@ -446,7 +446,7 @@ def reference_game(
             capture_times[i] = 0.0
             alive[i] = False
 
-    n_steps = int(round(t_max / dt))
+    n_steps = math.floor(t_max / dt + 1e-9)
     for k in range(n_steps):
         if not alive.any():
             break
