@@ -51,6 +51,8 @@ def _load_json(path: str, field: str):
         return json.loads(Path(path).read_text())
     except FileNotFoundError:
         raise CliError(f"{field}: no such file {path!r}") from None
+    except OSError as e:
+        raise CliError(f"{field}: cannot read {path!r} ({e.strerror or type(e).__name__})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise CliError(f"{field}: {path!r} is not valid JSON ({e.__class__.__name__})") from None
 
@@ -66,6 +68,8 @@ def _add_game_options(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_game(a) -> int:
+    if a.plot and Path(a.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
+        raise CliError(f"--plot: {a.plot!r} must end in .png, .pdf or .svg")
     arena_vertices = _load_json(a.arena, "--arena") if a.arena else None
     arena = make_arena(arena_vertices)
     target = tuple(_floats(a.target, "--target", 2))
@@ -107,9 +111,10 @@ def cmd_game(a) -> int:
 
         frames = None
         if a.plot_times:
-            frames = [int(round(t / res.dt)) for t in _floats(a.plot_times, "--plot-times")]
-            if any(f < 0 for f in frames):
-                raise CliError("--plot-times: times must be >= 0")
+            times = _floats(a.plot_times, "--plot-times")
+            if not all(np.isfinite(t) and t >= 0 for t in times):
+                raise CliError("--plot-times: times must be finite and >= 0")
+            frames = [int(round(t / res.dt)) for t in times]
             frames = [min(f, int(res.steps[0])) for f in frames]
         frames = frames or default_frames(res, 0)
         path = plot_game(res, a.plot, frames=frames)
@@ -122,6 +127,8 @@ def cmd_pe_table(a) -> int:
 
     if a.games < 2:
         raise CliError(f"--games: need at least 2 games per case for a CI, got {a.games}")
+    if Path(a.out).exists() and not Path(a.out).is_dir():
+        raise CliError(f"--out: {a.out} exists and is not a folder")
     t0 = time.perf_counter()
     written, summary = write_pe_tables(
         Path(a.out), a.games, a.seed, a.format, progress=lambda m: print("  " + m, file=sys.stderr),
@@ -334,6 +341,17 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("farm: interrupted", file=sys.stderr)
         return 130
+    except OSError as e:  # a file or folder the user named, or a cluster that does not answer
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"farm: error: {where}{e.strerror or str(e).splitlines()[0] or type(e).__name__}", file=sys.stderr)
+        return 2
+    except Exception as e:
+        if type(e).__module__.startswith("ray"):  # a Ray failure: its cause, in one line
+            cause = getattr(e, "cause", None) or e
+            text = str(cause).strip().splitlines()
+            print(f"farm: error: Ray: {type(cause).__name__}: {text[-1] if text else ''}", file=sys.stderr)
+            return 2
+        raise
 
 
 if __name__ == "__main__":

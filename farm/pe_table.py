@@ -69,7 +69,8 @@ def format_tables(summary: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def write_pe_tables(out: Path, n_games: int, seed: int, fmt: str, progress=None, figures: bool = True) -> list[Path]:
+def write_pe_tables(out: Path, n_games: int, seed: int, fmt: str, progress=None,
+                    figures: bool = True) -> tuple[list[Path], pd.DataFrame]:
     """Run, print-ready summary and per-game files plus one figure per case."""
     from farm.plots import plot_game
 

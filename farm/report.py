@@ -112,7 +112,7 @@ def _pe_section(root: Path) -> str | None:
 
 def _game_figures(root: Path, used: set[Path]) -> str | None:
     pngs = [p for p in sorted(root.rglob("*.png")) if p not in used and "tables" not in p.parts
-            and not p.name.startswith("fig_")]
+            and not p.name.startswith(("fig_", "density_", "training_curve"))]
     if not pngs:
         return None
     used.update(pngs)
@@ -202,14 +202,16 @@ def _service_section(root: Path) -> str | None:
     stores = sorted(root.rglob("*.sqlite"))
     if not stores:
         return None
-    from farm.service.store import StatsStore, StoreCorruptError
+    from farm.service.store import NotAStoreError, StatsStore, StoreCorruptError
 
     parts = []
     for path in stores:
         try:
-            store = StatsStore(path)
+            store = StatsStore(path, read_only=True)
             rows = store.table()
             store.close()
+        except NotAStoreError:
+            continue
         except (StoreCorruptError, sqlite3.Error) as e:
             raise ReportError(str(e).splitlines()[0]) from None
         if not rows:
@@ -218,7 +220,10 @@ def _service_section(root: Path) -> str | None:
         for r in rows:
             case = r["key"]["case"]
             v = r["value"]
-            records.append({"pursuer_policy": case["pursuer_policy"], "evader_policy": case["evader_policy"],
+            settings = {k: v for k, v in case.items() if k not in ("n_pursuers", "n_evaders")}
+            settings.update(games=r["key"]["games"], seed=r["key"]["seed"])
+            records.append({"settings": json.dumps(settings, sort_keys=True),
+                            "pursuer_policy": case["pursuer_policy"], "evader_policy": case["evader_policy"],
                             "n_pursuers": case["n_pursuers"], "n_evaders": case["n_evaders"],
                             "games": r["key"]["games"], "tau": case["tau"],
                             "mean_capture": v.get("mean_capture_mean"),
@@ -228,20 +233,21 @@ def _service_section(root: Path) -> str | None:
         df = pd.DataFrame(records).sort_values(["pursuer_policy", "evader_policy", "n_pursuers", "n_evaders"])
         figs = []
         plt = _plt()
-        for (pp, ep), g in df.groupby(["pursuer_policy", "evader_policy"]):
-            grid = g.pivot_table(index="n_pursuers", columns="n_evaders", values="mean_capture")
+        for (pp, ep, _), g in df.groupby(["pursuer_policy", "evader_policy", "settings"]):
+            grid = g.pivot(index="n_pursuers", columns="n_evaders", values="mean_capture")
             fig, ax = plt.subplots(figsize=(5.5, 4))
             im = ax.imshow(grid.to_numpy(dtype=float), origin="lower", aspect="auto", cmap="viridis")
             ax.set_xticks(range(len(grid.columns)), grid.columns)
             ax.set_yticks(range(len(grid.index)), grid.index)
             ax.set_xlabel("evaders")
             ax.set_ylabel("pursuers")
-            ax.set_title(f"{pp} vs {ep}: mean capture time (s)", fontsize=9)
+            ax.set_title(f"{pp} vs {ep}, {g['games'].iloc[0]} games, tau {g['tau'].iloc[0]:g}, "
+                         f"engine {g['engine'].iloc[0]}: mean capture time (s)", fontsize=8)
             fig.colorbar(im, ax=ax)
             fig.tight_layout()
             figs.append(_img(_fig_bytes(fig), f"{pp} vs {ep} heatmap"))
         parts.append(f"<p class=src>{html.escape(str(path))}: {len(df)} cases</p><div class=grid>{''.join(figs)}</div>"
-                     f"<details><summary>all cases</summary>{_table(df)}</details>")
+                     f"<details><summary>all cases</summary>{_table(df.drop(columns='settings'))}</details>")
     return "".join(parts) or None
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import sys
 import time
 from collections import deque
@@ -152,7 +153,7 @@ class SweepRun:
     def run_on_ray(self, shards: list[Shard], workers: int, progress=None) -> dict:
         """Run shards as Ray tasks, at most `workers` at once; returns counts."""
         import ray
-        from ray.exceptions import RayError
+        from ray.exceptions import RayError, RayTaskError
 
         task = ray.remote(num_cpus=1, max_retries=0)(_remote_shard)
         name = self.config.name
@@ -171,7 +172,11 @@ class SweepRun:
                 shard, attempt = in_flight.pop(ref)
                 try:
                     df, node = ray.get(ref)
-                except RayError as e:
+                except RayTaskError as e:  # the shard's own error: the same again on a retry
+                    cause = e.cause if e.cause is not None else e
+                    raise SweepError(f"shard {shard.file_name} failed: {type(cause).__name__}: "
+                                     f"{str(cause).splitlines()[0] if str(cause) else ''}") from None
+                except RayError as e:  # a worker or node died: run the shard again
                     counts["failed"] += 1
                     recorder.failed()
                     if attempt >= MAX_ATTEMPTS:
@@ -247,7 +252,8 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
 
                 with ray_cluster(address, num_cpus=workers, metrics_port=metrics_port) as ray:
                     cpus = int(ray.cluster_resources().get("CPU", 1))
-                    n = max(1, min(workers or cpus, cpus) if not address else (workers or cpus))
+                    joined = address or os.environ.get("RAY_ADDRESS")
+                    n = max(1, min(workers or cpus, cpus) if not joined else (workers or cpus))
                     info["workers"] = n
                     info.update(run.run_on_ray(todo, n, progress=bar.update))
             else:

@@ -115,7 +115,9 @@ def start_head(groups, tmp_path, cpus, dashboard_port=None):
     args = ["--head", f"--port={port}", f"--num-cpus={cpus}", f"--temp-dir={temp}",
             "--disable-usage-stats"]
     if dashboard_port:
-        args += ["--include-dashboard=true", "--dashboard-host=127.0.0.1", f"--dashboard-port={dashboard_port}"]
+        # Its own agent port too: another Ray on this machine may hold the default one.
+        args += ["--include-dashboard=true", "--dashboard-host=127.0.0.1", f"--dashboard-port={dashboard_port}",
+                 f"--dashboard-agent-listen-port={free_port()}"]
     else:
         args += ["--include-dashboard=false"]
     ray_start(groups, *args)
@@ -162,11 +164,16 @@ def test_ray_job_submit_smoke_sweep(groups, tmp_path):
     out = tmp_path / "job-out"
     url = f"http://127.0.0.1:{dashboard}"
     job_id = f"smoke-{os.getpid()}"
-    submit = subprocess.run(
-        [str(BIN / "ray"), "job", "submit", "--address", url, "--working-dir", ".", "--submission-id", job_id,
-         "--no-wait", "--", "farm", "sweep", "configs/smoke.yaml", "--out", str(out), "--quiet"],
-        cwd=REPO, env=ENV, capture_output=True, text=True, timeout=300,
-    )
+    deadline = time.time() + 120
+    while True:  # the head's job agent may need a moment after `ray start` on a loaded machine
+        submit = subprocess.run(
+            [str(BIN / "ray"), "job", "submit", "--address", url, "--working-dir", ".", "--submission-id", job_id,
+             "--no-wait", "--", "farm", "sweep", "configs/smoke.yaml", "--out", str(out), "--quiet"],
+            cwd=REPO, env=ENV, capture_output=True, text=True, timeout=300,
+        )
+        if submit.returncode == 0 or "No available agent" not in submit.stderr or time.time() > deadline:
+            break
+        time.sleep(2)
     assert submit.returncode == 0, submit.stdout + submit.stderr
     deadline, status = time.time() + 300, ""
     while time.time() < deadline:

@@ -40,10 +40,6 @@ class Arena:
         w = np.roll(v, -1, axis=0)
         return 0.5 * float(np.sum(v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]))
 
-    @property
-    def is_default_square(self) -> bool:
-        return self is DEFAULT_ARENA
-
     def signed_distances(self, points: np.ndarray) -> np.ndarray:
         """points: (..., 2) float64 -> (..., k) float64, positive outside edge i."""
         return (

@@ -36,6 +36,7 @@ class CaptureTimeService:
         self.store = StatsStore(store_path)
         self.cache: dict[str, dict] = self.store.load_all()
         self.inflight: dict[str, asyncio.Future] = {}
+        self.tasks: set = set()
         self.computations: Counter = Counter()
         self.counts: Counter = Counter()
         self.compute_seconds = 0.0
@@ -49,7 +50,7 @@ class CaptureTimeService:
         waits = []
         for i, key in enumerate(keys):
             d = key.digest()
-            value = self.cache.get(d)
+            value = self.cache.get(d) or self._from_store(key, d)
             if value is not None:
                 out[i] = value
                 self.counts["hits"] += 1
@@ -68,11 +69,21 @@ class CaptureTimeService:
             out[i] = await asyncio.shield(future)
         return out
 
+    def _from_store(self, key: StatsKey, digest: str) -> dict | None:
+        """A key another process stored since this actor started."""
+        value = self.store.get(key)
+        if value is not None:
+            self.cache[digest] = value
+        return value
+
     def _start(self, key: StatsKey, digest: str) -> asyncio.Future:
         future = asyncio.get_running_loop().create_future()
+        future.add_done_callback(lambda f: f.cancelled() or f.exception())  # retrieved even if nobody waits
         self.inflight[digest] = future
         self.metrics.inflight(len(self.inflight))
-        asyncio.ensure_future(self._compute(key, digest, future))
+        task = asyncio.ensure_future(self._compute(key, digest, future))
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
         return future
 
     async def _shard(self, key: StatsKey, start: int, stop: int) -> pd.DataFrame:
@@ -88,9 +99,12 @@ class CaptureTimeService:
             self.cache[digest] = value
             self.computations[digest] += 1
             future.set_result(value)
-        except Exception as e:  # handed to every waiter
+        except BaseException as e:  # handed to every waiter, cancellation included
             log.exception("computing %s failed", digest)
-            future.set_exception(e)
+            if not future.done():
+                future.set_exception(e if isinstance(e, Exception) else RuntimeError(f"cancelled: {e!r}"))
+            if not isinstance(e, Exception):
+                raise
         finally:
             seconds = time.perf_counter() - t0
             self.compute_seconds += seconds
@@ -102,9 +116,6 @@ class CaptureTimeService:
         return {**self.counts, "computations": dict(self.computations), "inflight": len(self.inflight),
                 "stored": len(self.cache), "compute_seconds": self.compute_seconds,
                 "corrupt_rows": list(self.store.corrupt_rows), "store": str(self.store.path)}
-
-    def ping(self) -> bool:
-        return True
 
 
 def get_service(store_path, *, name: str = SERVICE_NAME, detached: bool = False, max_shards_in_flight=None):

@@ -15,7 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
-from workers import ENGINE_VERSION, Case, InitialLaw, InputError
+from workers import Case, InitialLaw, InputError
 
 __all__ = ["ServiceSettings", "StatsKey"]
 
@@ -85,6 +85,3 @@ class StatsKey:
         d["case"] = {k: v for k, v in d["case"].items() if k not in ("n_pursuers", "n_evaders")}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
-    @property
-    def stale(self) -> bool:
-        return self.case.engine_version != ENGINE_VERSION

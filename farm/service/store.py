@@ -42,6 +42,10 @@ class StoreCorruptError(RuntimeError):
     """The store's file is damaged: one line naming it."""
 
 
+class NotAStoreError(RuntimeError):
+    """A sound SQLite file that is not a capture-time store."""
+
+
 def _checksum(key: str, key_json: str, value_json: str) -> str:
     return hashlib.sha256(f"{key}\n{key_json}\n{value_json}".encode()).hexdigest()
 
@@ -49,19 +53,31 @@ def _checksum(key: str, key_json: str, value_json: str) -> str:
 class StatsStore:
     """key digest -> statistics dict, on disk."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, *, read_only: bool = False):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.corrupt_rows: list[str] = []
+        self.corrupt_rows: set[str] = set()
         self._lock = threading.Lock()
         try:
-            self.db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None, timeout=30)
-            self.db.execute("PRAGMA journal_mode=WAL")
-            self.db.execute("PRAGMA synchronous=NORMAL")
+            if read_only:
+                self.db = sqlite3.connect(f"{self.path.resolve().as_uri()}?mode=ro", uri=True,
+                                          check_same_thread=False, isolation_level=None, timeout=30)
+            else:
+                self.db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None, timeout=30)
+                self.db.execute("PRAGMA journal_mode=WAL")
+                self.db.execute("PRAGMA synchronous=NORMAL")
             ok = self.db.execute("PRAGMA quick_check").fetchone()[0]
             if ok != "ok":
                 raise sqlite3.DatabaseError(ok)
-            self.db.executescript(SCHEMA)
+            if read_only:
+                tables = {r[0] for r in self.db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+                if "stats" not in tables:
+                    raise NotAStoreError(f"{self.path}: not a capture-time store")
+            else:
+                self.db.executescript(SCHEMA)
+        except NotAStoreError:
+            self.db.close()
+            raise
         except sqlite3.DatabaseError as e:
             raise StoreCorruptError(
                 f"{self.path}: the capture-time store is damaged ({str(e).splitlines()[0]}); "
@@ -73,8 +89,10 @@ class StatsStore:
 
     def _row_value(self, key, key_json, value_json, checksum) -> dict | None:
         if _checksum(key, key_json, value_json) != checksum:
-            log.error("capture-time store %s: row %s fails its checksum; not served, will be recomputed", self.path, key)
-            self.corrupt_rows.append(key)
+            if key not in self.corrupt_rows:
+                log.error("capture-time store %s: row %s fails its checksum; not served, will be recomputed",
+                          self.path, key)
+            self.corrupt_rows.add(key)
             return None
         return json.loads(value_json)
 

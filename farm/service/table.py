@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from workers import InitialLaw, InputError
 
@@ -33,8 +33,16 @@ class _Strict(BaseModel):
 
 
 class SettingsModel(GameModel):
+    """The game settings of a table (team sizes come from n_pursuers / n_evaders)."""
+
     games: int = Field(50, ge=2, le=1_000_000)
     seed: int = Field(0, ge=0)
+
+    @model_validator(mode="after")
+    def _no_team_sizes(self):
+        if "n_pursuers" in self.model_fields_set or "n_evaders" in self.model_fields_set:
+            raise ValueError("team sizes go in the table's n_pursuers / n_evaders lists, not in settings")
+        return self
 
 
 class PolicyPair(_Strict):
@@ -43,7 +51,7 @@ class PolicyPair(_Strict):
 
 
 class TableConfig(_Strict):
-    name: str = Field(min_length=1, max_length=100)
+    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
     store: str = DEFAULT_STORE
     settings: SettingsModel = SettingsModel()
     n_pursuers: list[int] = Field(min_length=1)
@@ -101,8 +109,11 @@ def fill_table(config: TableConfig, *, store=None, address=None, workers=None, s
     keys = config.keys()
     t0 = time.perf_counter()
     with ray_cluster(address, num_cpus=workers) as ray:
-        service = get_service(store or config.store)
+        wanted = Path(store or config.store).resolve()
+        service = get_service(wanted)
         before = ray.get(service.stats.remote())
+        if Path(before["store"]) != wanted:
+            raise ConfigError(f"--store: this cluster's capture-time service uses {before['store']}, not {wanted}")
         bar = GameProgress(len(keys), enabled=show_progress, desc="cases", unit="case")
         pending = [service.get_many.remote([k]) for *_, k in keys]
         while pending:
