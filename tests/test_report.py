@@ -80,3 +80,17 @@ def test_report_bad_input_is_one_line_and_leaves_no_file(results, tmp_path):
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert message in r.stderr and "Traceback" not in r.stderr
         assert not out.exists() and not list(tmp_path.glob(f".{out.name}.*"))
+
+
+def test_report_leaves_other_sqlite_files_alone(results, tmp_path):
+    import sqlite3
+
+    other = results / "unrelated.sqlite"
+    db = sqlite3.connect(other)
+    db.execute("CREATE TABLE notes (x TEXT)")
+    db.commit()
+    db.close()
+    before = other.read_bytes()
+    assert farm("report", results, "-o", tmp_path / "r.html").returncode == 0
+    assert other.read_bytes() == before and not other.with_name("unrelated.sqlite-wal").exists()
+    other.unlink()

@@ -107,3 +107,22 @@ def test_cli_bad_config_is_one_line_and_keeps_results(tmp_path):
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert message in r.stderr and "Traceback" not in r.stderr
     assert {p.name: p.read_bytes() for p in (out / "shards").iterdir()} == before
+
+
+def test_nan_target_is_rejected_before_anything_runs(tmp_path):
+    with pytest.raises(ConfigError, match="target: must be a finite point"):
+        load_sweep_config(write(tmp_path, "name: t\nbase: {target: [.nan, 5]}\n"))
+
+
+def test_point_numbers_do_not_depend_on_their_place(tmp_path):
+    from farm.sweep import run_sweep, SweepRun
+
+    a = load_sweep_config(write(tmp_path, "name: t\ngames_per_point: 3\nbase: {t_max: 10}\nvary: {grid: {n_pursuers: [2, 3]}}\n"))
+    b_path = tmp_path / "b.yaml"
+    b_path.write_text("name: t\ngames_per_point: 3\nbase: {t_max: 10}\nvary: {grid: {n_pursuers: [1, 3]}}\n")
+    b = load_sweep_config(b_path)
+    ga = (run_sweep(a, tmp_path / "a", use_ray=False, show_progress=False), SweepRun(a, tmp_path / "a").read_games())[1]
+    gb = (run_sweep(b, tmp_path / "b", use_ray=False, show_progress=False), SweepRun(b, tmp_path / "b").read_games())[1]
+    three_a = ga[ga["point"] == 1].drop(columns=["point"]).reset_index(drop=True)
+    three_b = gb[gb["point"] == 1].drop(columns=["point"]).reset_index(drop=True)
+    assert three_a.drop(columns=["capture_times"]).equals(three_b.drop(columns=["capture_times"]))
