@@ -54,6 +54,14 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
     assert {"return_mean", "return_ci95", "eliminated_mean", "breached_mean", "length_mean"} <= set(table.columns)
     assert (table["episodes"] == 3).all()
     assert len(list(run.glob("density_*.png"))) == 4
+    assert (run / "training_curve.png").exists()
+
+    r = farm("eval", run, "--episodes", 2, "--fidelity", "games")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "return, games minus service:" in r.stdout
+    diffs = pd.read_csv(run / "fidelity_differences.csv")
+    assert len(diffs) > 0 and diffs["game_frac_tau"].between(0, 1).all()
+    assert set(pd.read_csv(run / "eval_table_games.csv")["policy"]) == set(table["policy"])
 
 
 def test_train_bad_config_and_refusals(tiny_config, tmp_path):
