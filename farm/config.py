@@ -223,25 +223,33 @@ class Point:
         return {"index": self.index, "case": self.case.key(), "games": self.games, "shard_games": self.shard_games}
 
 
-def load_sweep_config(path: str | Path) -> SweepConfig:
-    """Read and validate a sweep YAML; raises ConfigError with one line."""
+def load_yaml_model(path: str | Path, model: type[BaseModel], what: str):
+    """Read a YAML mapping into a typed model; any problem is a ConfigError of one line."""
     path = Path(path)
     try:
         raw = yaml.safe_load(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a config file") from None
     except (yaml.YAMLError, UnicodeDecodeError) as e:
         mark = getattr(e, "problem_mark", None)
         where = f" (line {mark.line + 1})" if mark else ""
         raise ConfigError(f"{path}: not valid YAML{where}") from None
     if not isinstance(raw, dict):
-        raise ConfigError(f"{path}: must be a mapping of sweep fields")
+        raise ConfigError(f"{path}: must be a mapping of {what} fields")
     try:
-        config = SweepConfig(**raw)
+        return model(**raw)
     except ValidationError as e:
         raise ConfigError(f"{path}: {_first_line(e)}") from None
-    except TypeError as e:
+    except (TypeError, InputError) as e:
         raise ConfigError(f"{path}: {e}") from None
+
+
+def load_sweep_config(path: str | Path) -> SweepConfig:
+    """Read and validate a sweep YAML; raises ConfigError with one line."""
+    path = Path(path)
+    config = load_yaml_model(path, SweepConfig, "sweep")
     try:
         config.points()
     except ConfigError as e:

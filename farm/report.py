@@ -61,6 +61,21 @@ def _fig_bytes(fig) -> bytes:
     return buf.getvalue()
 
 
+def _heatmap(grid: pd.DataFrame, title: str, alt: str) -> str:
+    """An n_pursuers x n_evaders heatmap as an <img>."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    im = ax.imshow(grid.to_numpy(dtype=float), origin="lower", aspect="auto", cmap="viridis")
+    ax.set_xticks(range(len(grid.columns)), grid.columns)
+    ax.set_yticks(range(len(grid.index)), grid.index)
+    ax.set_xlabel("evaders")
+    ax.set_ylabel("pursuers")
+    ax.set_title(title, fontsize=8)
+    fig.colorbar(im, ax=ax)
+    fig.tight_layout()
+    return _img(_fig_bytes(fig), alt)
+
+
 def _table(df: pd.DataFrame) -> str:
     inner = df.to_html(index=False, border=0, classes="t", float_format=lambda x: f"{x:.3f}", na_rep="-")
     return f"<div class=scroll>{inner}</div>"
@@ -169,16 +184,7 @@ def _sweep_chart(summary: pd.DataFrame, changed: list[str]) -> str:
         out = []
         for name, g in groups:
             grid = g.pivot_table(index="n_pursuers", columns="n_evaders", values=y)
-            fig, ax = plt.subplots(figsize=(5.5, 4))
-            im = ax.imshow(grid.to_numpy(dtype=float), origin="lower", aspect="auto", cmap="viridis")
-            ax.set_xticks(range(len(grid.columns)), grid.columns)
-            ax.set_yticks(range(len(grid.index)), grid.index)
-            ax.set_xlabel("evaders")
-            ax.set_ylabel("pursuers")
-            ax.set_title(f"mean time to capture all (s) {name if others else ''}", fontsize=9)
-            fig.colorbar(im, ax=ax)
-            fig.tight_layout()
-            out.append(_img(_fig_bytes(fig), "sweep heatmap"))
+            out.append(_heatmap(grid, f"mean time to capture all (s) {name if others else ''}", "sweep heatmap"))
         return "<div class=grid>" + "".join(out) + "</div>"
     numeric = [c for c in changed if pd.api.types.is_numeric_dtype(summary[c])]
     if not numeric:
@@ -232,20 +238,11 @@ def _service_section(root: Path) -> str | None:
                             "engine": case["engine_version"]})
         df = pd.DataFrame(records).sort_values(["pursuer_policy", "evader_policy", "n_pursuers", "n_evaders"])
         figs = []
-        plt = _plt()
         for (pp, ep, _), g in df.groupby(["pursuer_policy", "evader_policy", "settings"]):
             grid = g.pivot(index="n_pursuers", columns="n_evaders", values="mean_capture")
-            fig, ax = plt.subplots(figsize=(5.5, 4))
-            im = ax.imshow(grid.to_numpy(dtype=float), origin="lower", aspect="auto", cmap="viridis")
-            ax.set_xticks(range(len(grid.columns)), grid.columns)
-            ax.set_yticks(range(len(grid.index)), grid.index)
-            ax.set_xlabel("evaders")
-            ax.set_ylabel("pursuers")
-            ax.set_title(f"{pp} vs {ep}, {g['games'].iloc[0]} games, tau {g['tau'].iloc[0]:g}, "
-                         f"engine {g['engine'].iloc[0]}: mean capture time (s)", fontsize=8)
-            fig.colorbar(im, ax=ax)
-            fig.tight_layout()
-            figs.append(_img(_fig_bytes(fig), f"{pp} vs {ep} heatmap"))
+            title = (f"{pp} vs {ep}, {g['games'].iloc[0]} games, tau {g['tau'].iloc[0]:g}, "
+                     f"engine {g['engine'].iloc[0]}: mean capture time (s)")
+            figs.append(_heatmap(grid, title, f"{pp} vs {ep} heatmap"))
         parts.append(f"<p class=src>{html.escape(str(path))}: {len(df)} cases</p><div class=grid>{''.join(figs)}</div>"
                      f"<details><summary>all cases</summary>{_table(df.drop(columns='settings'))}</details>")
     return "".join(parts) or None

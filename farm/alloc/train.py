@@ -28,10 +28,10 @@ from typing import Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
 from farm.alloc.config import AllocConfig
-from farm.config import ConfigError, _first_line
+from farm.config import ConfigError, load_yaml_model
 
 
 class _Strict(BaseModel):
@@ -78,19 +78,7 @@ class TrainConfig(_Strict):
 
 
 def load_train_config(path) -> TrainConfig:
-    path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such config file") from None
-    except (yaml.YAMLError, UnicodeDecodeError):
-        raise ConfigError(f"{path}: not valid YAML") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{path}: must be a mapping of training fields")
-    try:
-        return TrainConfig(**raw)
-    except ValidationError as e:
-        raise ConfigError(f"{path}: {_first_line(e)}") from None
+    return load_yaml_model(path, TrainConfig, "training")
 
 
 def lattice_pairs(env: AllocConfig) -> list[tuple[int, int]]:

@@ -17,12 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from workers import InitialLaw, InputError
 
-from farm.config import ConfigError, GameModel, _first_line
+from farm.config import ConfigError, GameModel, load_yaml_model
 from farm.service.keys import ServiceSettings
 
 DEFAULT_STORE = "results/capture_times.sqlite"
@@ -81,20 +80,9 @@ class TableConfig(_Strict):
 
 
 def load_table_config(path) -> TableConfig:
-    path = Path(path)
+    config = load_yaml_model(path, TableConfig, "table")
     try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such config file") from None
-    except (yaml.YAMLError, UnicodeDecodeError):
-        raise ConfigError(f"{path}: not valid YAML") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{path}: must be a mapping of table fields")
-    try:
-        config = TableConfig(**raw)
         config.keys()
-    except ValidationError as e:
-        raise ConfigError(f"{path}: {_first_line(e)}") from None
     except InputError as e:
         raise ConfigError(f"{path}: {e}") from None
     return config
