@@ -1,3 +1,5 @@
+import socket
+
 import numpy as np
 import pytest
 
@@ -15,3 +17,22 @@ def points_in(arena_vertices, shape, rng):
 @pytest.fixture
 def rng():
     return np.random.default_rng(20261123)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def ray_local():
+    """A real 2-CPU local Ray for one test module; yields its Prometheus metrics port."""
+    import ray
+
+    port = free_port()
+    ray.init(num_cpus=2, namespace="swarm-farm", include_dashboard=False, _node_ip_address="127.0.0.1",
+             _metrics_export_port=port, _system_config={"metrics_report_interval_ms": 500},
+             logging_level="ERROR", log_to_driver=False)
+    yield port
+    ray.shutdown()

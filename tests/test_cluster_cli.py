@@ -6,7 +6,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import free_port
 
 from farm.config import load_sweep_config
 from farm.sweep import SweepRun, run_sweep
@@ -35,12 +35,6 @@ base: {n_evaders: 2, t_max: 30}
 vary:
   grid: {n_pursuers: [3, 5], evader_policy: [centroid, constant_area]}
 """
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture

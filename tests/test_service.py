@@ -134,20 +134,6 @@ def test_estimate_from_neighbours_is_flagged(tmp_path):
 # ---------------------------------------------------------------- on Ray
 
 
-@pytest.fixture(scope="module")
-def ray_local():
-    import ray
-
-    from tests_support import free_port
-
-    port = free_port()
-    ray.init(num_cpus=2, namespace="swarm-farm", include_dashboard=False, _node_ip_address="127.0.0.1",
-             _metrics_export_port=port, _system_config={"metrics_report_interval_ms": 500},
-             logging_level="ERROR", log_to_driver=False)
-    yield port
-    ray.shutdown()
-
-
 def test_actor_miss_restart_and_single_flight(ray_local, tmp_path):
     import ray
 

@@ -3,7 +3,6 @@ workers, resume, a worker killed by PID mid-sweep, and the exported metrics."""
 
 import os
 import signal
-import socket
 import textwrap
 import threading
 import time
@@ -28,35 +27,11 @@ vary:
 """
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.fixture(scope="module")
-def ray_local():
-    import ray
-
-    port = free_port()
-    ray.init(num_cpus=2, namespace="swarm-farm-test", include_dashboard=False, _node_ip_address="127.0.0.1",
-             _metrics_export_port=port, _system_config={"metrics_report_interval_ms": 500},
-             logging_level="ERROR", log_to_driver=False)
-    yield port
-    ray.shutdown()
-
-
 @pytest.fixture
 def config(tmp_path):
     path = tmp_path / "sweep.yaml"
     path.write_text(textwrap.dedent(SWEEP))
     return load_sweep_config(path)
-
-
-def games(out):
-    df = pd.read_parquet(out / "summary.parquet")
-    rows = SweepRun.__new__(SweepRun)
-    return df
 
 
 def read_games(config, out):
