@@ -1,9 +1,12 @@
-"""Allocation env and TD3 trainer costs, one process.
+"""Allocation env and TD3 trainer costs, one process, one core for torch.
 
 1. env step time with a warm capture-time cache (memo hits only)   target <= 0.2 ms
 2. share of TD3 training wall time spent outside the networks' updates
    (env steps, action selection, replay buffer, callbacks)        target <= 5 %
-Usage: python benchmarks/alloc.py [--steps 3000]
+   side by side: stock stable-baselines3 TD3, farm's AllocTD3 (same algorithm,
+   lean per-step path), and the whole `farm train` loop (paper 3x3 hyperparameters
+   with its evaluation, checkpoint-with-replay-buffer and progress callbacks).
+Usage: python benchmarks/alloc.py [--steps 3000] [--train-steps 20000]   (about 8 min)
 """
 
 from __future__ import annotations
@@ -21,22 +24,26 @@ import numpy as np  # noqa: E402
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--steps", type=int, default=3000, help="TD3.learn steps per bare row")
+    ap.add_argument("--train-steps", type=int, default=20000, help="steps of the farm train row (the paper run: 20000)")
     a = ap.parse_args()
     import torch
     from stable_baselines3 import TD3
 
     from farm.alloc import AllocConfig, SwarmAllocationEnv
+    from farm.alloc.td3 import AllocTD3
+    from farm.alloc.train import ServiceParams, TrainConfig, lattice_pairs, load_train_config, train
     from farm.service import CaptureTimeClient
 
     torch.set_num_threads(1)
     config = AllocConfig(grid_size=3, n_defenders=100, n_intruders=50, c_capture=1.5, team_sizes="lattice",
                          games=4, t_max=6.0)
+    paper = load_train_config(Path(__file__).resolve().parents[1] / "configs/train/paper_3x3_c1_1.5.yaml")
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        store = Path(tmp) / "s.sqlite"
         probe = SwarmAllocationEnv(config, client=object())
-        client = CaptureTimeClient(probe.service_settings(), local_store=Path(tmp) / "s.sqlite")
-        from farm.alloc.train import TrainConfig, lattice_pairs
-
+        client = CaptureTimeClient(probe.service_settings(), local_store=store)
         t0 = time.perf_counter()
         client.get_many(lattice_pairs(config))
         t_warm = time.perf_counter() - t0
@@ -56,26 +63,36 @@ def main() -> None:
                 env.reset(seed=n)
         step_ms = (time.perf_counter() - t0) / n * 1e3
 
-        model = TD3("MlpPolicy", env, learning_starts=100, batch_size=256, policy_kwargs={"net_arch": [400, 300]},
-                    seed=0, device="cpu", verbose=0)
-        spent = {"train": 0.0}
-        original = model.train
+        for label, cls in (("stable-baselines3 TD3", TD3), ("farm AllocTD3", AllocTD3)):
+            model = cls("MlpPolicy", env, learning_starts=100, batch_size=256, seed=0, device="cpu", verbose=0,
+                        policy_kwargs={"net_arch": [400, 300]})
+            spent = {"train": 0.0}
+            original = model.train
 
-        def timed_train(*args, **kwargs):
-            t = time.perf_counter()
-            original(*args, **kwargs)
-            spent["train"] += time.perf_counter() - t
+            def timed_train(*args, _original=original, **kwargs):
+                t = time.perf_counter()
+                _original(*args, **kwargs)
+                spent["train"] += time.perf_counter() - t
 
-        model.train = timed_train
-        t0 = time.perf_counter()
-        model.learn(total_timesteps=a.steps)
-        total = time.perf_counter() - t0
-    outside = 1 - spent["train"] / total
+            model.train = timed_train
+            t0 = time.perf_counter()
+            model.learn(total_timesteps=a.steps)
+            total = time.perf_counter() - t0
+            rows.append((f"{label}, learn {a.steps} steps", total, a.steps, 1 - spent["train"] / total))
+
+        run = TrainConfig(name="bench", seed=0, env=config,
+                          td3=paper.td3.model_copy(update={"n_timesteps": a.train_steps}),
+                          eval=paper.eval, checkpoint_freq=paper.checkpoint_freq,
+                          service=ServiceParams(mode="local", store=str(store)))
+        m = train(run, Path(tmp) / "run", show_progress=False)
+        rows.append((f"farm train, {a.train_steps} steps, callbacks", m["wall_seconds"], a.train_steps,
+                     m["outside_update_share"]))
     print(f"lattice warm-up (in-process, {len(lattice_pairs(config))} cases, 4 games each): {t_warm:.1f} s")
-    print(f"{'measure':<52}{'value':>10}{'target':>10}")
-    print(f"{'env step, warm cache':<52}{step_ms:>8.3f}ms{'<= 0.2ms':>10}")
-    print(f"{f'TD3 400-300, {a.steps} steps: wall':<52}{total:>9.1f}s{'':>10}  ({a.steps / total:.0f} steps/s)")
-    print(f"{'  share outside the networks updates':<52}{100 * outside:>9.1f}%{'<= 5%':>10}")
+    print(f"env step, warm cache: {step_ms:.3f} ms   (target <= 0.2 ms)")
+    print(f"{'TD3 400-300, batch 256, train_freq 1':<44}{'wall':>8}{'steps/s':>9}{'outside updates':>17}")
+    for label, wall, steps, outside in rows:
+        print(f"{label:<44}{wall:>7.1f}s{steps / wall:>9.0f}{100 * outside:>16.1f}%")
+    print(f"{'target':<44}{'':>17}{'<= 5%':>17}")
 
 
 if __name__ == "__main__":

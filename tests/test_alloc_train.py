@@ -35,6 +35,7 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
     assert list((run / "tb").rglob("events.out.tfevents.*")), "no TensorBoard log"
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["timesteps"] == 300 and metrics["final_eval_mean_return"] is not None
+    assert 0 < metrics["update_seconds"] < metrics["wall_seconds"] and 0 < metrics["outside_update_share"] < 1
 
     from stable_baselines3 import TD3
 

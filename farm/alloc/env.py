@@ -52,8 +52,15 @@ def n_actions(n: int) -> int:
 
 
 def snap(x: int) -> int:
-    """The nearest lattice team size (team_sizes: lattice)."""
+    """The nearest lattice team size (team_sizes: lattice), ties to the smaller."""
     return min(LATTICE, key=lambda v: (abs(math.log(v) - math.log(x)), v))
+
+
+def snap_table(top: int) -> np.ndarray:
+    """(top + 1,) int64: snap(x) for x = 0..top (entry 0 unused, set to 1)."""
+    x = np.arange(1, top + 1, dtype=np.float64)
+    gap = np.abs(np.log(np.array(LATTICE, dtype=np.float64))[None, :] - np.log(x)[:, None])
+    return np.concatenate([[1], np.array(LATTICE)[np.argmin(gap, axis=1)]]).astype(np.int64)
 
 
 class SwarmAllocationEnv(gym.Env):
@@ -82,6 +89,7 @@ class SwarmAllocationEnv(gym.Env):
         self.I = np.zeros(n * n)
         self.steps = 0
         self.breached = 0.0
+        self._snap = snap_table(max(cfg.n_defenders, cfg.n_intruders)) if cfg.team_sizes == "lattice" else None
 
     def service_settings(self):
         from workers import InitialLaw
@@ -95,7 +103,7 @@ class SwarmAllocationEnv(gym.Env):
     # ----- the MDP ------------------------------------------------------------------
     def move_probabilities(self, action: np.ndarray) -> np.ndarray:
         """action (A,) -> p (A,) float64, each cell's slice summing to 1."""
-        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64), -1.0), 1.0)
         if self.config.action_map == "softmax":
             z = self.config.softmax_beta * a
             z = z - np.maximum.reduceat(z, self.start)[self.src]
@@ -133,9 +141,6 @@ class SwarmAllocationEnv(gym.Env):
         self.I = moved.reshape(-1)
         return breach
 
-    def _team(self, x: float) -> int:
-        return snap(x) if self.config.team_sizes == "lattice" else x
-
     def _engage(self):
         cfg = self.config
         n_p = np.rint(self.D * cfg.n_defenders).astype(np.int64)
@@ -143,7 +148,10 @@ class SwarmAllocationEnv(gym.Env):
         if len(cells) == 0:
             return 0.0, 0.0, 0, 0
         n_e = np.maximum(1, np.rint(self.I[cells] * cfg.n_intruders).astype(np.int64))
-        pairs = [(self._team(int(a)), self._team(int(b))) for a, b in zip(n_p[cells], n_e)]
+        n_p = n_p[cells]
+        if self._snap is not None:
+            n_p, n_e = self._snap[n_p], self._snap[n_e]
+        pairs = list(zip(n_p.tolist(), n_e.tolist()))
         values = self.client.get_many(pairs)
         frac = np.array([v["expected_frac_captured_tau"] for v in values])
         t = np.array([v["mean_capture_mean"] for v in values], dtype=np.float64)
@@ -183,7 +191,7 @@ class SwarmAllocationEnv(gym.Env):
         return self._obs(), float(reward), bool(terminated), bool(truncated), info
 
     def _obs(self) -> np.ndarray:
-        return np.clip(np.concatenate([self.D, self.I]), 0.0, 1.0).astype(np.float32)
+        return np.minimum(np.maximum(np.concatenate([self.D, self.I]), 0.0), 1.0).astype(np.float32)
 
     def _info(self, breach, eliminated, engaged, estimates) -> dict:
         return {"breached_step": breach, "breached": self.breached, "eliminated_step": eliminated,

@@ -11,11 +11,14 @@ Config (RL-Zoo-style hyperparameters under `td3`):
           noise_type: normal, noise_std: 0.2, policy_kwargs: {net_arch: [400, 300]}}
     eval: {freq: 2000, episodes: 10}
     checkpoint_freq: 5000
+    log_interval: 100       # episodes between TensorBoard rollout records
     service: {mode: ray, store: results/capture_times.sqlite, address: null, warm_lattice: true}
 
 A run folder holds model.zip, config.yaml, metrics.json, evaluations.npz (the
 training curve), checkpoints/ (with the replay buffer, for --resume), best/ and
-tb/ (TensorBoard).
+tb/ (TensorBoard). The algorithm is SB3's TD3 through farm.alloc.td3.AllocTD3
+(a lean per-step path; the saved model is plain SB3); metrics.json records the
+share of wall time spent outside the gradient updates.
 """
 
 from __future__ import annotations
@@ -74,6 +77,7 @@ class TrainConfig(_Strict):
     td3: TD3Params = TD3Params()
     eval: EvalParams = EvalParams()
     checkpoint_freq: int = Field(5000, ge=1)
+    log_interval: int = Field(100, ge=1)  # episodes between TensorBoard rollout records
     service: ServiceParams = ServiceParams()
 
 
@@ -164,12 +168,12 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
 def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True) -> dict:
     """Train (or resume) into run_dir; returns the metrics written to metrics.json."""
     import torch
-    from stable_baselines3 import TD3
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.noise import NormalActionNoise
 
     from farm.alloc.env import SwarmAllocationEnv
+    from farm.alloc.td3 import AllocTD3, LeanVecEnv
 
     run_dir = Path(run_dir)
     if run_dir.exists() and (run_dir / "config.yaml").exists() and not resume:
@@ -178,10 +182,15 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
         saved = run_dir / "config.yaml"
         if not saved.exists():
             raise ConfigError(f"--resume: {run_dir} holds no run to resume")
-        def comparable(d: dict) -> dict:  # the length of training may grow on resume
-            return {**d, "td3": {k: v for k, v in d["td3"].items() if k != "n_timesteps"}}
+        try:  # parsed, so that fields added since (with their defaults) compare equal
+            before = TrainConfig.model_validate(yaml.safe_load(saved.read_text()))
+        except Exception as e:
+            raise ConfigError(f"--resume: {saved} is not a readable training config ({type(e).__name__})") from None
 
-        if comparable(yaml.safe_load(saved.read_text())) != comparable(json.loads(config.model_dump_json())):
+        def comparable(c: TrainConfig) -> dict:  # the length of training may grow on resume
+            return c.model_copy(update={"td3": c.td3.model_copy(update={"n_timesteps": 0})}).model_dump()
+
+        if comparable(before) != comparable(config):
             raise ConfigError(f"--resume: {run_dir} was trained with another config")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(json.loads(config.model_dump_json()), sort_keys=False))
@@ -190,7 +199,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     env_probe = SwarmAllocationEnv(config.env, client=object())
     client = make_client(config, env_probe.service_settings())
     warm(client, config, progress=show_progress)
-    env = Monitor(SwarmAllocationEnv(config.env, client=client))
+    env = LeanVecEnv([lambda: Monitor(SwarmAllocationEnv(config.env, client=client))])
     eval_env = Monitor(SwarmAllocationEnv(config.env, client=client))
     p = config.td3
     n_act = env.action_space.shape[0]
@@ -200,12 +209,12 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     checkpoint = latest_checkpoint(run_dir) if resume else None
     if checkpoint:
         path, done_steps = checkpoint
-        model = TD3.load(path, env=env, tensorboard_log=str(run_dir / "tb"))
+        model = AllocTD3.load(path, env=env, tensorboard_log=str(run_dir / "tb"))
         buffer = path.with_name(f"rl_model_replay_buffer_{done_steps}_steps.pkl")
         if buffer.exists():
             model.load_replay_buffer(buffer)
     else:
-        model = TD3(
+        model = AllocTD3(
             p.policy, env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
             learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
             train_freq=p.train_freq, gradient_steps=p.gradient_steps, policy_delay=p.policy_delay,
@@ -221,9 +230,10 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
                            save_replay_buffer=True, verbose=0),
         _Progress(p.n_timesteps, done_steps, show_progress),
     ])
+    model.update_seconds = 0.0
     t0 = time.perf_counter()
     model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=not checkpoint,
-                tb_log_name="td3")
+                tb_log_name="td3", log_interval=config.log_interval)
     wall = time.perf_counter() - t0
     model.save(run_dir / "model.zip")
     evals = np.load(run_dir / "evaluations.npz") if (run_dir / "evaluations.npz").exists() else None
@@ -233,6 +243,8 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
         "resumed_from": done_steps if checkpoint else None,
         "wall_seconds": wall,
         "steps_per_second": remaining / wall if wall > 0 else None,
+        "update_seconds": model.update_seconds,
+        "outside_update_share": 1 - model.update_seconds / wall if wall > 0 else None,
         "final_eval_mean_return": float(evals["results"][-1].mean()) if evals is not None else None,
         "final_eval_std_return": float(evals["results"][-1].std()) if evals is not None else None,
         "best_eval_mean_return": float(evals["results"].mean(axis=1).max()) if evals is not None else None,
