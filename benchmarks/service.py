@@ -32,7 +32,7 @@ def main() -> None:
 
     ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", logging_level=logging.ERROR,
              log_to_driver=False, namespace="swarm-farm")
-    settings = ServiceSettings(games=a.games)
+    settings = ServiceSettings.of(games=a.games)
     with tempfile.TemporaryDirectory() as tmp:
         service = get_service(Path(tmp) / "bench.sqlite", name="bench-service")
         client = CaptureTimeClient(settings, service=service)

@@ -179,11 +179,11 @@ def cmd_table(a) -> int:
               f"({info['seconds']:.1f} s)")
     out = Path(a.plot_dir or Path(a.store or config.store).parent / "tables")
     for settings, mean, frac in table_frames(config, store=a.store):
-        print(f"\n{settings.pursuer_policy} vs {settings.evader_policy}: mean capture time (s)")
+        print(f"\n{settings.game.pursuer_policy} vs {settings.game.evader_policy}: mean capture time (s)")
         print(mean.to_string(float_format=lambda x: f"{x:.2f}", na_rep="-"))
-        print(f"fraction of evaders captured within tau = {settings.tau:g} s")
+        print(f"fraction of evaders captured within tau = {settings.game.tau:g} s")
         print(frac.to_string(float_format=lambda x: f"{x:.2f}", na_rep="-"))
-        name = f"{config.name}_{settings.pursuer_policy}_vs_{settings.evader_policy}.png"
+        name = f"{config.name}_{settings.game.pursuer_policy}_vs_{settings.game.evader_policy}.png"
         print(f"heatmaps: {plot_heatmaps(settings, mean, frac, out / name)}")
     return 0
 
@@ -221,7 +221,7 @@ def cmd_train(a) -> int:
 
 def cmd_eval(a) -> int:
     from farm.alloc.evaluate import GameFidelityClient, baselines, evaluate_policies, load_policy
-    from farm.alloc.train import TrainConfig, make_client
+    from farm.alloc.train import load_train_config, make_client
     from farm.alloc.env import SwarmAllocationEnv
     from farm.output import write_table
     from farm.runtime import ray_cluster
@@ -229,9 +229,7 @@ def cmd_eval(a) -> int:
     run_dir = Path(a.run_dir)
     if not (run_dir / "config.yaml").exists():
         raise CliError(f"{run_dir}: not a training run (no config.yaml)")
-    import yaml
-
-    config = TrainConfig(**yaml.safe_load((run_dir / "config.yaml").read_text()))
+    config = load_train_config(run_dir / "config.yaml")
     if a.episodes < 1:
         raise CliError(f"--episodes: must be >= 1, got {a.episodes}")
     policies = {"td3": load_policy(run_dir), **baselines(config.env.grid_size)}

@@ -56,26 +56,42 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+_CASE = Case(3, 1)  # the defaults of every game field are workers.Case's
+
+
 class LawModel(_Strict):
-    kind: Literal["boxes", "uniform"] = "boxes"
-    pursuer_box: tuple[float, float, float, float] = (3.0, 5.0, 0.0, 10.0)
-    evader_box: tuple[float, float, float, float] = (7.0, 9.0, 0.0, 10.0)
+    kind: Literal["boxes", "uniform"] = _CASE.law.kind
+    pursuer_box: tuple[float, float, float, float] = _CASE.law.pursuer_box
+    evader_box: tuple[float, float, float, float] = _CASE.law.evader_box
 
 
 class GameModel(_Strict):
-    """The base game: the fields of workers.Case."""
+    """The base game: the fields of workers.Case, with its defaults."""
 
-    n_pursuers: int = Field(3, ge=1, le=10_000)
-    n_evaders: int = Field(1, ge=1, le=10_000)
-    pursuer_policy: str = "area_min"
-    evader_policy: str = "centroid"
-    capture_radius: float = Field(0.25, gt=0, allow_inf_nan=False)
-    dt: float = Field(0.01, gt=0, allow_inf_nan=False)
-    t_max: float = Field(60.0, gt=0, allow_inf_nan=False)
-    tau: float = Field(5.0, gt=0, allow_inf_nan=False)
-    target: tuple[float, float] = (0.0, 5.0)
+    n_pursuers: int = Field(_CASE.n_pursuers, ge=1, le=10_000)
+    n_evaders: int = Field(_CASE.n_evaders, ge=1, le=10_000)
+    pursuer_policy: str = _CASE.pursuer_policy
+    evader_policy: str = _CASE.evader_policy
+    capture_radius: float = Field(_CASE.capture_radius, gt=0, allow_inf_nan=False)
+    dt: float = Field(_CASE.dt, gt=0, allow_inf_nan=False)
+    t_max: float = Field(_CASE.t_max, gt=0, allow_inf_nan=False)
+    tau: float = Field(_CASE.tau, gt=0, allow_inf_nan=False)
+    target: tuple[float, float] = _CASE.target
     arena: list[tuple[float, float]] | None = None
     law: LawModel = LawModel()
+
+    def to_case(self, validate: bool = True) -> Case:
+        """The workers.Case of this game, validated (unknown policies, bad arena...) unless
+        validate=False."""
+        law = InitialLaw(kind=self.law.kind, pursuer_box=tuple(self.law.pursuer_box),
+                         evader_box=tuple(self.law.evader_box))
+        arena = None if self.arena is None else tuple(tuple(float(c) for c in v) for v in self.arena)
+        case = Case(
+            n_pursuers=self.n_pursuers, n_evaders=self.n_evaders, pursuer_policy=self.pursuer_policy,
+            evader_policy=self.evader_policy, capture_radius=self.capture_radius, dt=self.dt, t_max=self.t_max,
+            tau=self.tau, target=tuple(self.target), arena=arena, law=law,
+        )
+        return case.validate() if validate else case
 
 
 class RandomModel(_Strict):
@@ -157,7 +173,7 @@ class SweepConfig(_Strict):
         for index, changes in enumerate(combos):
             fields = {**base, **changes}
             try:
-                case = _case_from(fields)
+                case = GameModel(**fields).to_case()  # re-validates values coming from `vary`
             except (InputError, ValidationError, TypeError, ValueError) as e:
                 where = ", ".join(f"{k}={v!r}" for k, v in changes.items())
                 prefix = f"vary: point {index} ({where})" if changes else "base"
@@ -181,25 +197,6 @@ def _first_line(e: Exception) -> str:
         loc = ".".join(str(x) for x in err["loc"])
         return f"{loc}: {err['msg']}" if loc else err["msg"]
     return str(e).splitlines()[0]
-
-
-def _case_from(fields: dict) -> Case:
-    g = GameModel(**fields)  # re-validate values coming from `vary`
-    law = InitialLaw(kind=g.law.kind, pursuer_box=tuple(g.law.pursuer_box), evader_box=tuple(g.law.evader_box))
-    arena = None if g.arena is None else tuple(tuple(float(c) for c in v) for v in g.arena)
-    return Case(
-        n_pursuers=g.n_pursuers,
-        n_evaders=g.n_evaders,
-        pursuer_policy=g.pursuer_policy,
-        evader_policy=g.evader_policy,
-        capture_radius=g.capture_radius,
-        dt=g.dt,
-        t_max=g.t_max,
-        tau=g.tau,
-        target=tuple(g.target),
-        arena=arena,
-        law=law,
-    ).validate()
 
 
 def default_shard_games(case: Case) -> int:

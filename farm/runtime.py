@@ -5,10 +5,32 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 from contextlib import contextmanager
+from urllib.parse import urlsplit
 
 NAMESPACE = "swarm-farm"
 DEFAULT_LOCAL_CPUS = 2
+
+
+def check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Fail at once, in one line, when nothing answers at a host:port address (Ray
+    itself retries for minutes); "auto" and addresses without a port are left to Ray."""
+    from farm.config import ConfigError
+
+    try:
+        parts = urlsplit("//" + address.split("://", 1)[-1])
+        host, port = parts.hostname, parts.port  # [::1]:6379 -> ::1, 6379
+    except ValueError:
+        return
+    if not host or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as e:
+        why = e.strerror or type(e).__name__
+        raise ConfigError(f"address {address}: no Ray cluster answers there ({why}); "
+                          "start one with `ray start --head` or leave the address out for a local Ray") from None
 
 
 @contextmanager
@@ -27,6 +49,7 @@ def ray_cluster(address: str | None = None, *, num_cpus: int | None = None, metr
         yield ray
         return
     if address:
+        check_reachable(address)
         ray.init(address=address, namespace=NAMESPACE, logging_level=logging.WARNING,
                  log_to_driver=False)
     else:

@@ -239,6 +239,11 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
     run = SweepRun(config, out)
     run.prepare()
     todo = run.missing_shards()
+    joined = address or os.environ.get("RAY_ADDRESS")
+    if todo and use_ray and joined:
+        from farm.runtime import check_reachable
+
+        check_reachable(joined)  # before the progress bar; a finished sweep needs no cluster
     total_games = sum(s.games for s in run.all_shards())
     done_games = total_games - sum(s.games for s in todo)
     info = {"sweep_id": run.sweep_id, "shards": len(run.all_shards()), "skipped": len(run.all_shards()) - len(todo),
@@ -252,7 +257,6 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
 
                 with ray_cluster(address, num_cpus=workers, metrics_port=metrics_port) as ray:
                     cpus = int(ray.cluster_resources().get("CPU", 1))
-                    joined = address or os.environ.get("RAY_ADDRESS")
                     n = max(1, min(workers or cpus, cpus) if not joined else (workers or cpus))
                     info["workers"] = n
                     info.update(run.run_on_ray(todo, n, progress=bar.update))

@@ -61,8 +61,11 @@ def test_numpy_actor_tracks_the_torch_actor(store, tmp_path, rng):
     loaded = AllocTD3.load(tmp_path / "m.zip", device="cpu")
     agree(loaded)
     np.testing.assert_allclose(loaded._actor_forward(obs), model._actor_forward(obs), atol=1e-6)
+    vector = model.policy.parameters_to_vector()
+    model.policy.load_from_vector(vector * 0.5)  # replaces the parameters' storage: the views follow
+    agree(model)
     plain = TD3.load(tmp_path / "m.zip", device="cpu")  # the saved model is plain SB3
-    np.testing.assert_allclose(plain.predict(obs, deterministic=True)[0], model._actor_forward(obs), atol=1e-5)
+    np.testing.assert_allclose(plain.predict(obs, deterministic=True)[0], loaded._actor_forward(obs), atol=1e-5)
 
 
 def test_same_transitions_as_stock_td3(store):

@@ -78,3 +78,20 @@ def test_bad_cli_input_is_one_line(args, message, tmp_path):
     assert len(lines) == 1, r.stderr
     assert lines[0].startswith("farm: error: ") and message in lines[0]
     assert "Traceback" not in r.stderr
+
+
+def test_unreachable_address_fails_at_once(tmp_path):
+    """Ray would retry an address where nothing listens for minutes; farm says so in one line."""
+    import time
+
+    from conftest import free_port
+
+    address = f"127.0.0.1:{free_port()}"
+    t0 = time.monotonic()
+    r = farm("sweep", Path(__file__).resolve().parents[1] / "configs/smoke.yaml", "--address", address,
+             "--out", tmp_path / "out")
+    assert time.monotonic() - t0 < 60
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"address {address}: no Ray cluster answers there" in lines[0], r.stderr
+    assert not list((tmp_path / "out").rglob("*.parquet"))

@@ -30,7 +30,7 @@ def results(tmp_path_factory):
     sweep = root.parent / "sweep.yaml"
     sweep.write_text("name: tiny\ngames_per_point: 4\nbase: {t_max: 20}\nvary: {grid: {n_pursuers: [1, 2]}}\n")
     assert farm("sweep", sweep, "--out", root / "sweep", "--no-ray", "--quiet").returncode == 0
-    client = CaptureTimeClient(ServiceSettings(games=3, t_max=15.0), local_store=root / "capture_times.sqlite")
+    client = CaptureTimeClient(ServiceSettings.of(games=3, t_max=15.0), local_store=root / "capture_times.sqlite")
     client.get_many([(1, 1), (2, 1), (1, 2), (2, 2)])
     client.local.store.close()
     return root

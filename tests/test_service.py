@@ -16,7 +16,7 @@ from farm.service import CaptureTimeClient, ServiceSettings, StatsStore, StoreCo
 from farm.service.core import compute_in_process
 from workers import Case, InitialLaw, InputError, run_case
 
-FAST = ServiceSettings(games=6, t_max=20.0)
+FAST = ServiceSettings.of(games=6, t_max=20.0)
 
 
 def same(a: dict, b: dict) -> bool:
@@ -53,12 +53,12 @@ def test_miss_computes_stores_and_reloads(tmp_path):
 def test_keys_differing_in_any_parameter_never_collide():
     base = FAST.key(3, 2)
     variants = [
-        FAST.key(2, 2), FAST.key(3, 1), replace(FAST, pursuer_policy="pure_pursuit").key(3, 2),
-        replace(FAST, evader_policy="target").key(3, 2), replace(FAST, capture_radius=0.3).key(3, 2),
-        replace(FAST, dt=0.02).key(3, 2), replace(FAST, t_max=21.0).key(3, 2), replace(FAST, tau=4.0).key(3, 2),
-        replace(FAST, target=(0.0, 4.0)).key(3, 2), replace(FAST, games=7).key(3, 2), replace(FAST, seed=1).key(3, 2),
-        replace(FAST, arena=((0, 0), (10, 0), (10, 10), (0, 10))).key(3, 2),
-        replace(FAST, law=InitialLaw(kind="uniform")).key(3, 2),
+        FAST.key(2, 2), FAST.key(3, 1), FAST.with_(pursuer_policy="pure_pursuit").key(3, 2),
+        FAST.with_(evader_policy="target").key(3, 2), FAST.with_(capture_radius=0.3).key(3, 2),
+        FAST.with_(dt=0.02).key(3, 2), FAST.with_(t_max=21.0).key(3, 2), FAST.with_(tau=4.0).key(3, 2),
+        FAST.with_(target=(0.0, 4.0)).key(3, 2), FAST.with_(games=7).key(3, 2), FAST.with_(seed=1).key(3, 2),
+        FAST.with_(arena=((0, 0), (10, 0), (10, 10), (0, 10))).key(3, 2),
+        FAST.with_(law=InitialLaw(kind="uniform")).key(3, 2),
     ]
     digests = {base.digest()} | {k.digest() for k in variants}
     assert len(digests) == len(variants) + 1
@@ -82,11 +82,11 @@ def test_bad_team_sizes(tmp_path, args, message):
 
 def test_bad_settings(tmp_path):
     with pytest.raises(InputError, match="pursuer_policy: unknown policy"):
-        replace(FAST, pursuer_policy="chase").key(1, 1)
+        FAST.with_(pursuer_policy="chase").key(1, 1)
     with pytest.raises(InputError, match="games: must be a whole number >= 2"):
-        replace(FAST, games=1).key(1, 1)
+        FAST.with_(games=1).key(1, 1)
     with pytest.raises(InputError, match="capture_radius"):
-        replace(FAST, capture_radius=-1.0).key(1, 1)
+        FAST.with_(capture_radius=-1.0).key(1, 1)
 
 
 def test_damaged_row_is_reported_and_never_served(tmp_path):

@@ -92,13 +92,14 @@ class SwarmAllocationEnv(gym.Env):
         self._snap = snap_table(max(cfg.n_defenders, cfg.n_intruders)) if cfg.team_sizes == "lattice" else None
 
     def service_settings(self):
+        """The capture-time service's settings of this env's engagements."""
         from workers import InitialLaw
 
         from farm.service import ServiceSettings
 
         c = self.config
-        return ServiceSettings(pursuer_policy=c.pursuer_policy, evader_policy=c.evader_policy, tau=c.tau,
-                               t_max=c.t_max, games=c.games, seed=c.seed, law=InitialLaw(kind=c.law))
+        return ServiceSettings.of(pursuer_policy=c.pursuer_policy, evader_policy=c.evader_policy, tau=c.tau,
+                                  t_max=c.t_max, law=InitialLaw(kind=c.law), games=c.games, seed=c.seed)
 
     # ----- the MDP ------------------------------------------------------------------
     def move_probabilities(self, action: np.ndarray) -> np.ndarray:

@@ -182,10 +182,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
         saved = run_dir / "config.yaml"
         if not saved.exists():
             raise ConfigError(f"--resume: {run_dir} holds no run to resume")
-        try:  # parsed, so that fields added since (with their defaults) compare equal
-            before = TrainConfig.model_validate(yaml.safe_load(saved.read_text()))
-        except Exception as e:
-            raise ConfigError(f"--resume: {saved} is not a readable training config ({type(e).__name__})") from None
+        before = load_train_config(saved)  # parsed: fields added since compare equal at their defaults
 
         def comparable(c: TrainConfig) -> dict:  # the length of training may grow on resume
             return c.model_copy(update={"td3": c.td3.model_copy(update={"n_timesteps": 0})}).model_dump()
@@ -209,7 +206,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     checkpoint = latest_checkpoint(run_dir) if resume else None
     if checkpoint:
         path, done_steps = checkpoint
-        model = AllocTD3.load(path, env=env, tensorboard_log=str(run_dir / "tb"))
+        model = AllocTD3.load(path, env=env, tensorboard_log=str(run_dir / "tb"), device="cpu")
         buffer = path.with_name(f"rl_model_replay_buffer_{done_steps}_steps.pkl")
         if buffer.exists():
             model.load_replay_buffer(buffer)

@@ -15,26 +15,25 @@ from functools import cached_property
 
 import numpy as np
 
-from workers import Case, InitialLaw, InputError
+from workers import Case, InputError
 
 __all__ = ["ServiceSettings", "StatsKey"]
 
 
 @dataclass(frozen=True)
 class ServiceSettings:
-    """Everything of a key but the team sizes; defaults are SPEC.md section 5's."""
+    """Everything of a key but the team sizes: the game (a workers.Case whose team
+    sizes are replaced by each key's; its defaults are SPEC.md's), games and seed."""
 
-    pursuer_policy: str = "area_min"
-    evader_policy: str = "centroid"
-    capture_radius: float = 0.25
-    dt: float = 0.01
-    t_max: float = 60.0
-    tau: float = 5.0
-    target: tuple[float, float] = (0.0, 5.0)
-    arena: tuple[tuple[float, float], ...] | None = None
-    law: InitialLaw = field(default_factory=InitialLaw)
+    game: Case = field(default_factory=lambda: Case(1, 1))
     games: int = 50
     seed: int = 0
+
+    @classmethod
+    def of(cls, *, games: int = 50, seed: int = 0, **game) -> "ServiceSettings":
+        """ServiceSettings.of(games=16, t_max=10.0, evader_policy="centroid"): Case fields by name."""
+        _known(game)
+        return cls(replace(Case(1, 1), **game), games, seed)
 
     def key(self, n_pursuers: int, n_evaders: int) -> "StatsKey":
         sizes = []
@@ -42,20 +41,24 @@ class ServiceSettings:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise InputError(f"{name}: must be a whole number >= 1, got {v!r}")
             sizes.append(int(v))
-        n_pursuers, n_evaders = sizes
         if isinstance(self.games, bool) or not isinstance(self.games, int) or self.games < 2:
             raise InputError(f"games: must be a whole number >= 2, got {self.games!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise InputError(f"seed: must be a whole number >= 0, got {self.seed!r}")
-        case = Case(
-            n_pursuers, n_evaders, pursuer_policy=self.pursuer_policy, evader_policy=self.evader_policy,
-            capture_radius=self.capture_radius, dt=self.dt, t_max=self.t_max, tau=self.tau,
-            target=tuple(self.target), arena=self.arena, law=self.law,
-        ).validate()
+        case = replace(self.game, n_pursuers=sizes[0], n_evaders=sizes[1]).validate()
         return StatsKey(case, self.games, self.seed)
 
     def with_(self, **changes) -> "ServiceSettings":
-        return replace(self, **changes)
+        """A copy with games, seed or any Case field changed."""
+        own = {k: changes.pop(k) for k in ("games", "seed") if k in changes}
+        _known(changes)
+        return replace(self, game=replace(self.game, **changes) if changes else self.game, **own)
+
+
+def _known(game: dict) -> None:
+    unknown = sorted(set(game) - set(Case.__dataclass_fields__) | {"n_pursuers", "n_evaders"} & set(game))
+    if unknown:
+        raise InputError(f"ServiceSettings: not a game setting: {', '.join(unknown)}")
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from workers import InitialLaw, InputError
+from workers import InputError
 
 from farm.config import ConfigError, GameModel, load_yaml_model
 from farm.service.keys import ServiceSettings
@@ -59,13 +59,7 @@ class TableConfig(_Strict):
 
     def settings_list(self) -> list[ServiceSettings]:
         s = self.settings
-        base = ServiceSettings(
-            pursuer_policy=s.pursuer_policy, evader_policy=s.evader_policy, capture_radius=s.capture_radius,
-            dt=s.dt, t_max=s.t_max, tau=s.tau, target=tuple(s.target),
-            arena=None if s.arena is None else tuple(tuple(v) for v in s.arena),
-            law=InitialLaw(kind=s.law.kind, pursuer_box=tuple(s.law.pursuer_box), evader_box=tuple(s.law.evader_box)),
-            games=s.games, seed=s.seed,
-        )
+        base = ServiceSettings(s.to_case(validate=False), s.games, s.seed)  # each key validates its case
         pairs = self.policies or [PolicyPair(pursuer_policy=s.pursuer_policy, evader_policy=s.evader_policy)]
         return [base.with_(pursuer_policy=p.pursuer_policy, evader_policy=p.evader_policy) for p in pairs]
 
@@ -149,7 +143,7 @@ def plot_heatmaps(settings: ServiceSettings, mean: pd.DataFrame, frac: pd.DataFr
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.6))
     for ax, df, title, cmap in [
         (axes[0], mean, "mean capture time (s)", "viridis"),
-        (axes[1], frac, f"fraction captured within tau = {settings.tau:g} s", "magma"),
+        (axes[1], frac, f"fraction captured within tau = {settings.game.tau:g} s", "magma"),
     ]:
         im = ax.imshow(df.to_numpy(dtype=float), origin="lower", aspect="auto", cmap=cmap)
         ax.set_xticks(range(len(df.columns)), df.columns)
@@ -158,7 +152,7 @@ def plot_heatmaps(settings: ServiceSettings, mean: pd.DataFrame, frac: pd.DataFr
         ax.set_ylabel("pursuers n_p")
         ax.set_title(title)
         fig.colorbar(im, ax=ax)
-    fig.suptitle(f"{settings.pursuer_policy} vs {settings.evader_policy} ({settings.games} games per case)")
+    fig.suptitle(f"{settings.game.pursuer_policy} vs {settings.game.evader_policy} ({settings.games} games per case)")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
