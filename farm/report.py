@@ -270,6 +270,13 @@ def _training_section(root: Path) -> str | None:
         ax.set_ylabel("evaluation return")
         fig.tight_layout()
         out.append(f"<p class=src>{html.escape(str(path))}</p>{_img(_fig_bytes(fig), 'training curve')}")
+        metrics = path.with_name("metrics.json")
+        m = _read_json(metrics) if metrics.exists() else None
+        if isinstance(m, dict):
+            shown = {"timesteps": "steps", "wall_seconds": "wall (s)", "steps_per_second": "steps/s",
+                     "outside_update_share": "share outside updates", "final_eval_mean_return": "final eval return",
+                     "best_eval_mean_return": "best eval return"}
+            out.append(_table(pd.DataFrame([{label: m.get(k) for k, label in shown.items()}])))
     return "".join(out)
 
 

@@ -69,6 +69,11 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
     assert len(diffs) > 0 and diffs["game_frac_tau"].between(0, 1).all()
     assert set(pd.read_csv(run / "eval_table_games.csv")["policy"]) == set(table["policy"])
 
+    r = farm("report", run, "-o", tmp_path / "report.html")
+    assert r.returncode == 0, r.stderr[-2000:]
+    page = (tmp_path / "report.html").read_text()
+    assert "share outside updates" in page and "density_td3.png" in page and "td3" in page
+
 
 def test_train_bad_config_and_refusals(tiny_config, tmp_path):
     bad = tmp_path / "bad.yaml"
