@@ -254,7 +254,8 @@ def _training_section(root: Path) -> str | None:
         return None
     import numpy as np
 
-    plt = _plt()
+    from farm.alloc.train import training_curve_figure
+
     out = []
     for path in curves:
         try:
@@ -262,13 +263,7 @@ def _training_section(root: Path) -> str | None:
             steps, results = data["timesteps"], data["results"]
         except Exception as e:
             raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
-        fig, ax = plt.subplots(figsize=(6, 3.5))
-        mean, std = results.mean(axis=1), results.std(axis=1)
-        ax.plot(steps, mean, color="tab:blue")
-        ax.fill_between(steps, mean - std, mean + std, alpha=0.2, color="tab:blue")
-        ax.set_xlabel("environment steps")
-        ax.set_ylabel("evaluation return")
-        fig.tight_layout()
+        fig = training_curve_figure(steps, results)
         out.append(f"<p class=src>{html.escape(str(path))}</p>{_img(_fig_bytes(fig), 'training curve')}")
         metrics = path.with_name("metrics.json")
         m = _read_json(metrics) if metrics.exists() else None

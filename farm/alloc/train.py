@@ -252,8 +252,9 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     return metrics
 
 
-def plot_training_curve(steps, results, path: Path, title: str) -> Path:
-    """Evaluation return (mean and spread over episodes) against environment steps."""
+def training_curve_figure(steps, results, title: str = ""):
+    """Evaluation return (mean and spread over episodes) against environment steps:
+    steps (K,) int, results (K, episodes) float -> a matplotlib Figure."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -265,9 +266,17 @@ def plot_training_curve(steps, results, path: Path, title: str) -> Path:
     ax.fill_between(steps, mean - std, mean + std, color="tab:blue", alpha=0.2)
     ax.set_xlabel("environment steps")
     ax.set_ylabel("episode return")
-    ax.set_title(title)
+    if title:
+        ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()
+    return fig
+
+
+def plot_training_curve(steps, results, path: Path, title: str) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig = training_curve_figure(steps, results, title)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
