@@ -254,9 +254,13 @@ def cmd_eval(a) -> int:
             print("return, games minus service: " + ", ".join(
                 f"{r.policy} {r.return_mean_games - r.return_mean_service:+.3f}" for r in merged.itertuples()))
             if len(diffs):
-                err = (diffs["game_frac_tau"] - diffs["service_frac_tau"]).abs()
-                print(f"fraction captured within tau, |game - service| over {len(diffs)} engagements: "
-                      f"mean {err.mean():.3f}, max {err.max():.3f}")
+                from farm.alloc.evaluate import mean_ci95
+
+                d = (diffs["game_frac_tau"] - diffs["service_frac_tau"]).to_numpy(dtype=float)
+                m, h = mean_ci95(d)
+                print(f"fraction captured within tau over {len(d)} engagements, game - service: "
+                      f"mean {m:+.3f} ± {h:.3f} (95% CI; a CI holding 0 means no bias shows), "
+                      f"mean |game - service| {np.abs(d).mean():.3f} (one game per engagement: mostly noise)")
     print(f"wrote {run_dir / 'eval_table.csv'} and density maps density_<policy>.png")
     return 0
 

@@ -20,7 +20,8 @@ from farm.alloc.env import SwarmAllocationEnv
 from farm.alloc.plots import plot_episode
 
 
-def _ci(x: np.ndarray) -> tuple[float, float]:
+def mean_ci95(x: np.ndarray) -> tuple[float, float]:
+    """(mean, half-width of the 95% t interval) of x (n,); the half-width is NaN for n < 2."""
     from scipy import stats
 
     if len(x) < 2:
@@ -62,7 +63,7 @@ def evaluate_policies(config, policies: dict, client, episodes: int, seed: int, 
     for name, g in per.groupby("policy", sort=False):
         row = {"policy": name, "episodes": len(g)}
         for col in ("return", "eliminated", "breached", "length"):
-            m, h = _ci(g[col].to_numpy(dtype=float))
+            m, h = mean_ci95(g[col].to_numpy(dtype=float))
             row[f"{col}_mean"], row[f"{col}_ci95"] = m, h
         table.append(row)
     return pd.DataFrame(table), per
