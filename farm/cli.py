@@ -259,7 +259,8 @@ def cmd_eval(a) -> int:
                 d = (diffs["game_frac_tau"] - diffs["service_frac_tau"]).to_numpy(dtype=float)
                 m, h = mean_ci95(d)
                 print(f"fraction captured within tau over {len(d)} engagements, game - service: "
-                      f"mean {m:+.3f} ± {h:.3f} (95% CI; a CI holding 0 means no bias shows), "
+                      f"mean {m:+.3f} ± {h:.3f} (95% CI over engagements, the service's values taken as fixed; "
+                      f"they carry the sampling error of {settings.games} games per case), "
                       f"mean |game - service| {np.abs(d).mean():.3f} (one game per engagement: mostly noise)")
     print(f"wrote {run_dir / 'eval_table.csv'} and density maps density_<policy>.png")
     return 0
