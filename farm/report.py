@@ -276,10 +276,12 @@ def _training_section(root: Path) -> str | None:
 
 
 def _eval_section(root: Path) -> str | None:
-    tables = sorted(root.rglob("eval_table.csv"))
+    tables = sorted(root.rglob("eval_table.csv")) + sorted(root.rglob("eval_table_games.csv"))
     if not tables:
         return None
-    return "".join(f"<p class=src>{html.escape(str(p))}</p>{_table(_read_table(p))}" for p in tables)
+    label = {"eval_table.csv": "", "eval_table_games.csv": " (--fidelity games: every engaged cell's game simulated)"}
+    return "".join(f"<p class=src>{html.escape(str(p))}{html.escape(label[p.name])}</p>{_table(_read_table(p))}"
+                   for p in sorted(tables))
 
 
 def _density_section(root: Path) -> str | None:
