@@ -56,7 +56,8 @@ class ServiceSettings:
 
 
 def _known(game: dict) -> None:
-    unknown = sorted(set(game) - set(Case.__dataclass_fields__) | {"n_pursuers", "n_evaders"} & set(game))
+    """Case fields other than the team sizes (which each key sets) are settings."""
+    unknown = sorted((set(game) - set(Case.__dataclass_fields__)) | (set(game) & {"n_pursuers", "n_evaders"}))
     if unknown:
         raise InputError(f"ServiceSettings: not a game setting: {', '.join(unknown)}")
 
