@@ -220,8 +220,9 @@ class Point:
         return {"index": self.index, "case": self.case.key(), "games": self.games, "shard_games": self.shard_games}
 
 
-def load_yaml_model(path: str | Path, model: type[BaseModel], what: str):
-    """Read a YAML mapping into a typed model; any problem is a ConfigError of one line."""
+def load_yaml_model(path: str | Path, model: type[BaseModel], what: str, check=None):
+    """Read a YAML mapping into a typed model, then run check(config) (deeper validation)
+    if given; any problem is a ConfigError of one line."""
     path = Path(path)
     try:
         raw = yaml.safe_load(path.read_text())
@@ -236,19 +237,16 @@ def load_yaml_model(path: str | Path, model: type[BaseModel], what: str):
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: must be a mapping of {what} fields")
     try:
-        return model(**raw)
+        config = model(**raw)
+        if check is not None:
+            check(config)
+        return config
     except ValidationError as e:
         raise ConfigError(f"{path}: {_first_line(e)}") from None
-    except (TypeError, InputError) as e:
+    except (TypeError, InputError, ConfigError) as e:
         raise ConfigError(f"{path}: {e}") from None
 
 
 def load_sweep_config(path: str | Path) -> SweepConfig:
     """Read and validate a sweep YAML; raises ConfigError with one line."""
-    path = Path(path)
-    config = load_yaml_model(path, SweepConfig, "sweep")
-    try:
-        config.points()
-    except ConfigError as e:
-        raise ConfigError(f"{path}: {e}") from None
-    return config
+    return load_yaml_model(path, SweepConfig, "sweep", check=SweepConfig.points)

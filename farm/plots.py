@@ -17,6 +17,15 @@ PURSUER_COLOR = "tab:blue"
 EVADER_COLOR = "tab:red"
 
 
+def save_figure(fig, path: str | Path, dpi: int = 100) -> Path:
+    """Write fig to path (folders made as needed) and close it; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
 def default_frames(res: GameResults, game: int) -> list[int]:
     """Three frames: the start, half-way and the game's end (the last capture)."""
     end = int(res.steps[game])
@@ -66,8 +75,4 @@ def plot_game(res: GameResults, path: str | Path, *, game: int = 0, frames=None,
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)

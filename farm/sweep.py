@@ -239,33 +239,32 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
     run = SweepRun(config, out)
     run.prepare()
     todo = run.missing_shards()
-    joined = address or os.environ.get("RAY_ADDRESS")
-    if todo and use_ray and joined:
-        from farm.runtime import check_reachable
-
-        check_reachable(joined)  # before the progress bar; a finished sweep needs no cluster
     total_games = sum(s.games for s in run.all_shards())
     done_games = total_games - sum(s.games for s in todo)
     info = {"sweep_id": run.sweep_id, "shards": len(run.all_shards()), "skipped": len(run.all_shards()) - len(todo),
             "done": 0, "failed": 0, "retried": 0, "workers": 0, "seconds": 0.0, "nodes": {}}
     t0 = time.perf_counter()
     if todo:
-        bar = GameProgress(total_games, done_games, enabled=show_progress)
-        try:
-            if use_ray:
-                from farm.runtime import ray_cluster
+        from contextlib import nullcontext
 
-                with ray_cluster(address, num_cpus=workers, metrics_port=metrics_port) as ray:
+        from farm.runtime import ray_cluster
+
+        cluster = ray_cluster(address, num_cpus=workers, metrics_port=metrics_port) if use_ray else nullcontext()
+        with cluster as ray:  # connected (or refused in one line) before the progress bar shows
+            bar = GameProgress(total_games, done_games, enabled=show_progress)
+            try:
+                if use_ray:
                     cpus = int(ray.cluster_resources().get("CPU", 1))
+                    joined = address or os.environ.get("RAY_ADDRESS")
                     n = max(1, min(workers or cpus, cpus) if not joined else (workers or cpus))
                     info["workers"] = n
                     info.update(run.run_on_ray(todo, n, progress=bar.update))
-            else:
-                info["workers"] = 1
-                run.run_in_process(todo, progress=bar.update)
-                info["done"] = len(todo)
-        finally:
-            bar.close()
+                else:
+                    info["workers"] = 1
+                    run.run_in_process(todo, progress=bar.update)
+                    info["done"] = len(todo)
+            finally:
+                bar.close()
     info["seconds"] = time.perf_counter() - t0
     summary = run.summarize()
     if todo:

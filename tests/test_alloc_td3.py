@@ -9,7 +9,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.env import LATTICE, snap, snap_table
+from farm.alloc.env import LATTICE, snap, snap_many
 from farm.alloc.td3 import AllocTD3, LeanVecEnv, _mode_free
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, t_max=6.0, c_capture=1.5)
@@ -25,10 +25,14 @@ def make(store):
     return SwarmAllocationEnv(AllocConfig(**SMALL), store=store)
 
 
-def test_snap_table_is_snap():
-    table = snap_table(5000)
-    assert [int(table[x]) for x in range(1, 5001)] == [snap(x) for x in range(1, 5001)]
-    assert set(table[1:].tolist()) == set(LATTICE)
+def test_snap_is_the_nearest_lattice_size_in_log_scale():
+    import math
+
+    x = np.arange(1, 5001)
+    slow = [min(LATTICE, key=lambda v: (abs(math.log(v) - math.log(int(n))), v)) for n in x]
+    assert snap_many(x).tolist() == slow
+    assert [snap(int(n)) for n in x[:300]] == slow[:300]
+    assert snap(100_000) == 256 and set(snap_many(x).tolist()) == set(LATTICE)
 
 
 def test_mode_free_detects_mode_dependent_layers(store):

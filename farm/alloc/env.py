@@ -21,7 +21,6 @@ t_c the mean capture time of the cell's game (t_max when nobody is caught).
 
 from __future__ import annotations
 
-import math
 
 import gymnasium as gym
 import numpy as np
@@ -51,16 +50,20 @@ def n_actions(n: int) -> int:
     return 4 * 4 + 6 * 4 * (n - 2) + 9 * (n - 2) ** 2
 
 
+_LATTICE = np.array(LATTICE)
+_LATTICE_MIDS = np.sqrt(_LATTICE[:-1] * _LATTICE[1:])  # geometric midpoints: never an integer
+
+
+def snap_many(x: np.ndarray) -> np.ndarray:
+    """(k,) int team sizes -> (k,) int64: the nearest lattice size of each in log
+    scale (team_sizes: lattice); at a midpoint the smaller would win, but no
+    integer is one."""
+    return _LATTICE[np.searchsorted(_LATTICE_MIDS, x)]
+
+
 def snap(x: int) -> int:
-    """The nearest lattice team size (team_sizes: lattice), ties to the smaller."""
-    return min(LATTICE, key=lambda v: (abs(math.log(v) - math.log(x)), v))
-
-
-def snap_table(top: int) -> np.ndarray:
-    """(top + 1,) int64: snap(x) for x = 0..top (entry 0 unused, set to 1)."""
-    x = np.arange(1, top + 1, dtype=np.float64)
-    gap = np.abs(np.log(np.array(LATTICE, dtype=np.float64))[None, :] - np.log(x)[:, None])
-    return np.concatenate([[1], np.array(LATTICE)[np.argmin(gap, axis=1)]]).astype(np.int64)
+    """snap_many for one team size."""
+    return int(snap_many(np.asarray([x]))[0])
 
 
 class SwarmAllocationEnv(gym.Env):
@@ -89,7 +92,6 @@ class SwarmAllocationEnv(gym.Env):
         self.I = np.zeros(n * n)
         self.steps = 0
         self.breached = 0.0
-        self._snap = snap_table(max(cfg.n_defenders, cfg.n_intruders)) if cfg.team_sizes == "lattice" else None
 
     def service_settings(self):
         """The capture-time service's settings of this env's engagements."""
@@ -150,8 +152,8 @@ class SwarmAllocationEnv(gym.Env):
             return 0.0, 0.0, 0, 0
         n_e = np.maximum(1, np.rint(self.I[cells] * cfg.n_intruders).astype(np.int64))
         n_p = n_p[cells]
-        if self._snap is not None:
-            n_p, n_e = self._snap[n_p], self._snap[n_e]
+        if cfg.team_sizes == "lattice":
+            n_p, n_e = snap_many(n_p), snap_many(n_e)
         pairs = list(zip(n_p.tolist(), n_e.tolist()))
         values = self.client.get_many(pairs)
         frac = np.array([v["expected_frac_captured_tau"] for v in values])

@@ -51,8 +51,6 @@ def plot_episode(frames: list[tuple[np.ndarray, np.ndarray]], path: str | Path, 
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    from farm.plots import save_figure
+
+    return save_figure(fig, path)

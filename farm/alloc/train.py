@@ -274,9 +274,6 @@ def training_curve_figure(steps, results, title: str = ""):
 
 
 def plot_training_curve(steps, results, path: Path, title: str) -> Path:
-    import matplotlib.pyplot as plt
+    from farm.plots import save_figure
 
-    fig = training_curve_figure(steps, results, title)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(training_curve_figure(steps, results, title), path)

@@ -19,8 +19,6 @@ import numpy as np
 import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from workers import InputError
-
 from farm.config import ConfigError, GameModel, load_yaml_model
 from farm.service.keys import ServiceSettings
 
@@ -74,12 +72,7 @@ class TableConfig(_Strict):
 
 
 def load_table_config(path) -> TableConfig:
-    config = load_yaml_model(path, TableConfig, "table")
-    try:
-        config.keys()
-    except InputError as e:
-        raise ConfigError(f"{path}: {e}") from None
-    return config
+    return load_yaml_model(path, TableConfig, "table", check=TableConfig.keys)
 
 
 def fill_table(config: TableConfig, *, store=None, address=None, workers=None, show_progress=True) -> dict:
@@ -154,7 +147,6 @@ def plot_heatmaps(settings: ServiceSettings, mean: pd.DataFrame, frac: pd.DataFr
         fig.colorbar(im, ax=ax)
     fig.suptitle(f"{settings.game.pursuer_policy} vs {settings.game.evader_policy} ({settings.games} games per case)")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    from farm.plots import save_figure
+
+    return save_figure(fig, path)
