@@ -13,6 +13,7 @@ $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q $(CONSTRAINTS) -e '.[dev]'
+	$(PY) -c 'from workers.compiled import precompile; print(f"compiled kernels ready in {precompile():.0f} s")'
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -1,9 +1,10 @@
-"""The farm's overhead and scaling: one 10,000-game sweep run three ways in one process.
+"""The farm's overhead and scaling: one 40,000-game sweep run three ways in one process.
 
 1. in-process: the same shards simulated directly, no Ray, no files (pure compute);
 2. Ray, 1 worker; 3. Ray, 2 workers (a real single-node Ray with 2 CPUs, started once,
    warmed up with a tiny sweep so worker start-up is not counted).
 Prints wall times, the farm's overhead over in-process and the 2-worker speed-up.
+Shards have the farm's default size (about a quarter second of work by the engine's cost model).
 Targets: overhead <= 10 %, 2 workers >= 1.8x one. Usage: python benchmarks/farm.py [--games N]
 """
 
@@ -30,7 +31,6 @@ def make_config(games: int, name: str = "bench") -> SweepConfig:
 name: {name}
 seed: 11
 games_per_point: {games // 2}
-shard_games: {max(1, games // 40)}
 base: {{n_pursuers: 5, n_evaders: 1, pursuer_policy: area_min, evader_policy: centroid}}
 vary: {{grid: {{evader_policy: [centroid, constant_area]}}}}
 """))
@@ -38,7 +38,7 @@ vary: {{grid: {{evader_policy: [centroid, constant_area]}}}}
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--games", type=int, default=10_000)
+    ap.add_argument("--games", type=int, default=40_000)
     a = ap.parse_args()
     config = make_config(a.games)
     run = SweepRun(config, "/nonexistent")

@@ -12,12 +12,16 @@ import numpy as np
 import pandas as pd
 
 from workers import Case, InitialLaw, InputError, make_arena, run_games, simulate_games
+from workers.montecarlo import check_point, check_positive
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
 from farm.config import ConfigError
 from farm.report import ReportError
 from farm.service.store import StoreCorruptError
 from farm.sweep import SweepError
+
+
+_CASE = Case(1, 1)  # defaults of the game flags that are Case fields
 
 
 class CliError(Exception):
@@ -65,6 +69,21 @@ def _add_game_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--t-max", type=float, default=60.0)
     p.add_argument("--target", default="0,5", help="target point of `target` evaders, 'x,y'")
     p.add_argument("--arena", help="JSON file with the arena's vertices [[x, y], ...] (default: [0,10]^2 square)")
+    p.add_argument("--exit-point", help="'x,y': an evader within r_c of it escapes (model v2; default: no exit)")
+    _add_speed_options(p)
+
+
+def _add_speed_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--pursuer-speed", type=float, default=_CASE.pursuer_speed, help="pursuers' top speed")
+    p.add_argument("--evader-speed", type=float, default=_CASE.evader_speed, help="evaders' top speed")
+
+
+def _speeds(a) -> dict[str, float]:
+    """The speed flags as Case fields, checked (one-line InputError naming the field)."""
+    speeds = {"pursuer_speed": a.pursuer_speed, "evader_speed": a.evader_speed}
+    for name, v in speeds.items():
+        check_positive(name, v)
+    return speeds
 
 
 def cmd_game(a) -> int:
@@ -73,6 +92,10 @@ def cmd_game(a) -> int:
     arena_vertices = _load_json(a.arena, "--arena") if a.arena else None
     arena = make_arena(arena_vertices)
     target = tuple(_floats(a.target, "--target", 2))
+    exit_point = None if a.exit_point is None else tuple(_floats(a.exit_point, "--exit-point", 2))
+    if exit_point is not None:
+        check_point("exit_point", exit_point)
+    speeds = _speeds(a)
     if a.positions:
         data = _load_json(a.positions, "--positions")
         if not isinstance(data, dict) or not {"pursuers", "evaders"} <= set(data):
@@ -86,7 +109,7 @@ def cmd_game(a) -> int:
         case = Case(
             a.n_pursuers, a.n_evaders, pursuer_policy=a.pursuer_policy, evader_policy=a.evader_policy,
             capture_radius=a.capture_radius, dt=a.dt, t_max=a.t_max, target=target,
-            arena=arena_vertices, law=InitialLaw(kind=a.law),
+            arena=arena_vertices, law=InitialLaw(kind=a.law), exit_point=exit_point, **speeds,
         ).validate()
         from workers.montecarlo import sample_initial_positions
 
@@ -100,11 +123,20 @@ def cmd_game(a) -> int:
     res = simulate_games(
         p, e, pursuer_policy=a.pursuer_policy, evader_policy=a.evader_policy,
         capture_radius=a.capture_radius, dt=a.dt, t_max=a.t_max, target=target, arena=arena,
-        record=bool(a.plot),
+        record=bool(a.plot), exit_point=exit_point, **speeds,
     )
-    print(f"{p.shape[1]} pursuer(s) {a.pursuer_policy} vs {e.shape[1]} evader(s) {a.evader_policy}")
-    for i, t in enumerate(res.capture_times[0]):
-        shown = f"{t:.2f} s" if np.isfinite(t) else f"not captured by t_max = {a.t_max:g} s"
+    extras = [f"{name.replace('_', ' ')} {v:g}" for name, v in speeds.items() if v != getattr(_CASE, name)]
+    if exit_point is not None:
+        extras.append(f"exit at ({exit_point[0]:g}, {exit_point[1]:g})")
+    print(f"{p.shape[1]} pursuer(s) {a.pursuer_policy} vs {e.shape[1]} evader(s) {a.evader_policy}"
+          + (f" ({', '.join(extras)})" if extras else ""))
+    for i, (t, t_escape) in enumerate(zip(res.capture_times[0], res.escape_times[0])):
+        if np.isfinite(t):
+            shown = f"{t:.2f} s"
+        elif np.isfinite(t_escape):
+            shown = f"escaped at {t_escape:.2f} s"
+        else:
+            shown = f"not captured by t_max = {a.t_max:g} s" + (", not escaped" if exit_point is not None else "")
         print(f"  evader {i} at ({e[0, i, 0]:.2f}, {e[0, i, 1]:.2f}): {shown}")
     if a.plot:
         from farm.plots import default_frames, plot_game
@@ -123,19 +155,27 @@ def cmd_game(a) -> int:
 
 
 def cmd_pe_table(a) -> int:
-    from farm.pe_table import format_tables, write_pe_tables
+    from farm.pe_table import format_tables, speeds_text, write_pe_tables
 
     if a.games < 2:
         raise CliError(f"--games: need at least 2 games per case for a CI, got {a.games}")
-    if Path(a.out).exists() and not Path(a.out).is_dir():
-        raise CliError(f"--out: {a.out} exists and is not a folder")
+    speeds = _speeds(a)
+    base = Case(1, 1, **speeds).validate()
+    paper_speeds = all(v == getattr(_CASE, name) for name, v in speeds.items())
+    out = a.out or ("results/pe-table" if paper_speeds
+                    else f"results/pe-table-speeds-{speeds['pursuer_speed']:g}-{speeds['evader_speed']:g}")
+    if Path(out).exists() and not Path(out).is_dir():
+        raise CliError(f"--out: {out} exists and is not a folder")
     t0 = time.perf_counter()
     written, summary = write_pe_tables(
-        Path(a.out), a.games, a.seed, a.format, progress=lambda m: print("  " + m, file=sys.stderr),
-        figures=not a.no_figures,
+        Path(out), a.games, a.seed, a.format, progress=lambda m: print("  " + m, file=sys.stderr),
+        figures=not a.no_figures, base=base,
     )
     print(format_tables(summary))
     print("Our numbers come from the model of SPEC.md; the paper's evader target point and runs are unknown.")
+    if not paper_speeds:
+        print(f"These games ran at {speeds_text(base)}; the paper's figures are for equal speeds "
+              "(1 and 1): a sensitivity check, not a fit.")
     for path in written:
         print(f"wrote {path}")
     print(f"({time.perf_counter() - t0:.1f} s)")
@@ -287,9 +327,11 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("pe-table", help="the paper's Tables 1 and 2 with figures")
     t.add_argument("--games", type=int, default=50, help="Monte Carlo games per case")
     t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--out", default="results/pe-table")
+    t.add_argument("--out", help="results folder (default results/pe-table; at other speeds "
+                                 "results/pe-table-speeds-P-E)")
     t.add_argument("--format", choices=["csv", "parquet"], default="csv")
     t.add_argument("--no-figures", action="store_true")
+    _add_speed_options(t)
     t.set_defaults(func=cmd_pe_table)
 
     s = sub.add_parser("sweep", help="run a parametric Monte Carlo sweep on Ray (resumable)")

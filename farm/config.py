@@ -10,6 +10,9 @@ line naming the field. Every default lives here or in workers.Case.
       n_evaders: 1
       pursuer_policy: area_min
       evader_policy: centroid
+      exit_point: null         # [x, y]: evaders escape there (model v2); null: no escapes
+      pursuer_speed: 1.0       # team speeds (v_max of each side)
+      evader_speed: 1.0
     vary:                      # each block present is one axis of a cartesian product
       grid: {n_pursuers: [1, 2, 3], evader_policy: [centroid, constant_area]}
       zip: {capture_radius: [0.2, 0.3], dt: [0.01, 0.005]}     # lists in step
@@ -30,23 +33,9 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from workers import ENGINE_VERSION, Case, InitialLaw, InputError
+from workers.engine import estimated_game_seconds
 
 __all__ = ["SweepConfig", "Point", "load_sweep_config", "ConfigError", "VARIABLE_FIELDS"]
-
-VARIABLE_FIELDS = (
-    "n_pursuers",
-    "n_evaders",
-    "pursuer_policy",
-    "evader_policy",
-    "capture_radius",
-    "dt",
-    "t_max",
-    "tau",
-    "target",
-)
-_INT_FIELDS = {"n_pursuers", "n_evaders"}
-_FLOAT_FIELDS = {"capture_radius", "dt", "t_max", "tau"}
-
 
 class ConfigError(ValueError):
     """A bad config: one line naming the file, the field and the problem."""
@@ -79,6 +68,9 @@ class GameModel(_Strict):
     target: tuple[float, float] = _CASE.target
     arena: list[tuple[float, float]] | None = None
     law: LawModel = LawModel()
+    exit_point: tuple[float, float] | None = _CASE.exit_point
+    pursuer_speed: float = Field(_CASE.pursuer_speed, gt=0, allow_inf_nan=False)
+    evader_speed: float = Field(_CASE.evader_speed, gt=0, allow_inf_nan=False)
 
     def to_case(self, validate: bool = True) -> Case:
         """The workers.Case of this game, validated (unknown policies, bad arena...) unless
@@ -86,12 +78,15 @@ class GameModel(_Strict):
         law = InitialLaw(kind=self.law.kind, pursuer_box=tuple(self.law.pursuer_box),
                          evader_box=tuple(self.law.evader_box))
         arena = None if self.arena is None else tuple(tuple(float(c) for c in v) for v in self.arena)
-        case = Case(
-            n_pursuers=self.n_pursuers, n_evaders=self.n_evaders, pursuer_policy=self.pursuer_policy,
-            evader_policy=self.evader_policy, capture_radius=self.capture_radius, dt=self.dt, t_max=self.t_max,
-            tau=self.tau, target=tuple(self.target), arena=arena, law=law,
-        )
+        plain = self.model_dump(include=set(VARIABLE_FIELDS))  # Case normalises tuples and numbers
+        case = Case(**plain, arena=arena, law=law)
         return case.validate() if validate else case
+
+
+# What a sweep may vary: every game field but the arena and the law; the numeric ones may be drawn at random.
+VARIABLE_FIELDS = tuple(name for name in GameModel.model_fields if name not in ("arena", "law"))
+_INT_FIELDS = {name for name in VARIABLE_FIELDS if GameModel.model_fields[name].annotation is int}
+_FLOAT_FIELDS = {name for name in VARIABLE_FIELDS if GameModel.model_fields[name].annotation is float}
 
 
 class RandomModel(_Strict):
@@ -199,10 +194,16 @@ def _first_line(e: Exception) -> str:
     return str(e).splitlines()[0]
 
 
+SHARD_SECONDS = 0.25
+
+
 def default_shard_games(case: Case) -> int:
-    """Games per Ray task: about half a second of work on one core, never under ~10 ms."""
-    agents = case.n_pursuers + case.n_evaders
-    return int(min(256, max(1, round(1000 / agents**1.5))))
+    """Games per Ray task: about a quarter second of work on one core by the engine's cost
+    model, so that Ray's cost per task (about a millisecond) stays near 1% and workers
+    finish together within a fraction of a second."""
+    seconds = estimated_game_seconds(case.n_pursuers, case.n_evaders, case.pursuer_policy, case.evader_policy,
+                                     case.t_max, case.dt)
+    return int(min(100_000, max(1, round(SHARD_SECONDS / seconds))))
 
 
 class Point:

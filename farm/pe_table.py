@@ -1,4 +1,8 @@
-"""The paper's pursuit-evasion tables (section 4.1; SPEC.md section 3)."""
+"""The paper's pursuit-evasion tables (section 4.1; SPEC.md section 3).
+
+The team speeds default to the paper's (1 and 1); other speeds rerun the same
+cases as a sensitivity check, the paper's figures beside them unchanged.
+"""
 
 from __future__ import annotations
 
@@ -22,20 +26,29 @@ PAPER_CASES = [
 ]
 
 COLUMNS = ["mean", "std", "ci95_low", "ci95_high", "min", "max"]
+SPEEDS = ("pursuer_speed", "evader_speed")
+
+
+def paper_case(base: Case, n_pursuers: int, pursuer_policy: str, evader_policy: str) -> Case:
+    """One paper case (1 evader) with the rest of the settings (speeds, r_c...) from base."""
+    return replace(base, n_pursuers=n_pursuers, n_evaders=1, pursuer_policy=pursuer_policy,
+                   evader_policy=evader_policy)
 
 
 def pe_tables(n_games: int = 50, seed: int = 0, base: Case | None = None, progress=None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Run every paper case; returns (summary, per_game) DataFrames."""
-    base = base or Case(1, 1)
+    """Run every paper case; returns (summary, per_game) DataFrames. The summary has
+    one row per case, its speeds (pursuer_speed, evader_speed) among the columns."""
+    base = (base or Case(1, 1)).validate()
     rows, games = [], []
     for table, n_p, pp, ep, paper in PAPER_CASES:
-        case = replace(base, n_pursuers=n_p, n_evaders=1, pursuer_policy=pp, evader_policy=ep)
+        case = paper_case(base, n_p, pp, ep)
         per_game, summary = run_case(case, n_games, seed)
         row = {
             "table": table,
             "n_pursuers": n_p,
             "pursuer_policy": pp,
             "evader_policy": ep,
+            **{name: getattr(case, name) for name in SPEEDS},
             "games": summary["n_games"],
             "not_captured": summary["last_capture_n_censored"],
         }
@@ -52,10 +65,12 @@ def pe_tables(n_games: int = 50, seed: int = 0, base: Case | None = None, progre
 
 
 def format_tables(summary: pd.DataFrame) -> str:
-    """The tables as text: one block per table, the paper's figure beside ours."""
+    """The tables as text: one block per table, the paper's figure beside ours (the paper's
+    games had equal speeds, 1 and 1)."""
     lines = []
     for table, block in summary.groupby("table", sort=False):
-        lines.append(table + f" (capture time, s; {int(block['games'].iloc[0])} games per case)")
+        lines.append(table + f" (capture time, s; {int(block['games'].iloc[0])} games per case; "
+                     f"{speeds_text(block.iloc[0])})")
         lines.append(f"{'case':<12}{'mean':>8}{'std':>8}{'95% CI':>18}{'min':>8}{'max':>8}{'paper':>9}")
         for _, r in block.iterrows():
             ci = f"[{r['ci95_low']:.3f}, {r['ci95_high']:.3f}]"
@@ -69,20 +84,30 @@ def format_tables(summary: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
+def speeds_text(row) -> str:
+    """'pursuer speed 2, evader speed 1' (with '(the paper's)' when both are 1) from a
+    summary row or a Case."""
+    p, e = (float(row[name] if isinstance(row, (dict, pd.Series)) else getattr(row, name)) for name in SPEEDS)
+    return f"pursuer speed {p:g}, evader speed {e:g}" + (" (the paper's)" if p == e == 1.0 else "")
+
+
 def write_pe_tables(out: Path, n_games: int, seed: int, fmt: str, progress=None,
-                    figures: bool = True) -> tuple[list[Path], pd.DataFrame]:
-    """Run, print-ready summary and per-game files plus one figure per case."""
+                    figures: bool = True, base: Case | None = None) -> tuple[list[Path], pd.DataFrame]:
+    """Run, print-ready summary and per-game files plus one figure per case; base: the
+    settings every case shares (default Case's: the paper's, equal speeds)."""
     from farm.plots import plot_game
 
-    summary, per_game = pe_tables(n_games, seed, progress=progress)
+    base = (base or Case(1, 1)).validate()
+    summary, per_game = pe_tables(n_games, seed, base=base, progress=progress)
     out.mkdir(parents=True, exist_ok=True)
     written = [write_table(summary, out / "pe_tables", fmt), write_table(per_game, out / "pe_games", fmt)]
     if figures:
         for table, n_p, pp, ep, _ in PAPER_CASES:
-            case = Case(n_p, 1, pursuer_policy=pp, evader_policy=ep)
+            case = paper_case(base, n_p, pp, ep)
             res = run_games(case, seed, 0, 1, record=True)
             name = f"fig_{pp}_vs_{ep}_{n_p}p.png"
             written.append(
-                plot_game(res, out / name, title=f"{n_p} pursuer(s) {pp} vs evader {ep} (game 0, seed {seed})")
+                plot_game(res, out / name, title=f"{n_p} pursuer(s) {pp} vs evader {ep} (game 0, seed {seed}; "
+                                                 f"{speeds_text(case)})")
             )
     return written, summary

@@ -103,8 +103,9 @@ def _pe_section(root: Path) -> str | None:
         need = {"table", "n_pursuers", "mean", "std", "ci95_low", "ci95_high", "min", "max", "paper_mean"}
         if not need <= set(df.columns):
             raise ReportError(f"{path}: not a PE table (missing {', '.join(sorted(need - set(df.columns)))})")
-        view = df[["table", "n_pursuers", "pursuer_policy", "evader_policy", "games", "mean", "std", "ci95_low",
-                   "ci95_high", "min", "max", "paper_mean"]].rename(columns={"paper_mean": "paper"})
+        cols = ["table", "n_pursuers", "pursuer_policy", "evader_policy", "pursuer_speed", "evader_speed", "games",
+                "mean", "std", "ci95_low", "ci95_high", "min", "max", "paper_mean"]  # speeds: tables since engine 2
+        view = df[[c for c in cols if c in df.columns]].rename(columns={"paper_mean": "paper"})
         plt = _plt()
         fig, ax = plt.subplots(figsize=(8, 3.4))
         labels = [f"{t.split(':')[0]}\n{n}p" for t, n in zip(df["table"], df["n_pursuers"])]
@@ -161,6 +162,8 @@ def _sweep_section(root: Path) -> str | None:
             changed += [k for k in vary["random"]["ranges"] if k not in changed]
         cols = ["point", *changed, "n_games", "last_capture_mean", "last_capture_ci95_low", "last_capture_ci95_high",
                 "last_capture_n_censored", "frac_captured_tau_mean", "p_all_captured_tau"]
+        if "frac_escaped_mean" in summary and summary["frac_escaped_mean"].gt(0).any():  # games with an exit
+            cols += ["frac_escaped_tau_mean", "mean_escape_mean"]
         view = summary[[c for c in cols if c in summary.columns]]
         chart = _sweep_chart(summary, changed)
         runs = (folder / "runs.jsonl")

@@ -65,11 +65,12 @@ def case_seed(case: Case, seed: int) -> tuple[int, int]:
 def simulate_shard(case: Case, seed: int, shard: Shard) -> tuple[pd.DataFrame, int]:
     """Play one shard's games; returns its per-game rows and the game-steps simulated."""
     res = run_games(case, case_seed(case, seed), shard.start, shard.stop)
-    df = game_statistics(res.capture_times, case.tau, first_game=shard.start)
+    df = game_statistics(res.capture_times, case.tau, first_game=shard.start, escape_times=res.escape_times)
     df.insert(0, "shard", np.int64(shard.number))
     df.insert(0, "point", np.int64(shard.point))
     df["steps"] = res.steps
     df["capture_times"] = list(res.capture_times)
+    df["escape_times"] = list(res.escape_times)
     return df, int(res.steps.sum())
 
 
@@ -275,6 +276,8 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
 def format_summary(summary: pd.DataFrame, changed: list[str]) -> str:
     cols = ["point", *changed, "n_games", "last_capture_mean", "last_capture_ci95_low", "last_capture_ci95_high",
             "last_capture_n_censored", "frac_captured_tau_mean", "p_all_captured_tau"]
+    if "frac_escaped_mean" in summary and summary["frac_escaped_mean"].gt(0).any():  # games with an exit
+        cols += ["frac_escaped_tau_mean", "mean_escape_mean"]
     view = summary[[c for c in cols if c in summary.columns]].copy()
     return view.to_string(index=False, float_format=lambda x: f"{x:.3f}")
 

@@ -50,6 +50,37 @@ def test_pe_table_small(tmp_path):
     assert len(list(tmp_path.glob("fig_*.png"))) == 6
     games = pd.read_parquet(tmp_path / "pe_games.parquet")
     assert len(games) == 24
+    assert "pursuer speed 1, evader speed 1 (the paper's)" in r.stdout and "sensitivity" not in r.stdout
+    assert (df["pursuer_speed"] == 1.0).all() and (df["evader_speed"] == 1.0).all()
+
+
+def test_pe_table_at_another_speed_ratio(tmp_path):
+    r = farm("pe-table", "--games", 3, "--out", tmp_path, "--no-figures", "--pursuer-speed", 2)
+    assert r.returncode == 0, r.stderr
+    assert "pursuer speed 2, evader speed 1" in r.stdout and "(the paper's)" not in r.stdout
+    assert "3.373" in r.stdout and "3.31" in r.stdout  # the paper's figures beside ours, unchanged
+    assert "sensitivity check, not a fit" in r.stdout
+    df = pd.read_csv(tmp_path / "pe_tables.csv")
+    assert (df["pursuer_speed"] == 2.0).all() and (df["evader_speed"] == 1.0).all()
+    from farm.pe_table import PAPER_CASES, paper_case
+    from workers import Case
+
+    keys = lambda base: {paper_case(base, n, pp, ep).key() for _, n, pp, ep, _ in PAPER_CASES}  # noqa: E731
+    assert set(df["case_key"]) == keys(Case(1, 1, pursuer_speed=2.0))
+    assert set(df["case_key"]).isdisjoint(keys(Case(1, 1)))  # not the equal-speed cases
+
+
+def test_game_with_exit_point_and_speeds():
+    """An evader 1.005 from an unguarded exit, heading for it at unit speed, escapes after
+    the move that brings it within r_c = 0.25: step 76, t = 0.76 s."""
+    r = farm("game", "--pursuers", "9,9", "--evaders", "1.005,5", "--pursuer-policy", "pure_pursuit",
+             "--evader-policy", "target", "--exit-point", "0,5", "--pursuer-speed", "1.5")
+    assert r.returncode == 0, r.stderr
+    assert "(pursuer speed 1.5, exit at (0, 5))" in r.stdout
+    assert "evader 0 at (1.0" in r.stdout and "5.00): escaped at 0.76 s" in r.stdout
+    r = farm("game", "--n-pursuers", 2, "--evader-speed", "0.5", "--t-max", 20)
+    assert r.returncode == 0, r.stderr
+    assert "(evader speed 0.5)" in r.stdout and "escaped" not in r.stdout
 
 
 @pytest.mark.parametrize(
@@ -65,6 +96,14 @@ def test_pe_table_small(tmp_path):
         (["game", "--arena", "ARENA_BAD"], "arena: polygon must be strictly convex"),
         (["game", "--t-max", "abc"], "argument --t-max: invalid float value"),
         (["pe-table", "--games", "1"], "--games: need at least 2"),
+        (["game", "--exit-point", "1"], "--exit-point: expected 2 numbers"),
+        (["game", "--exit-point", "nan,5"], "exit_point: must be a finite point (x, y), got (nan, 5.0)"),
+        (["game", "--pursuers", "4,5", "--evaders", "8,5", "--exit-point", "inf,5"], "exit_point: must be a finite"),
+        (["game", "--pursuer-speed", "0"], "pursuer_speed: must be positive and finite, got 0.0"),
+        (["game", "--pursuers", "4,5", "--evaders", "8,5", "--evader-speed", "nan"], "evader_speed: must be positive"),
+        (["game", "--evader-speed", "fast"], "argument --evader-speed: invalid float value"),
+        (["pe-table", "--pursuer-speed", "-2"], "pursuer_speed: must be positive and finite, got -2.0"),
+        (["pe-table", "--evader-speed", "inf"], "evader_speed: must be positive and finite, got inf"),
         (["nope"], "invalid choice: 'nope'"),
     ],
 )

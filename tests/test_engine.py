@@ -201,3 +201,62 @@ def test_t_max_is_never_exceeded():
     assert res.steps[0] == 1 and np.isnan(res.capture_times[0, 0])
     with pytest.raises(InputError, match="engine's limit"):
         simulate_games(p, e, dt=1e-300)
+
+
+def test_agrees_with_the_numpy_engine_up_to_round_off_on_chaotic_games():
+    """The compiled engine plays the numpy engine's (1.1.0) games: the same capture times,
+    except in games so sensitive that a 1e-9 nudge of the start moves the outcome too,
+    where the two implementations' different round-off (1e-15) may do the same."""
+    import numpy_engine
+
+    from workers import Case, sample_initial_positions
+
+    for n_p, ep in [(3, "centroid"), (5, "centroid"), (1, "constant_area"), (4, "area_max")]:
+        case = Case(n_p, 1, evader_policy=ep)
+        P, E = sample_initial_positions(case, 7, 0, 30)
+        ours = simulate_games(P, E, evader_policy=ep).capture_times[:, 0]
+        theirs = numpy_engine.simulate_games(P, E, evader_policy=ep).capture_times[:, 0]
+        differ = np.flatnonzero(ours != theirs)
+        assert len(differ) <= 0.2 * len(ours), (n_p, ep, ours[differ], theirs[differ])
+        nudges = np.random.default_rng(0).normal(size=(4,) + P.shape[1:]) * 1e-9
+        for b in differ:
+            nudged = [simulate_games(np.clip(P[b : b + 1] + d, 0, 10), E[b : b + 1], evader_policy=ep).capture_times[0, 0]
+                      for d in nudges]
+            assert any(t != ours[b] for t in nudged), f"game {b} differs ({ours[b]} vs {theirs[b]}) but is not chaotic"
+
+
+def test_controls_equal_the_numpy_engines_along_trajectories(rng):
+    """At every recorded state of random games, the compiled controls equal the numpy engine's to 1e-9."""
+    import numpy_engine
+
+    for pp in PURSUERS:
+        for ep in EVADERS:
+            P, E = rng.random((2, 6, 2)) * 10, rng.random((2, 4, 2)) * 10
+            res = simulate_games(P, E, pursuer_policy=pp, evader_policy=ep, t_max=4.0, record=True)
+            frames = np.arange(0, res.pursuer_paths.shape[0], 13)
+            p, e = res.pursuer_paths[frames].reshape(-1, 6, 2), res.evader_paths[frames].reshape(-1, 4, 2)
+            alive = np.concatenate([res.alive_at(f) for f in frames])
+            keep = alive.any(axis=1)
+            ours = step_velocities(p[keep], e[keep], alive[keep], pursuer_policy=pp, evader_policy=ep)
+            theirs = numpy_engine.step_velocities(p[keep], e[keep], alive[keep], pursuer_policy=pp, evader_policy=ep)
+            np.testing.assert_allclose(ours[0], theirs[0], atol=1e-9)
+            np.testing.assert_allclose(ours[1], theirs[1], atol=1e-9)
+
+
+@pytest.mark.parametrize("n_p,n_e", [(100, 50), (60, 200)])
+def test_large_games_match_brute_force_cells_and_controls(n_p, n_e, rng):
+    """Large teams take neighbour candidates from the grid: controls equal those of
+    all-pairs clipping (the numpy engine) on clustered and spread-out states."""
+    import numpy_engine
+
+    clustered = np.stack([rng.uniform(3, 5, (2, n_p)), rng.uniform(4, 6, (2, n_p))], -1)
+    spread = rng.random((2, n_p, 2)) * 10
+    P = np.concatenate([clustered, spread])
+    E = np.concatenate([np.stack([rng.uniform(7, 9, (2, n_e)), rng.uniform(0, 10, (2, n_e))], -1),
+                        rng.random((2, n_e, 2)) * 10])
+    alive = rng.random((4, n_e)) < 0.8
+    for pp, ep in [("area_min", "centroid"), ("area_min", "constant_area")]:
+        ours = step_velocities(P, E, alive, pursuer_policy=pp, evader_policy=ep)
+        theirs = numpy_engine.step_velocities(P, E, alive, pursuer_policy=pp, evader_policy=ep)
+        np.testing.assert_allclose(ours[0], theirs[0], atol=1e-9)
+        np.testing.assert_allclose(ours[1], theirs[1], atol=1e-9)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from workers import ENGINE_VERSION
 from farm.service import CaptureTimeClient, ServiceSettings
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -54,7 +55,7 @@ def test_report_renders_in_chromium(results, tmp_path):
     for title in ("The paper&#x27;s pursuit-evasion tables", "Sweeps", "Capture-time service table", "Game figures"):
         assert f"<h2>{title}</h2>" in page
     assert "farm train CONFIG" in page and "farm eval RUN_DIR" in page  # sections without data say how
-    assert "3.373" in page and "tiny" in page and "engine 1." in page
+    assert "3.373" in page and "tiny" in page and f"engine {ENGINE_VERSION}" in page
 
     dom = browser("--virtual-time-budget=15000", "--dump-dom", (tmp_path / "report.html").as_uri()).stdout
     check = re.search(r'id="selfcheck" data-images="(\d+)" data-loaded="(\d+)" data-errors="(\d+)"', dom)

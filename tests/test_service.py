@@ -35,9 +35,10 @@ def test_value_is_the_case_statistics(tmp_path):
         assert v[k] == pytest.approx(x, nan_ok=True)
     assert v["expected_frac_captured_tau"] == summary["frac_captured_tau_mean"]
     assert v["n_games"] == 6 and v["estimate"] is False
-    for name in ("first_capture", "mean_capture", "last_capture"):
-        for s in ("mean", "std", "q05", "q50", "q95"):
+    for name in ("first_capture", "mean_capture", "last_capture", "first_escape", "mean_escape"):
+        for s in ("mean", "std", "q05", "q50", "q95", "n_censored"):
             assert f"{name}_{s}" in v
+    assert v["frac_escaped_mean"] == 0.0 and v["frac_escaped_tau_mean"] == 0.0  # no exit: nobody escapes
 
 
 def test_miss_computes_stores_and_reloads(tmp_path):
@@ -59,6 +60,8 @@ def test_keys_differing_in_any_parameter_never_collide():
         FAST.with_(target=(0.0, 4.0)).key(3, 2), FAST.with_(games=7).key(3, 2), FAST.with_(seed=1).key(3, 2),
         FAST.with_(arena=((0, 0), (10, 0), (10, 10), (0, 10))).key(3, 2),
         FAST.with_(law=InitialLaw(kind="uniform")).key(3, 2),
+        FAST.with_(exit_point=(0.0, 5.0)).key(3, 2), FAST.with_(pursuer_speed=2.0).key(3, 2),
+        FAST.with_(evader_speed=0.5).key(3, 2),
     ]
     digests = {base.digest()} | {k.digest() for k in variants}
     assert len(digests) == len(variants) + 1
@@ -87,6 +90,38 @@ def test_bad_settings(tmp_path):
         FAST.with_(games=1).key(1, 1)
     with pytest.raises(InputError, match="capture_radius"):
         FAST.with_(capture_radius=-1.0).key(1, 1)
+    with pytest.raises(InputError, match=r"exit_point: must be a finite point \(x, y\)"):
+        FAST.with_(exit_point=(math.nan, 5.0)).key(1, 1)
+    with pytest.raises(InputError, match="pursuer_speed: must be positive and finite"):
+        FAST.with_(pursuer_speed=0.0).key(1, 1)
+    with pytest.raises(InputError, match="evader_speed: must be positive and finite"):
+        ServiceSettings.of(evader_speed=-1).key(1, 1)
+
+
+def test_exit_point_and_speeds_are_settings(tmp_path):
+    s = ServiceSettings.of(exit_point=(0.0, 5.0), pursuer_speed=2.0)
+    key = s.key(3, 2)
+    assert key.case.exit_point == (0.0, 5.0) and key.case.pursuer_speed == 2.0 and key.case.evader_speed == 1.0
+    assert key.digest() != ServiceSettings.of().key(3, 2).digest()
+    assert key.settings_digest() != ServiceSettings.of().key(3, 2).settings_digest()
+    assert ServiceSettings.of(exit_point=[0, 5], pursuer_speed=2).key(3, 2).digest() == key.digest()
+    assert key.to_dict()["case"]["exit_point"] == [0.0, 5.0]
+    from farm.service.table import load_table_config
+
+    config = tmp_path / "t.yaml"
+    config.write_text("name: t\nsettings: {games: 4, exit_point: [0, 5], pursuer_speed: 2}\n"
+                      "n_pursuers: [3]\nn_evaders: [2]\n")
+    assert load_table_config(config).keys()[0][3].digest() == ServiceSettings.of(
+        games=4, exit_point=(0.0, 5.0), pursuer_speed=2.0).key(3, 2).digest()
+
+
+def test_escape_statistics_reach_the_service(tmp_path):
+    settings = ServiceSettings.of(games=4, t_max=12.0, tau=10.0, pursuer_policy="pure_pursuit",
+                                  evader_policy="target", exit_point=(0.0, 5.0), pursuer_speed=0.5)
+    v = CaptureTimeClient(settings, local_store=tmp_path / "s.sqlite").get(1, 2)
+    _, summary = run_case(settings.key(1, 2).case, 4, seed=(0,))
+    assert v["frac_escaped_tau_mean"] == summary["frac_escaped_tau_mean"] > 0
+    assert v["first_escape_mean"] == pytest.approx(summary["first_escape_mean"])
 
 
 def test_damaged_row_is_reported_and_never_served(tmp_path):

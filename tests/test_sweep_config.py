@@ -72,6 +72,13 @@ BAD = [
     ("name: t\nvary: {grid: {evader_policy: [centroid, hide]}}\n", "vary: point 1 (evader_policy='hide'): evader_policy: unknown policy 'hide'"),
     ("name: t\nvary: {grid: {n_evaders: [1, -1]}}\n", "vary: point 1 (n_evaders=-1)"),
     ("name: t\nvary: {random: {n: 3, ranges: {dt: [0.2, 0.1]}}}\n", "dt: range must be [low, high]"),
+    ("name: t\nbase: {pursuer_speed: 0}\n", "base.pursuer_speed: Input should be greater than 0"),
+    ("name: t\nbase: {evader_speed: .inf}\n", "base.evader_speed: Input should be a finite number"),
+    ("name: t\nbase: {exit_point: [1]}\n", "base.exit_point"),
+    ("name: t\nbase: {exit_point: [.nan, 5]}\n", "base: exit_point: must be a finite point (x, y)"),
+    ("name: t\nvary: {grid: {evader_speed: [1, -1]}}\n", "vary: point 1 (evader_speed=-1): evader_speed: Input should be greater than 0"),
+    ("name: t\nvary: {grid: {exit_point: [[0, 5], [0, .inf]]}}\n", "vary: point 1 (exit_point=[0, inf]): exit_point: must be a finite point"),
+    ("name: t\nvary: {random: {n: 2, ranges: {exit_point: [0, 5]}}}\n", "'exit_point' cannot be drawn at random"),
     ("name: t\ngames_per_point: many\n", "games_per_point: Input should be a valid integer"),
     ("name: 'a b'\n", "name: String should match pattern"),
     ("- just\n- a list\n", "must be a mapping"),
@@ -125,4 +132,30 @@ def test_point_numbers_do_not_depend_on_their_place(tmp_path):
     gb = (run_sweep(b, tmp_path / "b", use_ray=False, show_progress=False), SweepRun(b, tmp_path / "b").read_games())[1]
     three_a = ga[ga["point"] == 1].drop(columns=["point"]).reset_index(drop=True)
     three_b = gb[gb["point"] == 1].drop(columns=["point"]).reset_index(drop=True)
-    assert three_a.drop(columns=["capture_times"]).equals(three_b.drop(columns=["capture_times"]))
+    times = ["capture_times", "escape_times"]
+    assert three_a.drop(columns=times).equals(three_b.drop(columns=times))
+
+
+def test_exit_point_and_speeds_can_be_set_and_varied(tmp_path):
+    from farm.config import VARIABLE_FIELDS
+
+    assert {"exit_point", "pursuer_speed", "evader_speed"} <= set(VARIABLE_FIELDS)
+    default = load_sweep_config(write(tmp_path, "name: t\n")).points()[0].case
+    assert (default.exit_point, default.pursuer_speed, default.evader_speed) == (None, 1.0, 1.0)
+    cfg = load_sweep_config(write(tmp_path, """
+        name: t
+        base: {exit_point: [0, 5], evader_speed: 0.5}
+        vary:
+          grid: {pursuer_speed: [1, 2]}
+          zip: {exit_point: [[0, 5], null]}
+          random: {n: 2, ranges: {evader_speed: [0.5, 1.5]}}
+    """))
+    points = cfg.points()
+    assert len(points) == 2 * 2 * 2
+    assert {p.case.pursuer_speed for p in points} == {1.0, 2.0}
+    assert {p.case.exit_point for p in points} == {(0.0, 5.0), None}
+    assert all(0.5 <= p.case.evader_speed <= 1.5 for p in points) and len({p.case.evader_speed for p in points}) == 2
+    assert len({p.case.key() for p in points}) == len(points)
+    base_only = load_sweep_config(write(tmp_path, "name: t\nbase: {exit_point: [0, 5], evader_speed: 0.5}\n"))
+    assert base_only.points()[0].case.exit_point == (0.0, 5.0) and base_only.points()[0].case.evader_speed == 0.5
+    assert base_only.sweep_id() != load_sweep_config(write(tmp_path, "name: t\n")).sweep_id()

@@ -87,7 +87,7 @@ def scrape(port) -> str:
 def test_worker_killed_mid_sweep_every_shard_exactly_once(ray_local, tmp_path, reference):
     path = tmp_path / "kill.yaml"
     # Bigger shards (about a second each) so that a worker is caught mid-shard.
-    path.write_text(textwrap.dedent(SWEEP).replace("games_per_point: 24\nshard_games: 6", "games_per_point: 60\nshard_games: 30")
+    path.write_text(textwrap.dedent(SWEEP).replace("games_per_point: 24\nshard_games: 6", "games_per_point: 2400\nshard_games: 1200")
                     .replace("t_max: 20", "t_max: 40"))
     config = load_sweep_config(path)
     out = tmp_path / "out"
@@ -111,7 +111,7 @@ def test_worker_killed_mid_sweep_every_shard_exactly_once(ray_local, tmp_path, r
     files = sorted(p.name for p in (out / "shards").iterdir())
     assert files == sorted(s.file_name for s in SweepRun(config, out).all_shards())
     got = read_games(config, out)
-    assert not got.duplicated(["point", "game"]).any() and len(got) == 4 * 60
+    assert not got.duplicated(["point", "game"]).any() and len(got) == 4 * 2400
     pd.testing.assert_frame_equal(got, reference(config))
 
     # Every metric the dashboard queries is exported through Ray's Prometheus endpoint.

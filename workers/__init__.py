@@ -3,6 +3,7 @@
     from workers import simulate_games
     res = simulate_games(pursuers, evaders, pursuer_policy="area_min", evader_policy="centroid")
     res.capture_times  # (B, n_e) float64, NaN where not captured
+    res.escape_times   # (B, n_e) float64, NaN where not escaped (only with exit_point=(x, y))
 """
 
 from workers.arena import DEFAULT_ARENA, Arena, make_arena

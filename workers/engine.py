@@ -1,29 +1,41 @@
-"""The batched pursuit-evasion engine: B games of the same team sizes and policies
-stepped together; finished games drop out by mask.
+"""The pursuit-evasion engine, compiled (numba): each game stepped to its end on its own.
 
-Semantics (SPEC.md section 1): explicit Euler with fixed dt; at step k the
+Semantics (SPEC.md sections 1-2): explicit Euler with fixed dt; at step k the
 controls of every agent come from the state at k, then all agents move, then
-positions are projected onto the arena; evader i is captured at t = (k+1) dt
-when its distance to the nearest pursuer is below r_c (strictly), or at t = 0 if
-it starts that close; captured evaders leave the game at once.
+positions are projected onto the arena. After the move, evader i is captured at
+t = (k+1) dt when its distance to the nearest pursuer is below r_c (strictly);
+then, when the game has an exit point, a live evader closer than r_c to it
+escapes at that time. Both are checked at t = 0 on the initial positions too.
+A captured or escaped evader leaves the game at once (no motion, no cell, no
+longer a target). A game ends when no evader is left, or after
+floor(t_max / dt) steps.
+
+Why one game at a time: a game's cost is then its own (a single game costs what
+one game of a batch costs), its numbers cannot depend on what else shares the
+call, and no step waits on the slowest game of a batch. Parallelism belongs to
+the farm: one process per core, each playing its shard's games.
 """
 
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from workers.arena import Arena, make_arena
+from workers.compiled import ensure_fresh_cache
 from workers.errors import InputError
-from workers.geometry import PAD, Cells, voronoi_cells
-from workers.policies import StepContext, get_evader_policy, get_pursuer_policy
-from workers.policies.context import pursuer_evader_distance
+from workers.geometry import NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity, voronoi_cells
+from workers.policies import Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
 
-__all__ = ["ENGINE_VERSION", "GameResults", "simulate_games", "V_MAX"]
+__all__ = ["ENGINE_VERSION", "GameResults", "simulate_games", "step_velocities", "estimated_game_seconds", "V_MAX"]
 
-ENGINE_VERSION = "1.1.0"
+ensure_fresh_cache()
+
+ENGINE_VERSION = "2.0.0"
 V_MAX = 1.0
 MAX_STEPS = 10_000_000
 
@@ -35,8 +47,9 @@ class GameResults:
     capture_times: (B, n_e) float64, NaN where not captured by t_max;
     capture_step: (B, n_e) int64, step index whose move captured the evader
     (capture_times = capture_step * dt), -1 where not captured;
-    steps: (B,) int64 steps simulated before the game ended.
-    With record=True: pursuer_paths (T+1, B, n_p, 2) and evader_paths
+    escape_times, escape_step: the same for escapes through the exit point (all
+    NaN and -1 without one); steps: (B,) int64 steps simulated before the game
+    ended. With record=True: pursuer_paths (T+1, B, n_p, 2) and evader_paths
     (T+1, B, n_e, 2) float64 positions at t = 0, dt, ..., T dt (a finished game
     keeps its last positions), and `cells_at` rebuilds every agent's cell.
     """
@@ -50,6 +63,11 @@ class GameResults:
     arena: Arena
     pursuer_policy: str
     evader_policy: str
+    escape_times: np.ndarray | None = None
+    escape_step: np.ndarray | None = None
+    exit_point: tuple[float, float] | None = None
+    pursuer_speed: float = V_MAX
+    evader_speed: float = V_MAX
     pursuer_paths: np.ndarray | None = None
     evader_paths: np.ndarray | None = None
     engine_version: str = field(default=ENGINE_VERSION)
@@ -59,8 +77,9 @@ class GameResults:
         return self.capture_times.shape[0]
 
     def alive_at(self, frame: int) -> np.ndarray:
-        """(B, n_e) bool: evaders still in the game at t = frame * dt."""
-        return (self.capture_step < 0) | (self.capture_step > frame)
+        """(B, n_e) bool: evaders still in the game (neither captured nor escaped) at t = frame * dt."""
+        gone = np.where(self.capture_step >= 0, self.capture_step, self.escape_step)
+        return (gone < 0) | (gone > frame)
 
     def cells_at(self, frame: int, game: int) -> tuple[Cells, np.ndarray]:
         """Cells of all live agents of one game at t = frame * dt (needs record=True).
@@ -78,6 +97,220 @@ class GameResults:
         live = np.concatenate([np.ones(len(pursuers), dtype=bool), alive])[None]
         agents = np.flatnonzero(live[0])
         return voronoi_cells(points, live, np.zeros_like(agents), agents, self.arena), agents
+
+
+# ---------------------------------------------------------------- compiled core
+Work = namedtuple("Work", "xs ys cell_of start items px py pl wx wy wl s cand cd2")
+
+
+@njit(cache=True)
+def _work(n, cap):
+    """Scratch for the cells of a game of n agents (cap vertex slots)."""
+    return Work(np.empty(n), np.empty(n), np.empty(n, dtype=np.int64), np.empty(n + 2, dtype=np.int64),
+                np.empty(n, dtype=np.int64), np.empty(cap), np.empty(cap), np.empty(cap, dtype=np.int64),
+                np.empty(cap), np.empty(cap), np.empty(cap, dtype=np.int64), np.empty(cap),
+                np.empty(n, dtype=np.int64), np.empty(n))
+
+
+@njit(cache=True)
+def _step_state(n_p, n_e, cap, target, dt, vp, ve):
+    """A Step with fresh arrays for one game (positions and distances filled by the caller)."""
+    return Step(np.empty((n_p, 2)), np.empty((n_e, 2)), np.ones(n_e, dtype=np.bool_), np.empty((n_p, n_e)),
+                target, dt, vp, ve, np.zeros(n_e), np.empty((n_e, 2)), np.zeros(n_e, dtype=np.int64),
+                np.empty((n_e, cap), dtype=np.int64), np.empty((n_e, cap)), np.empty((n_e, cap, 2)),
+                np.full(n_p, -1, dtype=np.int64), np.empty((n_p, 2)))
+
+
+@njit(cache=True, inline="always")
+def _evader_cells(s, w, av):
+    """Fill the Step's cell fields: every live evader's cell among all live agents."""
+    P, E, alive = s.P, s.E, s.alive
+    n_p, n_e = P.shape[0], E.shape[0]
+    n = 0
+    for j in range(n_p):
+        w.xs[n], w.ys[n] = P[j, 0], P[j, 1]
+        n += 1
+    for i in range(n_e):
+        if alive[i]:
+            w.xs[n], w.ys[n] = E[i, 0], E[i, 1]
+            n += 1
+    grid = build_grid(w.xs, w.ys, n, w.cell_of, w.start, w.items)
+    best = np.full(n_p, np.inf)
+    for j in range(n_p):
+        s.pn_i[j] = -1
+    slot = n_p
+    for i in range(n_e):
+        s.nb_n[i] = 0
+        if not alive[i]:
+            continue
+        m = build_cell(slot, w.xs, w.ys, n, grid, w.cell_of, w.start, w.items, av, w.px, w.py, w.pl,
+                       w.wx, w.wy, w.wl, w.s, w.cand, w.cd2)
+        slot += 1
+        s.area[i], s.cen[i, 0], s.cen[i, 1] = area_centroid(w.px, w.py, m, E[i, 0], E[i, 1])
+        for v in range(m):
+            j = w.pl[v]
+            if j < 0 or j >= n_p:
+                continue
+            u = v + 1 if v + 1 < m else 0
+            length = math.hypot(w.px[u] - w.px[v], w.py[u] - w.py[v])
+            if length <= NEIGHBOUR_EDGE_MIN:
+                continue
+            mx, my = 0.5 * (w.px[v] + w.px[u]), 0.5 * (w.py[v] + w.py[u])
+            t = s.nb_n[i]
+            s.nb_j[i, t], s.nb_len[i, t], s.nb_mid[i, t, 0], s.nb_mid[i, t, 1] = j, length, mx, my
+            s.nb_n[i] = t + 1
+            if s.d2[j, i] < best[j]:
+                best[j] = s.d2[j, i]
+                s.pn_i[j], s.pn_mid[j, 0], s.pn_mid[j, 1] = i, mx, my
+
+
+@njit(cache=True, inline="always")
+def _project(x, y, box, lo, hi, av, normals, offsets):
+    """The nearest point of the arena to (x, y)."""
+    if box:
+        return min(max(x, lo[0]), hi[0]), min(max(y, lo[1]), hi[1])
+    k = av.shape[0]
+    inside = True
+    for e in range(k):
+        if x * normals[e, 0] + y * normals[e, 1] - offsets[e] > 0.0:
+            inside = False
+    if inside:
+        return x, y
+    best, fx, fy = np.inf, x, y
+    for e in range(k):
+        f = e + 1 if e + 1 < k else 0
+        abx, aby = av[f, 0] - av[e, 0], av[f, 1] - av[e, 1]
+        t = ((x - av[e, 0]) * abx + (y - av[e, 1]) * aby) / (abx * abx + aby * aby)
+        t = min(max(t, 0.0), 1.0)
+        gx, gy = av[e, 0] + t * abx, av[e, 1] + t * aby
+        d2 = (gx - x) * (gx - x) + (gy - y) * (gy - y)
+        if d2 < best:
+            best, fx, fy = d2, gx, gy
+    return fx, fy
+
+
+@njit(cache=True, inline="always")
+def _distances(s):
+    """Squared pursuer-evader distances of the Step, inf for evaders out of the game."""
+    for j in range(s.P.shape[0]):
+        px, py = s.P[j, 0], s.P[j, 1]
+        for i in range(s.E.shape[0]):
+            dx, dy = px - s.E[i, 0], py - s.E[i, 1]
+            s.d2[j, i] = dx * dx + dy * dy if s.alive[i] else np.inf
+
+
+@njit(cache=True, inline="always")
+def _controls(s, w, av, p_kind, e_kind, cells, up, ue):
+    """This step's velocities: up (n_p, 2), ue (n_e, 2) float64 (zero for evaders out of the game)."""
+    if cells:
+        _evader_cells(s, w, av)
+    for j in range(s.P.shape[0]):
+        up[j, 0], up[j, 1] = pursuer_velocity(p_kind, j, s)
+    for i in range(s.E.shape[0]):
+        if s.alive[i]:
+            ue[i, 0], ue[i, 1] = evader_velocity(e_kind, i, s)
+        else:
+            ue[i, 0], ue[i, 1] = 0.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def _leave(s, step, r_c, has_exit, exit_xy, capture_step, escape_step):
+    """Captures, then escapes, at `step` (distances fresh); returns the evaders left."""
+    n_p, n_e = s.P.shape[0], s.E.shape[0]
+    left = 0
+    for i in range(n_e):
+        if not s.alive[i]:
+            continue
+        near2 = np.inf
+        for j in range(n_p):
+            near2 = min(near2, s.d2[j, i])
+        near = np.inf
+        if near2 < (r_c * (1.0 + 1e-6)) ** 2:  # close: decide on the exact distance
+            for j in range(n_p):
+                near = min(near, math.hypot(s.P[j, 0] - s.E[i, 0], s.P[j, 1] - s.E[i, 1]))
+        if near < r_c:
+            capture_step[i] = step
+        elif has_exit and math.hypot(s.E[i, 0] - exit_xy[0], s.E[i, 1] - exit_xy[1]) < r_c:
+            escape_step[i] = step
+        else:
+            left += 1
+            continue
+        s.alive[i] = False
+        for j in range(n_p):
+            s.d2[j, i] = np.inf
+    return left
+
+
+@njit(cache=True)
+def _play(P0, E0, p_kind, e_kind, cells, r_c, dt, n_steps, target, has_exit, exit_xy, vp, ve,
+          box, lo, hi, av, normals, offsets, record, rec_p, rec_e, capture_step, escape_step, steps):
+    """Play games P0 (B, n_p, 2), E0 (B, n_e, 2) to their ends, one after the other.
+
+    Writes capture_step, escape_step (B, n_e) int64 (-1: never) and steps (B,)
+    int64; with record, positions into rec_p (F, B, n_p, 2) and rec_e (F, B, n_e, 2).
+    """
+    n_games, n_p, n_e = P0.shape[0], P0.shape[1], E0.shape[1]
+    cap = cell_capacity(n_p + n_e, av.shape[0])
+    w = _work(n_p + n_e, cap)
+    s = _step_state(n_p, n_e, cap, target, dt, vp, ve)
+    up, ue = np.empty((n_p, 2)), np.empty((n_e, 2))
+    for b in range(n_games):
+        s.P[:] = P0[b]
+        s.E[:] = E0[b]
+        s.alive[:] = True
+        capture_step[b, :] = -1
+        escape_step[b, :] = -1
+        _distances(s)
+        left = _leave(s, 0, r_c, has_exit, exit_xy, capture_step[b], escape_step[b])
+        if record:
+            rec_p[0, b], rec_e[0, b] = s.P, s.E
+        k = 0
+        while left > 0 and k < n_steps:
+            _controls(s, w, av, p_kind, e_kind, cells, up, ue)
+            for j in range(n_p):
+                s.P[j, 0], s.P[j, 1] = _project(s.P[j, 0] + dt * up[j, 0], s.P[j, 1] + dt * up[j, 1],
+                                                box, lo, hi, av, normals, offsets)
+            for i in range(n_e):
+                if s.alive[i]:
+                    s.E[i, 0], s.E[i, 1] = _project(s.E[i, 0] + dt * ue[i, 0], s.E[i, 1] + dt * ue[i, 1],
+                                                    box, lo, hi, av, normals, offsets)
+            _distances(s)
+            k += 1
+            left = _leave(s, k, r_c, has_exit, exit_xy, capture_step[b], escape_step[b])
+            if record:
+                rec_p[k, b], rec_e[k, b] = s.P, s.E
+        steps[b] = k
+        if record:
+            for f in range(k + 1, rec_p.shape[0]):
+                rec_p[f, b], rec_e[f, b] = s.P, s.E
+
+
+@njit(cache=True)
+def _step_velocities(P, E, alive, p_kind, e_kind, cells, target, dt, vp, ve, av):
+    n_states, n_p, n_e = P.shape[0], P.shape[1], E.shape[1]
+    cap = cell_capacity(n_p + n_e, av.shape[0])
+    w = _work(n_p + n_e, cap)
+    s = _step_state(n_p, n_e, cap, target, dt, vp, ve)
+    up, ue = np.empty((n_states, n_p, 2)), np.empty((n_states, n_e, 2))
+    for a in range(n_states):
+        s.P[:], s.E[:], s.alive[:] = P[a], E[a], alive[a]
+        _distances(s)
+        _controls(s, w, av, p_kind, e_kind, cells, up[a], ue[a])
+    return up, ue
+
+
+# ---------------------------------------------------------------- Python API
+def estimated_game_seconds(n_pursuers: int, n_evaders: int, pursuer_policy: str, evader_policy: str,
+                           t_max: float, dt: float) -> float:
+    """A rough single-core cost of one game, from the engine's measured cost per game-step
+    (benchmarks/engine.py: about 0.2 us a step, 0.6 us a cell plus 3 ns per agent in the
+    game, 2 ns a pursuer-evader pair, 20 ns an agent), over at most 700 steps, a typical
+    game's length when it is not cut short by t_max. Good to a factor of two; for sizing work."""
+    cells = get_pursuer_policy(pursuer_policy).needs_cells or get_evader_policy(evader_policy).needs_cells
+    agents = n_pursuers + n_evaders
+    per_step = 0.2e-6 + cells * n_evaders * (0.6e-6 + 3e-9 * agents) + 2e-9 * n_pursuers * n_evaders + 20e-9 * agents
+    return min(t_max / dt, 700.0) * per_step
+
 
 
 def _positions(name: str, value, arena: Arena) -> np.ndarray:
@@ -108,19 +341,36 @@ def _positive(name: str, value) -> float:
     return x
 
 
+def _point(name: str, value) -> np.ndarray:
+    try:
+        p = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: must be a finite point (x, y), got {value!r}") from None
+    if p.shape != (2,) or not np.all(np.isfinite(p)):
+        raise InputError(f"{name}: must be a finite point (x, y), got {value!r}")
+    return p
+
+
+def _arena_arrays(arena: Arena):
+    lo, hi = arena.vertices.min(axis=0), arena.vertices.max(axis=0)
+    return (arena.is_axis_box, np.ascontiguousarray(lo), np.ascontiguousarray(hi), np.ascontiguousarray(arena.vertices),
+            np.ascontiguousarray(arena.normals), np.ascontiguousarray(arena.offsets))
+
+
 def step_velocities(pursuers, evaders, alive, *, pursuer_policy="area_min", evader_policy="centroid",
-                    dt=0.01, target=(0.0, 5.0), arena=None):
+                    dt=0.01, target=(0.0, 5.0), arena=None, pursuer_speed=V_MAX, evader_speed=V_MAX):
     """One step's controls for A game states (no validation; for tests and tools).
 
     pursuers (A, n_p, 2), evaders (A, n_e, 2) float64, alive (A, n_e) bool ->
-    (u_p (A, n_p, 2), u_e (A, n_e, 2)) float64, zero for captured evaders.
+    (u_p (A, n_p, 2), u_e (A, n_e, 2)) float64, zero for evaders out of the game.
     """
-    ctx = StepContext(np.asarray(pursuers, dtype=np.float64), np.asarray(evaders, dtype=np.float64),
-                      np.asarray(alive, dtype=bool), arena=make_arena(arena), dt=dt, v_max=V_MAX,
-                      target=np.asarray(target, dtype=np.float64))
-    u_p = get_pursuer_policy(pursuer_policy)(ctx)
-    u_e = np.where(ctx.alive[..., None], get_evader_policy(evader_policy)(ctx), 0.0)
-    return u_p, u_e
+    pp, ep = get_pursuer_policy(pursuer_policy), get_evader_policy(evader_policy)
+    arena = make_arena(arena)
+    return _step_velocities(
+        np.ascontiguousarray(pursuers, dtype=np.float64), np.ascontiguousarray(evaders, dtype=np.float64),
+        np.ascontiguousarray(alive, dtype=np.bool_), pp.kind, ep.kind, pp.needs_cells or ep.needs_cells,
+        np.asarray(target, dtype=np.float64), float(dt), float(pursuer_speed), float(evader_speed),
+        np.ascontiguousarray(arena.vertices))
 
 
 def simulate_games(
@@ -135,16 +385,21 @@ def simulate_games(
     target=(0.0, 5.0),
     arena=None,
     record: bool = False,
+    exit_point=None,
+    pursuer_speed: float = V_MAX,
+    evader_speed: float = V_MAX,
 ) -> GameResults:
     """Play B independent games to the end.
 
     pursuers: (B, n_p, 2) float64, evaders: (B, n_e, 2) float64 initial
     positions inside the arena; arena: None for the square [0, 10]^2, else the
-    vertices (k, 2) of a convex polygon. Returns GameResults.
+    vertices (k, 2) of a convex polygon; exit_point: None (no escapes), or the
+    point (x, y) an evader escapes through when within capture_radius of it;
+    pursuer_speed, evader_speed: each team's top speed. Returns GameResults.
     """
     arena = make_arena(arena)
-    p_fn = get_pursuer_policy(pursuer_policy)
-    e_fn = get_evader_policy(evader_policy)
+    pp = get_pursuer_policy(pursuer_policy)
+    ep = get_evader_policy(evader_policy)
     p = _positions("pursuers", pursuers, arena)
     e = _positions("evaders", evaders, arena)
     if p.shape[0] != e.shape[0]:
@@ -152,73 +407,34 @@ def simulate_games(
     r_c = _positive("capture_radius", capture_radius)
     dt = _positive("dt", dt)
     t_max = _positive("t_max", t_max)
-    try:
-        goal = np.array(target, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"target: must be a point (x, y), got {target!r}") from None
-    if goal.shape != (2,) or not np.all(np.isfinite(goal)):
-        raise InputError(f"target: must be a finite point (x, y), got {target!r}")
+    vp = _positive("pursuer_speed", pursuer_speed)
+    ve = _positive("evader_speed", evader_speed)
+    goal = _point("target", target)
+    exit_xy = np.zeros(2) if exit_point is None else _point("exit_point", exit_point)
     n_steps = math.floor(t_max / dt + 1e-9)
     if n_steps < 1:
         raise InputError(f"t_max: {t_max} is shorter than one step dt={dt}")
     if n_steps > MAX_STEPS:
         raise InputError(f"t_max/dt: {n_steps} steps is more than the engine's limit of {MAX_STEPS}")
 
-    n_games, n_e = e.shape[0], e.shape[1]
-    capture_step = np.full((n_games, n_e), -1, dtype=np.int64)
-    alive = np.ones((n_games, n_e), dtype=bool)
-    steps = np.zeros(n_games, dtype=np.int64)
+    n_games, n_p, n_e = p.shape[0], p.shape[1], e.shape[1]
+    capture_step = np.empty((n_games, n_e), dtype=np.int64)
+    escape_step = np.empty((n_games, n_e), dtype=np.int64)
+    steps = np.empty(n_games, dtype=np.int64)
+    box, lo, hi, av, normals, offsets = _arena_arrays(arena)
 
-    def capture(act, pos_p, pos_e, step_index):
-        """Mark captures among the live evaders of games `act`; returns their distances."""
-        dist = pursuer_evader_distance(pos_p, pos_e, alive[act])
-        caught = np.min(dist, axis=1) < r_c
-        if caught.any():
-            g, i = np.nonzero(caught)
-            capture_step[act[g], i] = step_index
-            alive[act[g], i] = False
-            dist[g, :, i] = np.inf
-        return dist
+    def play(frames: int):
+        rec_p, rec_e = np.empty((frames, n_games, n_p, 2)), np.empty((frames, n_games, n_e, 2))
+        _play(p, e, pp.kind, ep.kind, pp.needs_cells or ep.needs_cells, r_c, dt, n_steps, goal,
+              exit_point is not None, exit_xy, vp, ve, box, lo, hi, av, normals, offsets, frames > 0,
+              rec_p, rec_e, capture_step, escape_step, steps)
+        return rec_p, rec_e
 
-    act = np.arange(n_games)
-    dist = capture(act, p, e, 0)
-    hints = np.full((n_games, n_e, 1), PAD, dtype=np.int64)
-    running = alive.any(axis=1)
-    frames_p, frames_e = ([p.copy()], [e.copy()]) if record else (None, None)
-
-    for k in range(n_steps):
-        if not running[act].all():
-            keep = running[act]
-            act, dist = act[keep], dist[keep]
-            if len(act) == 0:
-                break
-        pa, ea, alive_a = p[act], e[act], alive[act]
-        ctx = StepContext(
-            pa, ea, alive_a, arena=arena, dt=dt, v_max=V_MAX, target=goal, distance=dist, hint=hints[act]
-        )
-        u_p = p_fn(ctx)
-        u_e = np.where(alive_a[..., None], e_fn(ctx), 0.0)
-        if hasattr(ctx, "cell_labels"):
-            width = ctx.cell_labels.shape[2]
-            if width > hints.shape[2]:
-                hints = np.concatenate(
-                    [hints, np.full((n_games, n_e, width - hints.shape[2]), PAD, dtype=np.int64)], axis=2
-                )
-            hints[act, :, :width] = ctx.cell_labels
-            hints[act, :, width:] = PAD
-        pa = arena.project(pa + dt * u_p)
-        ea = arena.project(ea + dt * u_e)
-        p[act], e[act] = pa, ea
-        dist = capture(act, pa, ea, k + 1)
-        steps[act] = k + 1
-        running[act] = alive[act].any(axis=1)
-        if record:
-            frames_p.append(p.copy())
-            frames_e.append(e.copy())
-
-    capture_times = np.where(capture_step >= 0, capture_step * dt, np.nan)
+    play(0)
+    if record:  # the games again, now that their length is known
+        paths_p, paths_e = play(int(steps.max()) + 1)
     return GameResults(
-        capture_times=capture_times,
+        capture_times=np.where(capture_step >= 0, capture_step * dt, np.nan),
         capture_step=capture_step,
         steps=steps,
         dt=dt,
@@ -227,6 +443,11 @@ def simulate_games(
         arena=arena,
         pursuer_policy=pursuer_policy,
         evader_policy=evader_policy,
-        pursuer_paths=np.stack(frames_p) if record else None,
-        evader_paths=np.stack(frames_e) if record else None,
+        escape_times=np.where(escape_step >= 0, escape_step * dt, np.nan),
+        escape_step=escape_step,
+        exit_point=None if exit_point is None else (float(exit_xy[0]), float(exit_xy[1])),
+        pursuer_speed=vp,
+        evader_speed=ve,
+        pursuer_paths=paths_p if record else None,
+        evader_paths=paths_e if record else None,
     )

@@ -1,41 +1,290 @@
-"""Bounded Voronoi cells of many games at once, by half-plane clipping.
+"""Bounded Voronoi cells, compiled (numba), one cell at a time.
 
 The cell of site p is the arena clipped by the bisector half-planes
-{x : |x - p| <= |x - q|} of the other live agents q. Sites from all games are
-clipped together, one half-plane per site per round, nearest agent first; a
-site's cell is final once the next agent is farther than twice the cell's
-radius (its bisector cannot reach the cell), and finished cells drop out.
+{x : |x - p| <= |x - q|} of the other live agents q. Candidates q come from a
+uniform grid over the live agents' bounding box (about two agents per grid
+cell), visited ring by ring around the site's grid cell; within a ring they are
+clipped nearest first. A candidate farther than twice the cell's radius R (the
+largest distance from p to a vertex) cannot cut the cell: its bisector lies
+beyond R. The search stops once every agent not yet visited is that far: after
+ring r, an unvisited agent lies outside the block of rings 0..r, so at least as
+far from p as the nearest side of that block that is not the grid's own edge.
+So the cost of a cell is that of its few nearby agents, whatever the team sizes;
+with few agents the grid is one cell and this is plain nearest-first clipping.
 
-Every edge of a cell carries the label of the agent whose bisector it lies on
-(-1 - e for edge e of the arena), so shared edges with neighbours come for free.
+Clipping a convex polygon by a half-plane keeps the vertices inside (signed
+distance s <= 1e-12 to the bisector) and inserts the two crossing points, the
+entry point taking the label of the edge it lies on and the exit point the label
+of the clipping agent. Every edge carries the label of the agent whose bisector
+it lies on (-1 - e for edge e of the arena), so the edges shared with neighbours
+come for free. Agents closer than 1e-12 to the site are ignored for its cell.
 
-Warm start: from one step to the next a cell's structure (the cyclic list of
-lines its edges lie on) rarely changes. Given last step's labels as a hint, the
-vertices are re-intersected from those lines in one vectorized pass and the
-result is accepted only if it is provably the cell: the boundary turns left at
-every vertex and once around in all, it has positive area, every edge has
-non-negative length in counter-clockwise order, and every vertex is inside every
-half-plane to the clipper's own tolerance (a convex polygon of winding one
-bounded by the constraints' own lines that satisfies all constraints is their
-intersection). Cells that fail are clipped from scratch.
-Sums run left to right over the vertex axis (``cumsum``), so a cell's numbers do
-not depend on how many other cells or how much padding share its batch.
+Sums over a cell's vertices run in vertex order, so a cell's numbers depend only
+on its own game.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from workers.arena import Arena
 
 __all__ = ["Cells", "voronoi_cells", "NEIGHBOUR_EDGE_MIN"]
 
 NEIGHBOUR_EDGE_MIN = 1e-9
-_COINCIDENT = 1e-12
-_CLIP_TOL = 1e-12
+COINCIDENT = 1e-12
+CLIP_TOL = 1e-12
 PAD = -(1 << 40)  # label of padding slots
+
+
+@njit(cache=True)
+def cell_capacity(n_agents, k):
+    """Vertex slots a cell may need: one per arena edge and agent, twice over for the
+    rare clip whose inside vertices do not form one run (within the tolerance)."""
+    return 2 * (n_agents + k) + 8
+
+
+# ---------------------------------------------------------------- the grid
+@njit(cache=True, inline="always")
+def build_grid(xs, ys, n, cell_of, start, items):
+    """Bucket n points into a G x G grid over their bounding box.
+
+    xs, ys: (>= n,) float64 coordinates; cell_of: (>= n,) int64 out, each point's
+    grid cell; start: (>= G*G + 1,) int64 out, items[start[c]:start[c+1]] are the
+    points of cell c in index order; items: (>= n,) int64 out.
+    Returns (G, x0, y0, inv_h, h): the grid's side, origin, 1/cell size, cell size.
+    """
+    g = max(1, int(math.sqrt(n / 2.0)))
+    x0, x1, y0, y1 = xs[0], xs[0], ys[0], ys[0]
+    for a in range(1, n):
+        x0, x1 = min(x0, xs[a]), max(x1, xs[a])
+        y0, y1 = min(y0, ys[a]), max(y1, ys[a])
+    h = max(x1 - x0, y1 - y0, 1e-9) / g * (1.0 + 1e-12)
+    inv_h = 1.0 / h
+    for c in range(g * g + 1):
+        start[c] = 0
+    for a in range(n):
+        cx = min(g - 1, int((xs[a] - x0) * inv_h))
+        cy = min(g - 1, int((ys[a] - y0) * inv_h))
+        cell_of[a] = cy * g + cx
+        start[cell_of[a] + 1] += 1
+    for c in range(g * g):
+        start[c + 1] += start[c]
+    fill = start[: g * g].copy()
+    for a in range(n):
+        items[fill[cell_of[a]]] = a
+        fill[cell_of[a]] += 1
+    return g, x0, y0, inv_h, h
+
+
+# ---------------------------------------------------------------- one cell
+@njit(cache=True, inline="always")
+def _radius2(px, py, m, sx, sy):
+    r2 = 0.0
+    for v in range(m):
+        d = (px[v] - sx) * (px[v] - sx) + (py[v] - sy) * (py[v] - sy)
+        if d > r2:
+            r2 = d
+    return r2
+
+
+@njit(cache=True, inline="always")
+def clip(px, py, pl, m, sx, sy, qx, qy, label, wx, wy, wl, s):
+    """Clip the polygon (px, py, pl)[:m] by the half-plane nearer to (sx, sy) than to
+    (qx, qy), in place; wx, wy, wl, s are scratch of the same capacity.
+    Returns (the new vertex count, whether anything was cut)."""
+    nx, ny = qx - sx, qy - sy
+    norm = math.hypot(nx, ny)
+    nx, ny = nx / norm, ny / norm
+    mx, my = 0.5 * (sx + qx), 0.5 * (sy + qy)
+    outside = 0
+    for v in range(m):
+        s[v] = (px[v] - mx) * nx + (py[v] - my) * ny
+        if s[v] > CLIP_TOL:
+            outside += 1
+    if outside == 0:
+        return m, False
+    # The exits (inside vertex, then outside) and entries (outside, then inside).
+    exits, i_out, i_in = 0, -1, -1
+    for v in range(m):
+        w = v + 1 if v + 1 < m else 0
+        a_in, b_in = s[v] <= CLIP_TOL, s[w] <= CLIP_TOL
+        if a_in and not b_in:
+            exits += 1
+            i_out = v
+        elif b_in and not a_in:
+            i_in = v
+    if exits == 0:  # nothing inside
+        return 0, True
+    if exits == 1:
+        # [entry point, the run of inside vertices, exit point]
+        w = i_in + 1 if i_in + 1 < m else 0
+        t = min(max(s[i_in] / (s[i_in] - s[w]), 0.0), 1.0)
+        wx[0] = px[i_in] + t * (px[w] - px[i_in])
+        wy[0] = py[i_in] + t * (py[w] - py[i_in])
+        wl[0] = pl[i_in]
+        c = 1
+        v = w
+        while True:
+            wx[c], wy[c], wl[c] = px[v], py[v], pl[v]
+            c += 1
+            if v == i_out:
+                break
+            v = v + 1 if v + 1 < m else 0
+        w = i_out + 1 if i_out + 1 < m else 0
+        t = min(max(s[i_out] / (s[i_out] - s[w]), 0.0), 1.0)
+        wx[c] = px[i_out] + t * (px[w] - px[i_out])
+        wy[c] = py[i_out] + t * (py[w] - py[i_out])
+        wl[c] = label
+        c += 1
+    else:  # Sutherland-Hodgman, for inside vertices in several runs (within the tolerance)
+        c = 0
+        for v in range(m):
+            w = v + 1 if v + 1 < m else 0
+            a_in, b_in = s[v] <= CLIP_TOL, s[w] <= CLIP_TOL
+            if a_in:
+                wx[c], wy[c], wl[c] = px[v], py[v], pl[v]
+                c += 1
+            if a_in != b_in:
+                t = min(max(s[v] / (s[v] - s[w]), 0.0), 1.0)
+                wx[c] = px[v] + t * (px[w] - px[v])
+                wy[c] = py[v] + t * (py[w] - py[v])
+                wl[c] = label if a_in else pl[v]
+                c += 1
+    for v in range(c):
+        px[v], py[v], pl[v] = wx[v], wy[v], wl[v]
+    return c, True
+
+
+@njit(cache=True, inline="always")
+def build_cell(site, xs, ys, n, grid, cell_of, start, items, av, px, py, pl, wx, wy, wl, s, cand, cd2):
+    """The Voronoi cell of point `site` among points 0..n-1, inside the arena.
+
+    xs, ys: (>= n,) float64 points, bucketed by build_grid into grid =
+    (G, x0, y0, inv_h, h), cell_of, start, items; av: (k, 2) float64 arena
+    vertices, counter-clockwise; px, py: (M,) float64 out and pl: (M,) int64 out,
+    the cell's vertices and edge labels (label of edge v, from vertex v to v+1:
+    the point index across it, or -1 - e for arena edge e); wx, wy, wl, s: (M,)
+    scratch; cand: (n,) int64 and cd2: (n,) float64 scratch. Returns the vertex count.
+    """
+    g, x0, y0, inv_h, h = grid
+    k = av.shape[0]
+    for v in range(k):
+        px[v], py[v], pl[v] = av[v, 0], av[v, 1], -1 - v
+    m = k
+    sx, sy = xs[site], ys[site]
+    r2 = _radius2(px, py, m, sx, sy)
+    cx, cy = cell_of[site] % g, cell_of[site] // g
+    ring = 0
+    while True:
+        # This ring's candidates that can still cut, nearest first (ties: lower index).
+        nc = 0
+        for gy in range(max(0, cy - ring), min(g - 1, cy + ring) + 1):
+            edge_row = gy == cy - ring or gy == cy + ring
+            step = 1 if edge_row else 2 * ring
+            gx = cx - ring
+            while gx <= cx + ring:
+                if 0 <= gx < g:
+                    c = gy * g + gx
+                    for t in range(start[c], start[c + 1]):
+                        a = items[t]
+                        d2 = (xs[a] - sx) * (xs[a] - sx) + (ys[a] - sy) * (ys[a] - sy)
+                        if d2 >= COINCIDENT * COINCIDENT and d2 < 4.0 * r2:
+                            u = nc
+                            while u > 0 and (cd2[u - 1] > d2 or (cd2[u - 1] == d2 and cand[u - 1] > a)):
+                                cand[u], cd2[u] = cand[u - 1], cd2[u - 1]
+                                u -= 1
+                            cand[u], cd2[u] = a, d2
+                            nc += 1
+                if step == 0:
+                    break
+                gx += step
+        for u in range(nc):
+            if cd2[u] >= 4.0 * r2:
+                break
+            a = cand[u]
+            m, cut = clip(px, py, pl, m, sx, sy, xs[a], ys[a], a, wx, wy, wl, s)
+            if cut:
+                if m == 0:
+                    return 0
+                r2 = _radius2(px, py, m, sx, sy)
+        # Unvisited points lie beyond the nearest side of the block that is not the grid's edge.
+        lb = np.inf
+        if cx - ring > 0:
+            lb = min(lb, sx - (x0 + (cx - ring) * h))
+        if cx + ring < g - 1:
+            lb = min(lb, x0 + (cx + ring + 1) * h - sx)
+        if cy - ring > 0:
+            lb = min(lb, sy - (y0 + (cy - ring) * h))
+        if cy + ring < g - 1:
+            lb = min(lb, y0 + (cy + ring + 1) * h - sy)
+        if lb == np.inf or lb * lb >= 4.0 * r2:
+            return m
+        ring += 1
+
+
+@njit(cache=True, inline="always")
+def area_centroid(px, py, m, sx, sy):
+    """Area and centroid (shoelace about the site (sx, sy)) of the polygon (px, py)[:m]."""
+    area2, cx, cy = 0.0, 0.0, 0.0
+    for v in range(m):
+        w = v + 1 if v + 1 < m else 0
+        rx, ry = px[v] - sx, py[v] - sy
+        rxn, ryn = px[w] - sx, py[w] - sy
+        cross = rx * ryn - rxn * ry
+        area2 += cross
+        cx += cross * (rx + rxn)
+        cy += cross * (ry + ryn)
+    safe = area2 if area2 > 0 else 1.0
+    return 0.5 * area2, sx + cx / (3.0 * safe), sy + cy / (3.0 * safe)
+
+
+# ---------------------------------------------------------------- many cells, for plots and tests
+@njit(cache=True)
+def _cells_of_sites(points, live, site_game, site_agent, av, cap):
+    n_sites, n = site_game.shape[0], points.shape[1]
+    out_x = np.empty((n_sites, cap))
+    out_y = np.empty((n_sites, cap))
+    out_l = np.full((n_sites, cap), PAD, dtype=np.int64)
+    count = np.zeros(n_sites, dtype=np.int64)
+    xs, ys = np.empty(n), np.empty(n)
+    index = np.empty(n, dtype=np.int64)  # compact slot -> agent
+    cell_of, items = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    start = np.empty(n + 2, dtype=np.int64)
+    px, py, wx, wy, s = np.empty(cap), np.empty(cap), np.empty(cap), np.empty(cap), np.empty(cap)
+    pl, wl = np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64)
+    cand, cd2 = np.empty(n, dtype=np.int64), np.empty(n)
+    for c in range(n_sites):
+        b = site_game[c]
+        nl, site = 0, -1
+        for a in range(n):
+            if live[b, a]:
+                if a == site_agent[c]:
+                    site = nl
+                xs[nl], ys[nl], index[nl] = points[b, a, 0], points[b, a, 1], a
+                nl += 1
+        grid = build_grid(xs, ys, nl, cell_of, start, items)
+        m = build_cell(site, xs, ys, nl, grid, cell_of, start, items, av, px, py, pl, wx, wy, wl, s, cand, cd2)
+        count[c] = m
+        for v in range(cap):
+            w = v if v < m else 0
+            out_x[c, v], out_y[c, v] = px[w], py[w]
+            if v < m:
+                out_l[c, v] = index[pl[v]] if pl[v] >= 0 else pl[v]
+    return out_x, out_y, count, out_l
+
+
+@njit(cache=True)
+def _area_centroid_many(x, y, count, site):
+    n = x.shape[0]
+    area, centroid = np.empty(n), np.empty((n, 2))
+    for c in range(n):
+        area[c], centroid[c, 0], centroid[c, 1] = area_centroid(x[c], y[c], count[c], site[c, 0], site[c, 1])
+    return area, centroid
 
 
 @dataclass
@@ -43,12 +292,10 @@ class Cells:
     """Convex cells of C sites, vertices counter-clockwise, padded to M.
 
     site: (C, 2) float64 generator position; x, y: (C, M) float64 vertex
-    coordinates (kept apart: contiguous arrays make the clipping fast);
-    count: (C,) int64 number of valid vertices, the padding slots holding copies
-    of vertex 0 (so vertex i+1 of slot count-1 is vertex 0 without a modulo, and
-    padding edges have zero length); labels: (C, M) int64, label of edge i (from
-    vertex i to vertex i+1): the agent index on its other side, -1 - e for edge
-    e of the arena, PAD in the padding.
+    coordinates, the padding slots holding copies of vertex 0 (so padding edges
+    have zero length); count: (C,) int64 number of valid vertices; labels: (C, M)
+    int64, label of edge i (from vertex i to vertex i+1): the agent index on its
+    other side, -1 - e for edge e of the arena, PAD in the padding.
     """
 
     site: np.ndarray
@@ -69,290 +316,28 @@ class Cells:
 
     def edges(self) -> tuple[np.ndarray, np.ndarray]:
         """Edge lengths (C, M) float64 (0 in the padding) and midpoints (C, M, 2) float64."""
-        x, y = self.x, self.y
-        xn, yn = _take_next(x), _take_next(y)
-        length = np.where(self.valid, np.hypot(xn - x, yn - y), 0.0)
-        return length, np.stack([0.5 * (x + xn), 0.5 * (y + yn)], axis=-1)
+        slot = np.arange(self.x.shape[1])
+        nxt = np.where(slot[None, :] + 1 < self.count[:, None], slot[None, :] + 1, 0)
+        xn, yn = np.take_along_axis(self.x, nxt, axis=1), np.take_along_axis(self.y, nxt, axis=1)
+        length = np.where(self.valid, np.hypot(xn - self.x, yn - self.y), 0.0)
+        return length, np.stack([0.5 * (self.x + xn), 0.5 * (self.y + yn)], axis=-1)
 
     def area_centroid(self) -> tuple[np.ndarray, np.ndarray]:
-        """Area (C,) float64 and centroid (C, 2) float64 (shoelace about the site)."""
-        rx = self.x - self.site[:, 0, None]
-        ry = self.y - self.site[:, 1, None]
-        rxn, ryn = _take_next(rx), _take_next(ry)
-        cross = np.where(self.valid, rx * ryn - rxn * ry, 0.0)
-        area2 = np.cumsum(cross, axis=1)[:, -1]
-        cx = np.cumsum(cross * (rx + rxn), axis=1)[:, -1]
-        cy = np.cumsum(cross * (ry + ryn), axis=1)[:, -1]
-        safe = np.where(area2 > 0, area2, 1.0)
-        centroid = self.site + np.stack([cx, cy], axis=1) / (3.0 * safe[:, None])
-        return 0.5 * area2, centroid
+        """Area (C,) float64 and centroid (C, 2) float64, as the engine computes them."""
+        return _area_centroid_many(self.x, self.y, self.count, self.site)
 
 
-def _take_next(a: np.ndarray) -> np.ndarray:
-    """Element i+1 along axis 1, wrapping; exact for padded polygons (see Cells)."""
-    return np.concatenate([a[:, 1:], a[:, :1]], axis=1)
-
-
-class _Polygons:
-    """The growing polygons of voronoi_cells: x, y (C, M), count (C,), labels (C, M)."""
-
-    def __init__(self, arena: Arena, n: int):
-        k = arena.k
-        self.x = np.repeat(arena.vertices[None, :, 0], n, axis=0)
-        self.y = np.repeat(arena.vertices[None, :, 1], n, axis=0)
-        self.count = np.full(n, k, dtype=np.int64)
-        self.labels = np.repeat(-1 - np.arange(k, dtype=np.int64)[None], n, axis=0)
-
-    def widen(self, m: int) -> None:
-        pad = m - self.x.shape[1]
-        if pad > 0:
-            self.x = np.concatenate([self.x, np.repeat(self.x[:, :1], pad, axis=1)], axis=1)
-            self.y = np.concatenate([self.y, np.repeat(self.y[:, :1], pad, axis=1)], axis=1)
-            self.labels = np.concatenate([self.labels, np.full((len(self.x), pad), PAD, dtype=np.int64)], axis=1)
-
-
-def voronoi_cells(
-    points: np.ndarray,
-    live: np.ndarray,
-    site_game: np.ndarray,
-    site_agent: np.ndarray,
-    arena: Arena,
-    hint: np.ndarray | None = None,
-) -> Cells:
+def voronoi_cells(points, live, site_game, site_agent, arena: Arena) -> Cells:
     """Bounded Voronoi cells of chosen sites among the live agents of each game.
 
     points: (B, n, 2) float64 agent positions; live: (B, n) bool agents that take
     part; site_game, site_agent: (C,) int64 which cells to build (each must be
-    live); hint: optional (C, H) int64 labels of each site's cell at the last
-    step (PAD-padded at the end; a row of PAD means none). Agents coincident with
-    the site (closer than 1e-12) are ignored for its cell. Returns Cells of C
-    sites, labels indexing the n agents.
+    live). Returns Cells of C sites, labels indexing the n agents.
     """
-    site_game = np.asarray(site_game, dtype=np.int64)
-    site_agent = np.asarray(site_agent, dtype=np.int64)
-    n_cells = len(site_game)
-    site = points[site_game, site_agent]  # (C, 2)
-    if n_cells == 0:
-        poly = _Polygons(arena, 0)
-        return Cells(site, poly.x, poly.y, poly.count, poly.labels)
-
-    ox = points[site_game, :, 0]  # (C, n)
-    oy = points[site_game, :, 1]
-    sx, sy = site[:, 0], site[:, 1]
-    d2 = (ox - sx[:, None]) ** 2 + (oy - sy[:, None]) ** 2
-    usable = live[site_game] & (d2 >= _COINCIDENT**2)
-    d2 = np.where(usable, d2, np.inf)
-
-    if hint is None:
-        return _clip_cells(arena, site, ox, oy, d2)
-    warm = _from_hint(arena, site, ox, oy, d2, np.asarray(hint, dtype=np.int64))
-    ok = warm.count > 0
-    if ok.all():
-        return warm
-    cold = _clip_cells(arena, site[~ok], ox[~ok], oy[~ok], d2[~ok])
-    m = max(warm.x.shape[1], cold.x.shape[1])
-    x, y, labels = (_pad_to(a, m) for a in (warm.x, warm.y, warm.labels))
-    count = warm.count.copy()
-    x[~ok], y[~ok], labels[~ok] = _pad_to(cold.x, m), _pad_to(cold.y, m), _pad_to(cold.labels, m)
-    count[~ok] = cold.count
-    return Cells(site, x, y, count, labels)
-
-
-def _pad_to(a: np.ndarray, m: int) -> np.ndarray:
-    """Widen (C, M) vertex coordinates (with copies of column 0) or labels (with PAD) to m columns."""
-    pad = m - a.shape[1]
-    if pad <= 0:
-        return a.copy()
-    fill = np.full((len(a), pad), PAD, dtype=a.dtype) if a.dtype == np.int64 else np.repeat(a[:, :1], pad, axis=1)
-    return np.concatenate([a, fill], axis=1)
-
-
-def _from_hint(arena: Arena, site, ox, oy, d2, hint) -> Cells:
-    """Cells rebuilt from last step's structure; count 0 where the hint is not the cell."""
-    count = np.count_nonzero(hint != PAD, axis=1)
-    m = max(int(count.max()), 1)
-    labels = hint[:, :m]
-    n = ox.shape[1]
-    # Constraint lines nx*x + ny*y <= off: the live agents' bisectors (C, n) (unit
-    # normals, zero for unusable agents), then the arena's edges.
-    px, py = site[:, 0, None], site[:, 1, None]
-    usable = np.isfinite(d2)
-    inv_norm = np.where(usable, 1.0 / np.sqrt(np.where(usable, d2, 1.0)), 0.0)
-    ax, ay = (ox - px) * inv_norm, (oy - py) * inv_norm
-    aoff = np.where(usable, 0.5 * (ox * ox + oy * oy - px * px - py * py) * inv_norm, 1.0)
-    line = np.where(labels >= 0, labels, n - 1 - labels)
-    line = np.where(labels == PAD, 0, line)
-    line_usable = np.take_along_axis(usable, np.minimum(line, n - 1), axis=1) | (labels < 0)
-
-    def pick(agent_values, arena_values):
-        table = np.concatenate([agent_values, np.broadcast_to(arena_values, (len(site), arena.k))], axis=1)
-        return np.take_along_axis(table, line, axis=1)
-
-    nx, ny, off = pick(ax, arena.normals[:, 0]), pick(ay, arena.normals[:, 1]), pick(aoff, arena.offsets)
-    slot = np.arange(m)
-    valid = slot < count[:, None]
-    prev = np.where(slot == 0, count[:, None] - 1, slot - 1)
-    pnx, pny, poff = (np.take_along_axis(a, prev, axis=1) for a in (nx, ny, off))
-    det = pnx * ny - pny * nx  # > 0: the boundary turns left at vertex i
-    good_det = det > 1e-12
-    det = np.where(good_det, det, 1.0)
-    x = np.where(valid, (poff * ny - off * pny) / det, 0.0)
-    y = np.where(valid, (pnx * off - nx * poff) / det, 0.0)
-    x = np.where(valid, x, x[:, :1])
-    y = np.where(valid, y, y[:, :1])
-    ok = (count >= 3) & np.all(~valid | (good_det & line_usable), axis=1)
-    # The normals turn left at every vertex and once around in all: a convex polygon of winding one.
-    turning = np.where(valid, np.arctan2(det, pnx * nx + pny * ny), 0.0)
-    ok &= np.abs(np.cumsum(turning, axis=1)[:, -1] - 2 * np.pi) < 1e-6
-
-    # Every vertex inside every live agent's half-plane and the arena.
-    s_agent = x[:, :, None] * ax[:, None, :] + y[:, :, None] * ay[:, None, :] - aoff[:, None, :]
-    ok &= ~np.any(s_agent > _CLIP_TOL, axis=(1, 2))
-    if arena.is_axis_box:
-        (lo_x, lo_y), (hi_x, hi_y) = arena.vertices.min(axis=0), arena.vertices.max(axis=0)
-        t = _CLIP_TOL
-        ok &= np.all((x >= lo_x - t) & (x <= hi_x + t) & (y >= lo_y - t) & (y <= hi_y + t), axis=1)
-    else:
-        ok &= np.all(arena.signed_distances(np.stack([x, y], axis=-1)) <= _CLIP_TOL, axis=(1, 2))
-    # Every edge runs counter-clockwise along its own line (non-negative length).
-    xn, yn = _take_next(x), _take_next(y)
-    along = (xn - x) * (-ny) + (yn - y) * nx
-    ok &= np.all(~valid | (along >= -_CLIP_TOL), axis=1)
-    # And it has an interior (three lines through one point pass every test above).
-    cross = np.where(valid, (x - site[:, 0, None]) * (yn - site[:, 1, None]) - (xn - site[:, 0, None]) * (y - site[:, 1, None]), 0.0)
-    ok &= np.cumsum(cross, axis=1)[:, -1] > 1e-18
-
-    count = np.where(ok, count, 0)
-    return Cells(site, x, y, count, np.where(valid, labels, PAD))
-
-
-def _clip_cells(arena: Arena, site, ox, oy, d2) -> Cells:
-    """Cells clipped from the arena, nearest agents first (see the module doc)."""
-    n_cells = len(site)
-    poly = _Polygons(arena, n_cells)
-    order = np.argsort(d2, axis=1, kind="stable")
-    d2_sorted = np.take_along_axis(d2, order, axis=1)
-    sx, sy = site[:, 0], site[:, 1]
-    active = np.arange(n_cells)
-    for rank in range(ox.shape[1]):
-        cand_d2 = d2_sorted[active, rank]
-        if rank >= 2:  # the nearest agents nearly always cut: skip the test
-            rx = poly.x[active] - sx[active, None]
-            ry = poly.y[active] - sy[active, None]
-            keep = cand_d2 < 4.0 * np.max(rx * rx + ry * ry, axis=1)  # also drops exhausted (inf) candidates
-        else:
-            keep = np.isfinite(cand_d2)
-        if not keep.all():
-            active = active[keep]
-            if len(active) == 0:
-                break
-        agent = order[active, rank]
-        rows = None if len(active) == n_cells else active
-        _clip(poly, rows, sx[active], sy[active], ox[active, agent], oy[active, agent], agent)
-    return Cells(site, poly.x, poly.y, poly.count, poly.labels)
-
-
-def _clip(poly: _Polygons, rows, px, py, qx, qy, agent) -> None:
-    """Clip the polygons `rows` by the half-planes closer to p than to q, in place.
-
-    rows: (A,) int64, or None for all; px, py, qx, qy: (A,) float64; agent: (A,)
-    int64 label of the new edge.
-    """
-    nx, ny = qx - px, qy - py
-    norm = np.hypot(nx, ny)
-    nx, ny = (nx / norm)[:, None], (ny / norm)[:, None]
-    mx, my = (0.5 * (px + qx))[:, None], (0.5 * (py + qy))[:, None]
-    x, y = (poly.x, poly.y) if rows is None else (poly.x[rows], poly.y[rows])
-    s = (x - mx) * nx + (y - my) * ny
-    inside = s <= _CLIP_TOL
-    cut = ~np.all(inside, axis=1)
-    if not cut.any():
-        return
-    if not cut.all():
-        rows = np.flatnonzero(cut) if rows is None else rows[cut]
-        x, y, s, inside, agent = x[cut], y[cut], s[cut], inside[cut], agent[cut]
-    everything = rows is None
-    if everything:
-        rows = slice(None)
-    cnt = poly.count[rows]
-    lab = poly.labels[rows]
-    valid = np.arange(x.shape[1]) < cnt[:, None]
-    inside_next = _take_next(inside)
-    exits = valid & inside & ~inside_next
-    single_run = np.count_nonzero(exits, axis=1) == 1
-    n_inside = np.count_nonzero(valid & inside, axis=1)
-    poly.widen(int(np.where(single_run, n_inside + 2, 2 * cnt).max()))
-    if single_run.all():
-        _clip_run(poly, rows, x, y, s, valid, inside, inside_next, cnt, lab, agent, everything)
-        return
-    if everything:
-        rows = np.arange(len(x))
-    for f, clip in [(single_run, _clip_run), (~single_run, _clip_general)]:
-        clip(poly, rows[f], x[f], y[f], s[f], valid[f], inside[f], inside_next[f], cnt[f], lab[f], agent[f])
-
-
-def _clip_run(poly, rows, x, y, s, valid, inside, inside_next, cnt, lab, agent, everything=False) -> None:
-    """Convex polygons whose inside vertices form one cyclic run (the usual case):
-    the result is [entry point, the run, exit point], one gather, no scatter.
-    everything: rows is slice(None), every polygon is replaced."""
-    if len(x) == 0:
-        return
-    r = np.arange(len(x))
-    i_out = np.argmax(valid & inside & ~inside_next, axis=1)
-    i_in = np.argmax(valid & ~inside & inside_next, axis=1)
-    i = np.concatenate([i_in, i_out])
-    rr = np.concatenate([r, r])
-    j = np.where(i + 1 < cnt[rr], i + 1, 0)
-    sa, sb = s[rr, i], s[rr, j]
-    t = np.clip(sa / (sa - sb), 0.0, 1.0)
-    ex = x[rr, i] + t * (x[rr, j] - x[rr, i])  # entry points, then exit points
-    ey = y[rr, i] + t * (y[rr, j] - y[rr, i])
-    n, m = len(r), x.shape[1]
-    # Gather from [vertices..., entry, exit]: slot 0 and the padding take the
-    # entry point, then come the run of inside vertices and the exit point.
-    ext_x = np.concatenate([x, ex[:n, None], ex[n:, None]], axis=1)
-    ext_y = np.concatenate([y, ey[:n, None], ey[n:, None]], axis=1)
-    ext_l = np.concatenate([lab, lab[r, i_in][:, None], agent[:, None]], axis=1)
-    slot = np.arange(poly.x.shape[1])
-    n_inside = np.count_nonzero(valid & inside, axis=1)
-    last = (n_inside + 1)[:, None]
-    src = np.where(slot < last, (i_in[:, None] + slot) % cnt[:, None], m)
-    src[:, 0] = m
-    src = np.where(slot == last, m + 1, src)
-    new_x = np.take_along_axis(ext_x, src, axis=1)
-    new_y = np.take_along_axis(ext_y, src, axis=1)
-    new_l = np.where(slot > last, PAD, np.take_along_axis(ext_l, src, axis=1))
-    if everything:
-        poly.x, poly.y, poly.labels, poly.count = new_x, new_y, new_l, n_inside + 2
-    else:
-        poly.x[rows], poly.y[rows], poly.labels[rows], poly.count[rows] = new_x, new_y, new_l, n_inside + 2
-
-
-def _clip_general(poly, rows, x, y, s, valid, inside, inside_next, cnt, lab, agent) -> None:
-    """Sutherland-Hodgman with a scatter, for the rare polygons whose inside
-    vertices (within the 1e-12 tolerance) do not form a single run."""
-    if len(rows) == 0:
-        return
-    s_next = _take_next(s)
-    emit_vertex = valid & inside
-    emit_cross = valid & (inside != inside_next)
-    t = np.clip(s / np.where(emit_cross, s - s_next, 1.0), 0.0, 1.0)
-    cross_x = x + t * (_take_next(x) - x)
-    cross_y = y + t * (_take_next(y) - y)
-    cross_label = np.where(inside, agent[:, None], lab)
-    n_emit = emit_vertex.astype(np.int64) + emit_cross
-    end = np.cumsum(n_emit, axis=1)
-    start = end - n_emit
-    new_count = end[:, -1]
-    m = poly.x.shape[1]
-    out_x, out_y = np.empty((len(rows), m)), np.empty((len(rows), m))
-    out_l = np.full((len(rows), m), PAD, dtype=np.int64)
-    r, c = np.nonzero(emit_vertex)
-    out_x[r, start[r, c]], out_y[r, start[r, c]], out_l[r, start[r, c]] = x[r, c], y[r, c], lab[r, c]
-    r, c = np.nonzero(emit_cross)
-    slot = start[r, c] + emit_vertex[r, c]
-    out_x[r, slot], out_y[r, slot], out_l[r, slot] = cross_x[r, c], cross_y[r, c], cross_label[r, c]
-    padding = np.arange(m) >= new_count[:, None]
-    out_x = np.where(padding, out_x[:, :1], out_x)
-    out_y = np.where(padding, out_y[:, :1], out_y)
-    poly.x[rows], poly.y[rows], poly.labels[rows], poly.count[rows] = out_x, out_y, out_l, new_count
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    live = np.ascontiguousarray(live, dtype=np.bool_)
+    site_game = np.ascontiguousarray(site_game, dtype=np.int64)
+    site_agent = np.ascontiguousarray(site_agent, dtype=np.int64)
+    cap = cell_capacity(points.shape[1], arena.k)
+    x, y, count, labels = _cells_of_sites(points, live, site_game, site_agent, np.ascontiguousarray(arena.vertices), cap)
+    return Cells(points[site_game, site_agent], x, y, count, labels)

@@ -7,9 +7,12 @@ how its games are cut into batches, shards or workers.
 Censoring (SPEC.md section 4): an evader not captured by t_max has capture time
 NaN. Per game, `first_capture` is NaN when nobody was captured, `last_capture`
 (the game's end) is NaN unless everybody was, `mean_capture` averages the
-captured evaders only; fractions count uncaptured evaders as not captured. Per
-case, time statistics are over the games where the quantity is finite, and
-`n_censored` says how many games were left out.
+captured evaders only; fractions count uncaptured evaders as not captured.
+Escapes (model v2, a Case with an exit_point) are treated the same way: an evader
+that never escaped has escape time NaN, `first_escape` / `mean_escape` are NaN
+when nobody escaped, and without an exit point every escape column says nobody
+escaped. Per case, time statistics are over the games where the quantity is
+finite, and `n_censored` says how many games were left out.
 """
 
 from __future__ import annotations
@@ -38,10 +41,12 @@ __all__ = [
     "summarize_case",
     "run_case",
     "TIME_METRICS",
+    "check_point",
+    "check_positive",
 ]
 
 Box = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max
-TIME_METRICS = ("first_capture", "mean_capture", "last_capture")
+TIME_METRICS = ("first_capture", "mean_capture", "last_capture", "first_escape", "mean_escape")
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
 
 
@@ -76,6 +81,9 @@ class Case:
     target: tuple[float, float] = (0.0, 5.0)
     arena: tuple[tuple[float, float], ...] | None = None
     law: InitialLaw = field(default_factory=InitialLaw)
+    exit_point: tuple[float, float] | None = None  # None: no escapes (the paper's games)
+    pursuer_speed: float = 1.0
+    evader_speed: float = 1.0
     engine_version: str = ENGINE_VERSION
 
     def __post_init__(self):
@@ -83,14 +91,16 @@ class Case:
         def num(v):
             return float(v) if isinstance(v, (int, float, np.number)) and not isinstance(v, bool) else v
 
-        for name in ("capture_radius", "dt", "t_max", "tau"):
+        for name in _POSITIVE_FIELDS:
             object.__setattr__(self, name, num(getattr(self, name)))
         for name in ("n_pursuers", "n_evaders"):
             v = getattr(self, name)
             if isinstance(v, np.integer):
                 object.__setattr__(self, name, int(v))
-        if isinstance(self.target, (tuple, list)):
-            object.__setattr__(self, "target", tuple(num(x) for x in self.target))
+        for name in _POINT_FIELDS:
+            v = getattr(self, name)
+            if isinstance(v, (tuple, list, np.ndarray)):
+                object.__setattr__(self, name, tuple(num(x) for x in v))
         if isinstance(self.arena, (tuple, list)):
             object.__setattr__(self, "arena", tuple(tuple(num(x) for x in v) for v in self.arena))
         if isinstance(self.law, InitialLaw):
@@ -104,14 +114,11 @@ class Case:
                 raise InputError(f"{name}: must be a whole number >= 1, got {v!r}")
         get_pursuer_policy(self.pursuer_policy)
         get_evader_policy(self.evader_policy)
-        for name in ("capture_radius", "dt", "t_max", "tau"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise InputError(f"{name}: must be positive and finite, got {v!r}")
-        target = self.target
-        if (not isinstance(target, tuple) or len(target) != 2
-                or not all(isinstance(x, float) and math.isfinite(x) for x in target)):
-            raise InputError(f"target: must be a finite point (x, y), got {target!r}")
+        for name in _POSITIVE_FIELDS:
+            check_positive(name, getattr(self, name))
+        for name in _POINT_FIELDS:
+            if name != "exit_point" or self.exit_point is not None:
+                check_point(name, getattr(self, name))
         arena = make_arena(self.arena)
         if self.law.kind == "boxes":
             for name in ("pursuer_box", "evader_box"):
@@ -132,6 +139,25 @@ class Case:
         """A stable hash of every parameter, the engine's version included."""
         blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+# Field names by kind, for normalisation and validation (Case's numbers).
+_POSITIVE_FIELDS = ("capture_radius", "dt", "t_max", "tau", "pursuer_speed", "evader_speed")
+_POINT_FIELDS = ("target", "exit_point")
+
+
+def check_positive(name: str, value) -> None:
+    """InputError (one line naming the field) unless value is a positive finite number."""
+    if (isinstance(value, bool) or not isinstance(value, (int, float, np.number))
+            or not math.isfinite(value) or value <= 0):
+        raise InputError(f"{name}: must be positive and finite, got {value!r}")
+
+
+def check_point(name: str, value) -> None:
+    """InputError (one line naming the field) unless value is a finite point (x, y) of floats."""
+    if (not isinstance(value, tuple) or len(value) != 2
+            or not all(isinstance(x, float) and math.isfinite(x) for x in value)):
+        raise InputError(f"{name}: must be a finite point (x, y), got {value!r}")
 
 
 def _seed_words(seed) -> list[int]:
@@ -185,43 +211,71 @@ def run_games(case: Case, seed, start: int, stop: int, *, record: bool = False):
         target=case.target,
         arena=case.arena,
         record=record,
+        exit_point=case.exit_point,
+        pursuer_speed=case.pursuer_speed,
+        evader_speed=case.evader_speed,
     )
 
 
-def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0) -> pd.DataFrame:
-    """Per-game statistics. capture_times: (B, n_e) float64, NaN = not captured.
+def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0,
+                    escape_times: np.ndarray | None = None) -> pd.DataFrame:
+    """Per-game statistics, one row per game.
 
-    Columns: game, first_capture, mean_capture, last_capture, frac_captured,
-    frac_captured_tau, all_captured_tau.
+    capture_times: (B, n_e) float64, NaN = not captured; escape_times: (B, n_e)
+    float64, NaN = did not escape, or None for games without an exit (nobody escaped).
+
+    Columns: game (int64), first_capture, mean_capture, last_capture, frac_captured,
+    frac_captured_tau, all_captured_tau (bool), frac_escaped, frac_escaped_tau,
+    first_escape, mean_escape (float64). A time within tau + 1e-9 counts as within tau.
     """
     ct = np.asarray(capture_times, dtype=np.float64)
-    captured = np.isfinite(ct)
-    n_captured = captured.sum(axis=1)
-    some = n_captured > 0
-    within = captured & (ct <= tau + 1e-9)  # capture times are step * dt: 35 * 0.01 > 0.35
+    et = np.full(ct.shape, np.nan) if escape_times is None else np.asarray(escape_times, dtype=np.float64)
+    if et.shape != ct.shape:
+        raise InputError(f"escape_times: must have the shape of capture_times {ct.shape}, got {et.shape}")
+    n_e = ct.shape[1]
+    captured = _event_stats(ct, tau)
+    escaped = _event_stats(et, tau)
     with np.errstate(invalid="ignore"):
-        first = np.where(some, np.nanmin(np.where(some[:, None], ct, 0.0), axis=1), np.nan)
-        mean = np.where(some, np.nansum(ct, axis=1) / np.maximum(n_captured, 1), np.nan)
-        last = np.where(captured.all(axis=1), np.max(np.where(captured, ct, 0.0), axis=1), np.nan)
+        last = np.where(captured["all"], np.max(np.where(np.isfinite(ct), ct, 0.0), axis=1), np.nan)
     return pd.DataFrame(
         {
             "game": np.arange(first_game, first_game + len(ct), dtype=np.int64),
-            "first_capture": first,
-            "mean_capture": mean,
+            "first_capture": captured["first"],
+            "mean_capture": captured["mean"],
             "last_capture": last,
-            "frac_captured": n_captured / ct.shape[1],
-            "frac_captured_tau": within.sum(axis=1) / ct.shape[1],
-            "all_captured_tau": within.all(axis=1),
+            "frac_captured": captured["n"] / n_e,
+            "frac_captured_tau": captured["n_tau"] / n_e,
+            "all_captured_tau": captured["all_tau"],
+            "frac_escaped": escaped["n"] / n_e,
+            "frac_escaped_tau": escaped["n_tau"] / n_e,
+            "first_escape": escaped["first"],
+            "mean_escape": escaped["mean"],
         }
     )
+
+
+def _event_stats(times: np.ndarray, tau: float) -> dict[str, np.ndarray]:
+    """Per game of times (B, n_e) float64, NaN = the event did not happen: n and n_tau
+    (B,) int64, counts by t_max and by tau; first and mean (B,) float64, NaN when no
+    event; all and all_tau (B,) bool."""
+    happened = np.isfinite(times)
+    n = happened.sum(axis=1)
+    some = n > 0
+    within = happened & (times <= tau + 1e-9)  # event times are step * dt: 35 * 0.01 > 0.35
+    with np.errstate(invalid="ignore"):
+        first = np.where(some, np.nanmin(np.where(some[:, None], times, 0.0), axis=1), np.nan)
+        mean = np.where(some, np.nansum(times, axis=1) / np.maximum(n, 1), np.nan)
+    return {"n": n, "n_tau": within.sum(axis=1), "first": first, "mean": mean,
+            "all": happened.all(axis=1), "all_tau": within.all(axis=1)}
 
 
 def summarize_case(per_game: pd.DataFrame) -> dict:
     """Per-case summary of game_statistics rows: a flat dict of floats and ints.
 
-    For each time metric m: m_mean, m_std (ddof=1), m_ci95_low/high (Student t
-    on the mean), m_min, m_max, m_q05..m_q95, m_n_censored; plus n_games,
-    frac_captured_mean, frac_captured_tau_mean, p_all_captured_tau.
+    For each time metric m of TIME_METRICS (captures and escapes): m_mean, m_std
+    (ddof=1), m_ci95_low/high (Student t on the mean), m_min, m_max, m_q05..m_q95,
+    m_n_censored; plus n_games, frac_captured_mean, frac_captured_tau_mean,
+    p_all_captured_tau, frac_escaped_mean, frac_escaped_tau_mean.
     """
     from scipy import stats
 
@@ -255,6 +309,8 @@ def summarize_case(per_game: pd.DataFrame) -> dict:
     out["frac_captured_mean"] = float(per_game["frac_captured"].mean())
     out["frac_captured_tau_mean"] = float(per_game["frac_captured_tau"].mean())
     out["p_all_captured_tau"] = float(per_game["all_captured_tau"].mean())
+    out["frac_escaped_mean"] = float(per_game["frac_escaped"].mean())
+    out["frac_escaped_tau_mean"] = float(per_game["frac_escaped_tau"].mean())
     return out
 
 
@@ -270,7 +326,7 @@ def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024, progress
     for start in range(0, n_games, batch_size):
         stop = min(n_games, start + batch_size)
         res = run_games(case, seed, start, stop)
-        frames.append(game_statistics(res.capture_times, case.tau, first_game=start))
+        frames.append(game_statistics(res.capture_times, case.tau, first_game=start, escape_times=res.escape_times))
         if progress is not None:
             progress(stop)
     per_game = pd.concat(frames, ignore_index=True)

@@ -7,15 +7,22 @@ Contract (summary)
 ------------------
 * Arena: convex polygon, vertices (k, 2) in counter-clockwise order
   (default: the square [0, 10]^2).
-* Single integrators, speed <= 1, explicit Euler with step ``dt``: controls
-  from the state at step k, every live agent moves ``x += dt * u``, then each
-  position is projected onto the arena.
+* Single integrators, speed <= v_max (``pursuer_speed`` for the pursuers,
+  ``evader_speed`` for the evaders, both 1 by default), explicit Euler with
+  step ``dt``: controls from the state at step k, every live agent moves
+  ``x += dt * u``, then each position is projected onto the arena.
 * After the move, a live evader is captured at ``t = (k + 1) * dt`` when its
   distance to the nearest pursuer is < ``capture_radius`` (strict).  Evaders
   within the radius before step 0 are captured at t = 0.  Captured evaders
   leave the game at once (no motion, no cell, not a target or neighbour).
-* The game stops when every evader is captured or after
-  ``floor(t_max / dt + 1e-9)`` steps.  Uncaptured evaders get NaN.
+* Escape (optional, ``exit_point``): after the capture check of a step, a
+  live evader that was not captured and whose distance to the exit point is
+  < ``capture_radius`` (strict) escapes at ``t = (k + 1) * dt`` and leaves the
+  game exactly like a captured one.  At t = 0 the captures are checked first,
+  then the escapes.  Capture wins a tie, so no evader is ever both.
+* The game stops when every evader is captured or escaped, or after
+  ``floor(t_max / dt + 1e-9)`` steps.  Uncaptured evaders get capture time
+  NaN; evaders that never escaped get escape time NaN.
 
 Voronoi cells
 -------------
@@ -289,6 +296,27 @@ def _dist(p, q) -> float:
     return math.sqrt(dx * dx + dy * dy)
 
 
+def _speed(name: str, value) -> float:
+    """A team's v_max as a float; must be positive and finite."""
+    v = float(value)
+    if not (math.isfinite(v) and v > 0.0):
+        raise ValueError(f"{name}: must be positive and finite, got {value!r}")
+    return v
+
+
+def _exit(exit_point):
+    """The exit point as a (2,) float64 array, or None for a game without escapes."""
+    if exit_point is None:
+        return None
+    try:
+        x = np.array(exit_point, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"exit_point: must be a finite point (x, y), got {exit_point!r}") from None
+    if x.shape != (2,) or not (math.isfinite(x[0]) and math.isfinite(x[1])):
+        raise ValueError(f"exit_point: must be a finite point (x, y), got {exit_point!r}")
+    return x
+
+
 def reference_velocities(
     pursuers,
     evaders,
@@ -299,6 +327,8 @@ def reference_velocities(
     dt=0.01,
     target=(0.0, 5.0),
     arena=None,
+    pursuer_speed=1.0,
+    evader_speed=1.0,
 ):
     """Controls of one step.
 
@@ -306,7 +336,11 @@ def reference_velocities(
     ----------
     pursuers : (n_p, 2) float64 positions.
     evaders : (n_e, 2) float64 positions.
-    alive : (n_e,) bool, True for evaders not yet captured.
+    alive : (n_e,) bool, True for evaders still in the game (neither
+        captured nor escaped).
+    pursuer_speed, evader_speed : float, each team's v_max: every policy
+        heads at this speed (a `target` evader at min(evader_speed,
+        distance / dt), so that it lands on its target).
 
     Returns
     -------
@@ -317,6 +351,8 @@ def reference_velocities(
         raise ValueError(f"unknown pursuer policy {pursuer_policy!r}")
     if evader_policy not in EVADER_POLICIES:
         raise ValueError(f"unknown evader policy {evader_policy!r}")
+    v_p = _speed("pursuer_speed", pursuer_speed)
+    v_e = _speed("evader_speed", evader_speed)
     P = np.asarray(pursuers, dtype=np.float64).reshape(-1, 2)
     E = np.asarray(evaders, dtype=np.float64).reshape(-1, 2)
     alive = np.asarray(alive, dtype=bool).reshape(-1)
@@ -361,7 +397,7 @@ def reference_velocities(
                 if d < best_d:  # strict: ties keep the lowest index
                     best_e, best_d = i, d
             heading = (E[best_e, 0] - P[j, 0], E[best_e, 1] - P[j, 1])
-        u_p[j] = _unit(*heading)
+        u_p[j] = v_p * _unit(*heading)
 
     # ---- evaders
     tx, ty = float(target[0]), float(target[1])
@@ -372,7 +408,7 @@ def reference_velocities(
             dist = math.sqrt(hx * hx + hy * hy)
             if dist < _TARGET_EPS:
                 continue
-            speed = min(1.0, dist / dt)
+            speed = min(v_e, dist / dt)
             u_e[i] = np.array([hx / dist * speed, hy / dist * speed])
             continue
 
@@ -384,7 +420,7 @@ def reference_velocities(
                 d = _dist(P[j], x)
                 if d < best_d or (d == best_d and j < best_j):
                     best_j, best_d, best_mid = j, d, mid
-            u_e[i] = _unit(best_mid[0] - x[0], best_mid[1] - x[1])
+            u_e[i] = v_e * _unit(best_mid[0] - x[0], best_mid[1] - x[1])
         elif evader_policy == "area_max" and pursuer_edges:
             hx = hy = 0.0
             for j in sorted(pursuer_edges):
@@ -395,10 +431,10 @@ def reference_velocities(
                 w = length / d
                 hx += w * (mid[0] - x[0])
                 hy += w * (mid[1] - x[1])
-            u_e[i] = _unit(hx, hy)
+            u_e[i] = v_e * _unit(hx, hy)
         else:  # centroid (also the fallback without pursuer neighbours)
             c = cell["centroid"]
-            u_e[i] = _unit(c[0] - x[0], c[1] - x[1])
+            u_e[i] = v_e * _unit(c[0] - x[0], c[1] - x[1])
     return u_p, u_e
 
 
@@ -421,6 +457,10 @@ def reference_game(
     t_max=60.0,
     target=(0.0, 5.0),
     arena=None,
+    exit_point=None,
+    pursuer_speed=1.0,
+    evader_speed=1.0,
+    return_escapes=False,
 ):
     """Play one game.
 
@@ -428,23 +468,44 @@ def reference_game(
     ----------
     pursuers : (n_p, 2) float64 initial pursuer positions.
     evaders : (n_e, 2) float64 initial evader positions.
+    exit_point : None (no escapes, the paper's game) or a finite point (x, y):
+        a live evader that is not captured at a step and is then strictly
+        within ``capture_radius`` of it escapes (leaves the game).
+    pursuer_speed, evader_speed : float, each team's v_max (default 1).
+    return_escapes : bool; when True return (capture_times, escape_times).
 
     Returns
     -------
     capture_times : (n_e,) float64, ``(k + 1) * dt`` for a capture after step
         k, 0.0 for an evader captured before step 0, NaN if never captured.
+    escape_times : (n_e,) float64, only with ``return_escapes=True``: the same
+        for escapes, NaN if the evader never escaped (always NaN without an
+        exit point).
     """
     arena = _arena_array(arena)
+    exit_xy = _exit(exit_point)
+    _speed("pursuer_speed", pursuer_speed)
+    _speed("evader_speed", evader_speed)
     P = np.array(pursuers, dtype=np.float64).reshape(-1, 2)
     E = np.array(evaders, dtype=np.float64).reshape(-1, 2)
     n_e = len(E)
     capture_times = np.full(n_e, np.nan)
+    escape_times = np.full(n_e, np.nan)
     alive = np.ones(n_e, dtype=bool)
 
-    for i in range(n_e):
-        if _captured_now(E[i], P, capture_radius):
-            capture_times[i] = 0.0
-            alive[i] = False
+    def check_events(t):
+        """Captures first, then escapes among the evaders still alive."""
+        for i in range(n_e):
+            if alive[i] and _captured_now(E[i], P, capture_radius):
+                capture_times[i] = t
+                alive[i] = False
+        if exit_xy is not None:
+            for i in range(n_e):
+                if alive[i] and _dist(E[i], exit_xy) < capture_radius:
+                    escape_times[i] = t
+                    alive[i] = False
+
+    check_events(0.0)
 
     n_steps = math.floor(t_max / dt + 1e-9)
     for k in range(n_steps):
@@ -459,6 +520,8 @@ def reference_game(
             dt=dt,
             target=target,
             arena=arena,
+            pursuer_speed=pursuer_speed,
+            evader_speed=evader_speed,
         )
         for j in range(len(P)):
             x = P[j, 0] + dt * u_p[j, 0]
@@ -469,9 +532,7 @@ def reference_game(
                 x = E[i, 0] + dt * u_e[i, 0]
                 y = E[i, 1] + dt * u_e[i, 1]
                 E[i] = _project(x, y, arena)
-        t = (k + 1) * dt
-        for i in range(n_e):
-            if alive[i] and _captured_now(E[i], P, capture_radius):
-                capture_times[i] = t
-                alive[i] = False
+        check_events((k + 1) * dt)
+    if return_escapes:
+        return capture_times, escape_times
     return capture_times

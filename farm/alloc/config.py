@@ -30,5 +30,5 @@ class AllocConfig(BaseModel):
     tau: float = Field(5.0, gt=0, allow_inf_nan=False)
     t_max: float = Field(10.0, gt=0, allow_inf_nan=False)
     law: Literal["boxes", "uniform"] = "boxes"  # boxes: the paper's start boxes (SPEC.md section 3)
-    games: int = Field(16, ge=2, le=100_000)
+    games: int = Field(64, ge=2, le=100_000)
     seed: int = Field(0, ge=0)

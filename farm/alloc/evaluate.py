@@ -87,7 +87,7 @@ class GameFidelityClient:
         @ray.remote(num_cpus=1)
         def play(case, seed_words):
             res = run_games(case, seed_words, 0, 1)
-            return game_statistics(res.capture_times, case.tau).iloc[0].to_dict()
+            return game_statistics(res.capture_times, case.tau, escape_times=res.escape_times).iloc[0].to_dict()
 
         self._play = play
 

@@ -23,7 +23,7 @@ def shard_ranges(key: StatsKey) -> list[tuple[int, int]]:
 def compute_shard(key: StatsKey, start: int, stop: int) -> pd.DataFrame:
     """Per-game statistics of games start..stop-1 of a key (game g seeded by [seed, g])."""
     res = run_games(key.case, (key.seed,), start, stop)
-    return game_statistics(res.capture_times, key.case.tau, first_game=start)
+    return game_statistics(res.capture_times, key.case.tau, first_game=start, escape_times=res.escape_times)
 
 
 def stats_from_games(key: StatsKey, per_game: pd.DataFrame) -> dict:

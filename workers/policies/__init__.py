@@ -1,34 +1,28 @@
-"""Policy registry: every policy is a small function of a StepContext, one file each.
+"""Policy registry: every policy is a small compiled function of (agent, Step), one file each.
 
-A policy returns velocities, pursuers (A, n_p, 2) or evaders (A, n_e, 2) float64,
-with speeds at most ctx.v_max. Importing this package registers the built-ins.
+A policy returns its agent's velocity (ux, uy), of speed at most its team's
+(Step.vp for pursuers, Step.ve for evaders).
 """
 
-from workers.policies.context import StepContext, unit_velocity
+from workers.policies.context import Step, unit_velocity
 from workers.policies.registry import (
     EVADER_POLICIES,
     PURSUER_POLICIES,
-    evader_policy,
+    Policy,
+    evader_velocity,
     get_evader_policy,
     get_pursuer_policy,
-    pursuer_policy,
-)
-from workers.policies import (  # noqa: F401  (registration side effect)
-    area_max,
-    area_min,
-    centroid,
-    constant_area,
-    pure_pursuit,
-    target,
+    pursuer_velocity,
 )
 
 __all__ = [
-    "StepContext",
+    "Step",
+    "Policy",
     "unit_velocity",
     "PURSUER_POLICIES",
     "EVADER_POLICIES",
-    "pursuer_policy",
-    "evader_policy",
     "get_pursuer_policy",
     "get_evader_policy",
+    "pursuer_velocity",
+    "evader_velocity",
 ]

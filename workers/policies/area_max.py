@@ -5,21 +5,25 @@ negative of the pursuers' pull of eq. 7; with no pursuer neighbour, move to the
 centroid.
 """
 
-import numpy as np
+import math
+
+from numba import njit
 
 from workers.policies.centroid import centroid
-from workers.policies.context import StepContext, unit_velocity
-from workers.policies.registry import evader_policy
+from workers.policies.context import unit_velocity
+
+NEEDS_CELLS = True
 
 
-@evader_policy("area_max")
-def area_max(ctx: StepContext) -> np.ndarray:
-    nb = ctx.neighbours  # (A, n_e, n_p)
-    dist = np.swapaxes(ctx.distance, 1, 2)
-    weight = np.where(nb, ctx.shared_length / np.where(nb, dist, 1.0), 0.0)
-    pull = ctx.shared_midpoint - ctx.evaders[:, :, None, :]  # (A, n_e, n_p, 2)
-    wx = np.cumsum(weight * pull[..., 0], axis=2)[..., -1]
-    wy = np.cumsum(weight * pull[..., 1], axis=2)[..., -1]
-    heading = ctx.evaders + np.stack([wx, wy], axis=-1)
-    u = unit_velocity(heading, ctx.evaders, ctx.v_max)
-    return np.where(nb.any(axis=2)[..., None], u, centroid(ctx))
+@njit(cache=True, inline="always")
+def area_max(i, s):
+    if s.nb_n[i] == 0:
+        return centroid(i, s)
+    ex, ey = s.E[i, 0], s.E[i, 1]
+    wx, wy = 0.0, 0.0
+    for t in range(s.nb_n[i]):
+        j = s.nb_j[i, t]
+        weight = s.nb_len[i, t] / math.hypot(s.P[j, 0] - ex, s.P[j, 1] - ey)
+        wx += weight * (s.nb_mid[i, t, 0] - ex)
+        wy += weight * (s.nb_mid[i, t, 1] - ey)
+    return unit_velocity(ex + wx, ey + wy, ex, ey, s.ve)

@@ -4,20 +4,16 @@ A pursuer that neighbours live evaders heads for the midpoint C_b of the edge it
 shares with the nearest of them; any other pursuer uses pure pursuit.
 """
 
-import numpy as np
+from numba import njit
 
-from workers.policies.context import StepContext, unit_velocity
+from workers.policies.context import unit_velocity
 from workers.policies.pure_pursuit import pure_pursuit
-from workers.policies.registry import pursuer_policy
+
+NEEDS_CELLS = True
 
 
-@pursuer_policy("area_min")
-def area_min(ctx: StepContext) -> np.ndarray:
-    dist = np.where(ctx.neighbours, np.swapaxes(ctx.distance, 1, 2), np.inf)  # (A, n_e, n_p)
-    chosen = np.argmin(dist, axis=1)  # (A, n_p) nearest neighbouring evader
-    has_neighbour = np.isfinite(np.min(dist, axis=1))
-    mid = np.take_along_axis(ctx.shared_midpoint, chosen[:, None, :, None], axis=1)[:, 0]
-    u = unit_velocity(mid, ctx.pursuers, ctx.v_max)
-    if has_neighbour.all():
-        return u
-    return np.where(has_neighbour[..., None], u, pure_pursuit(ctx))
+@njit(cache=True, inline="always")
+def area_min(j, s):
+    if s.pn_i[j] < 0:
+        return pure_pursuit(j, s)
+    return unit_velocity(s.pn_mid[j, 0], s.pn_mid[j, 1], s.P[j, 0], s.P[j, 1], s.vp)

@@ -1,11 +1,12 @@
 """Evader: move to the centroid of its own Voronoi cell (paper eq. 12)."""
 
-import numpy as np
+from numba import njit
 
-from workers.policies.context import StepContext, unit_velocity
-from workers.policies.registry import evader_policy
+from workers.policies.context import unit_velocity
+
+NEEDS_CELLS = True
 
 
-@evader_policy("centroid")
-def centroid(ctx: StepContext) -> np.ndarray:
-    return unit_velocity(ctx.cell_centroid, ctx.evaders, ctx.v_max)
+@njit(cache=True, inline="always")
+def centroid(i, s):
+    return unit_velocity(s.cen[i, 0], s.cen[i, 1], s.E[i, 0], s.E[i, 1], s.ve)

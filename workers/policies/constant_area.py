@@ -1,21 +1,26 @@
 """Evader: keep the cell's area constant (paper eq. 11).
 
-Head for C_b of the edge shared with the nearest neighbouring pursuer; with no
-pursuer neighbour, move to the centroid.
+Head for C_b of the edge shared with the nearest neighbouring pursuer (ties: the
+lowest index); with no pursuer neighbour, move to the centroid.
 """
 
 import numpy as np
+from numba import njit
 
 from workers.policies.centroid import centroid
-from workers.policies.context import StepContext, unit_velocity
-from workers.policies.registry import evader_policy
+from workers.policies.context import unit_velocity
+
+NEEDS_CELLS = True
 
 
-@evader_policy("constant_area")
-def constant_area(ctx: StepContext) -> np.ndarray:
-    dist = np.where(ctx.neighbours, np.swapaxes(ctx.distance, 1, 2), np.inf)  # (A, n_e, n_p)
-    chosen = np.argmin(dist, axis=2)  # (A, n_e)
-    has_neighbour = np.isfinite(np.min(dist, axis=2))
-    mid = np.take_along_axis(ctx.shared_midpoint, chosen[:, :, None, None], axis=2)[:, :, 0]
-    u = unit_velocity(mid, ctx.evaders, ctx.v_max)
-    return np.where(has_neighbour[..., None], u, centroid(ctx))
+@njit(cache=True, inline="always")
+def constant_area(i, s):
+    best, best_j, chosen = np.inf, -1, -1
+    for t in range(s.nb_n[i]):
+        j = s.nb_j[i, t]
+        d = s.d2[j, i]
+        if d < best or (d == best and j < best_j):
+            best, best_j, chosen = d, j, t
+    if chosen < 0:
+        return centroid(i, s)
+    return unit_velocity(s.nb_mid[i, chosen, 0], s.nb_mid[i, chosen, 1], s.E[i, 0], s.E[i, 1], s.ve)

@@ -1,117 +1,49 @@
-"""What the policies of one step see: the state of the running games and the
-geometry derived from it, each piece computed once and only when asked for."""
+"""What a policy sees of one game at one step, and the unit-heading helper.
+
+A policy is a small compiled function of (agent index, Step) returning that
+agent's velocity (ux, uy), of speed at most its team's. The engine fills the
+Step once per step; the cell fields are filled only when a policy of the game
+declares NEEDS_CELLS.
+"""
 
 from __future__ import annotations
 
-from functools import cached_property
+import math
+from collections import namedtuple
 
-import numpy as np
-
-from workers.arena import Arena
-from workers.geometry import NEIGHBOUR_EDGE_MIN, PAD, voronoi_cells
+from numba import njit
 
 HEADING_MIN = 1e-12
 
+Step = namedtuple(
+    "Step",
+    [
+        "P",       # (n_p, 2) float64 pursuer positions
+        "E",       # (n_e, 2) float64 evader positions
+        "alive",   # (n_e,) bool evaders still in the game
+        "d2",      # (n_p, n_e) float64 squared pursuer-evader distances, inf for evaders out of the game
+        "target",  # (2,) float64 goal of `target` evaders
+        "dt",      # float64 time step
+        "vp",      # float64 pursuers' speed
+        "ve",      # float64 evaders' speed
+        "area",    # (n_e,) float64 area of each live evader's cell
+        "cen",     # (n_e, 2) float64 centroid of each live evader's cell
+        "nb_n",    # (n_e,) int64 number of pursuer neighbours of each live evader
+        "nb_j",    # (n_e, K) int64 those pursuers, in the cell's edge order
+        "nb_len",  # (n_e, K) float64 length of the shared edge (> 1e-9)
+        "nb_mid",  # (n_e, K, 2) float64 its midpoint C_b
+        "pn_i",    # (n_p,) int64 nearest neighbouring live evader of each pursuer (ties: lowest index), -1 if none
+        "pn_mid",  # (n_p, 2) float64 midpoint of the edge the pursuer shares with it
+    ],
+)
 
-def unit_velocity(goal: np.ndarray, position: np.ndarray, v_max: float) -> np.ndarray:
-    """Velocity of speed v_max from position towards goal, zero when closer than 1e-12.
 
-    goal, position: (..., 2) float64 -> (..., 2) float64.
-    """
-    h = goal - position
-    norm = np.hypot(h[..., 0], h[..., 1])
-    scale = np.where(norm >= HEADING_MIN, v_max / np.where(norm >= HEADING_MIN, norm, 1.0), 0.0)
-    return h * scale[..., None]
-
-
-def pursuer_evader_distance(pursuers, evaders, alive) -> np.ndarray:
-    """pursuers (A, n_p, 2), evaders (A, n_e, 2), alive (A, n_e) -> (A, n_p, n_e) float64, inf if captured."""
-    dx = pursuers[:, :, None, 0] - evaders[:, None, :, 0]
-    dy = pursuers[:, :, None, 1] - evaders[:, None, :, 1]
-    return np.where(alive[:, None, :], np.hypot(dx, dy), np.inf)
-
-
-class StepContext:
-    """State of A running games at one step.
-
-    pursuers: (A, n_p, 2) float64; evaders: (A, n_e, 2) float64; alive: (A, n_e)
-    bool (live evaders); target: (2,) float64 goal of `target` evaders;
-    distance: optional precomputed `distance`; hint: optional (A, n_e, H) int64
-    labels of each evader's cell at the last step (warm start, see geometry).
-    After the cells are built, cell_labels (A, n_e, M) int64 holds this step's.
-    """
-
-    def __init__(
-        self, pursuers, evaders, alive, *, arena: Arena, dt: float, v_max: float, target, distance=None,
-        hint=None,
-    ):
-        if distance is not None:
-            self.distance = distance
-        self.hint = hint
-        self.pursuers = pursuers
-        self.evaders = evaders
-        self.alive = alive
-        self.arena = arena
-        self.dt = dt
-        self.v_max = v_max
-        self.target = np.asarray(target, dtype=np.float64)
-
-    @property
-    def n_games(self) -> int:
-        return self.pursuers.shape[0]
-
-    @cached_property
-    def distance(self) -> np.ndarray:
-        """(A, n_p, n_e) float64 pursuer-evader distances, inf for captured evaders."""
-        return pursuer_evader_distance(self.pursuers, self.evaders, self.alive)
-
-    @cached_property
-    def _evader_cells(self):
-        a, n_p, n_e = self.n_games, self.pursuers.shape[1], self.evaders.shape[1]
-        points = np.concatenate([self.pursuers, self.evaders], axis=1)
-        live = np.concatenate([np.ones((a, n_p), dtype=bool), self.alive], axis=1)
-        game, evader = np.nonzero(self.alive)
-        hint = None if self.hint is None else self.hint[game, evader]
-        cells = voronoi_cells(points, live, game, n_p + evader, self.arena, hint=hint)
-        self.cell_labels = np.full((a, n_e, cells.labels.shape[1]), PAD, dtype=np.int64)
-        self.cell_labels[game, evader] = cells.labels
-        area, centroid = cells.area_centroid()
-        length, mid = cells.edges()
-
-        shared_length = np.zeros((a, n_e, n_p))
-        shared_mid = np.zeros((a, n_e, n_p, 2))
-        c, slot = np.nonzero((cells.labels >= 0) & (cells.labels < n_p) & (length > NEIGHBOUR_EDGE_MIN))
-        j = cells.labels[c, slot]
-        shared_length[game[c], evader[c], j] = length[c, slot]
-        shared_mid[game[c], evader[c], j] = mid[c, slot]
-
-        cell_area = np.zeros((a, n_e))
-        cell_centroid = self.evaders.copy()
-        cell_area[game, evader] = area
-        cell_centroid[game, evader] = centroid
-        return shared_length, shared_mid, cell_area, cell_centroid
-
-    @property
-    def shared_length(self) -> np.ndarray:
-        """(A, n_e, n_p) float64 length of the edge evader i shares with pursuer j, 0 if none."""
-        return self._evader_cells[0]
-
-    @property
-    def shared_midpoint(self) -> np.ndarray:
-        """(A, n_e, n_p, 2) float64 midpoint C_b of that edge (meaningless where length is 0)."""
-        return self._evader_cells[1]
-
-    @property
-    def neighbours(self) -> np.ndarray:
-        """(A, n_e, n_p) bool: live evader i and pursuer j share an edge longer than 1e-9."""
-        return self.shared_length > NEIGHBOUR_EDGE_MIN
-
-    @property
-    def cell_area(self) -> np.ndarray:
-        """(A, n_e) float64 area of each live evader's cell (0 for captured evaders)."""
-        return self._evader_cells[2]
-
-    @property
-    def cell_centroid(self) -> np.ndarray:
-        """(A, n_e, 2) float64 centroid of each live evader's cell (own position if captured)."""
-        return self._evader_cells[3]
+@njit(cache=True, inline="always")
+def unit_velocity(gx, gy, x, y, speed):
+    """Velocity of the given speed from (x, y) towards (gx, gy); zero when closer than 1e-12."""
+    hx, hy = gx - x, gy - y
+    norm = math.hypot(hx, hy)
+    if norm >= HEADING_MIN:
+        scale = speed / norm
+        return hx * scale, hy * scale
+    return 0.0, 0.0

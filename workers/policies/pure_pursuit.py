@@ -1,13 +1,16 @@
 """Pursuer: head at full speed for the nearest live evader (paper eqs. 9-10)."""
 
-import numpy as np
+from numba import njit
 
-from workers.policies.context import StepContext, unit_velocity
-from workers.policies.registry import pursuer_policy
+from workers.policies.context import unit_velocity
+
+NEEDS_CELLS = False
 
 
-@pursuer_policy("pure_pursuit")
-def pure_pursuit(ctx: StepContext) -> np.ndarray:
-    nearest = np.argmin(ctx.distance, axis=2)  # (A, n_p)
-    goal = np.take_along_axis(ctx.evaders, nearest[..., None], axis=1)
-    return unit_velocity(goal, ctx.pursuers, ctx.v_max)
+@njit(cache=True, inline="always")
+def pure_pursuit(j, s):
+    best, chosen = s.d2[j, 0], 0
+    for i in range(1, s.d2.shape[1]):
+        if s.d2[j, i] < best:
+            best, chosen = s.d2[j, i], i
+    return unit_velocity(s.E[chosen, 0], s.E[chosen, 1], s.P[j, 0], s.P[j, 1], s.vp)

@@ -1,21 +1,22 @@
 """Evader: head for a fixed target point (default (0, 5), the defenders' side).
 
-The last step lands exactly on the target (speed min(v_max, distance/dt)) and
-the evader stays there: unit steps would otherwise oscillate around it.
+The last step lands exactly on the target (speed min(v, distance/dt)) and the
+evader stays there: unit steps would otherwise oscillate around it.
 """
 
-import numpy as np
+import math
 
-from workers.policies.context import StepContext
-from workers.policies.registry import evader_policy
+from numba import njit
 
+NEEDS_CELLS = False
 ARRIVED = 1e-9
 
 
-@evader_policy("target")
-def target(ctx: StepContext) -> np.ndarray:
-    h = ctx.target - ctx.evaders
-    dist = np.hypot(h[..., 0], h[..., 1])
-    speed = np.minimum(ctx.v_max, dist / ctx.dt)
-    scale = np.where(dist > ARRIVED, speed / np.where(dist > ARRIVED, dist, 1.0), 0.0)
-    return h * scale[..., None]
+@njit(cache=True, inline="always")
+def target(i, s):
+    hx, hy = s.target[0] - s.E[i, 0], s.target[1] - s.E[i, 1]
+    dist = math.hypot(hx, hy)
+    if dist <= ARRIVED:
+        return 0.0, 0.0
+    scale = min(s.ve, dist / s.dt) / dist
+    return hx * scale, hy * scale

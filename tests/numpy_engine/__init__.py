@@ -1,0 +1,10 @@
+"""The numpy engine (1.1.0) that the compiled engine replaced, kept only as a second,
+independent fast implementation for the tests and benchmarks/engine.py.
+
+It plays the game of SPEC-v1 (no escapes, unit speeds): `simulate_games` and
+`step_velocities` as they were.
+"""
+
+from numpy_engine.engine import simulate_games, step_velocities
+
+__all__ = ["simulate_games", "step_velocities"]
