@@ -4,7 +4,7 @@
 2. Ray, 1 worker; 3. Ray, 2 workers (a real single-node Ray with 2 CPUs, started once,
    warmed up with a tiny sweep so worker start-up is not counted).
 Prints wall times, the farm's overhead over in-process and the 2-worker speed-up.
-Shards have the farm's default size (about a quarter second of work by the engine's cost model).
+Shards have the farm's default size (about half a second of work by the engine's cost model).
 Targets: overhead <= 10 %, 2 workers >= 1.8x one. Usage: python benchmarks/farm.py [--games N]
 """
 

@@ -194,15 +194,15 @@ def _first_line(e: Exception) -> str:
     return str(e).splitlines()[0]
 
 
-SHARD_SECONDS = 0.25
+SHARD_SECONDS = 0.5
 
 
 def default_shard_games(case: Case) -> int:
-    """Games per Ray task: about a quarter second of work on one core by the engine's cost
-    model, so that Ray's cost per task (about a millisecond) stays near 1% and workers
-    finish together within a fraction of a second."""
+    """Games per Ray task: about half a second of work on one core by the engine's cost
+    model, so that the cost of a task beyond its games (Ray's dispatch and the shard's atomic
+    Parquet write, 10-20 ms measured by benchmarks/farm.py) stays under 5%."""
     seconds = estimated_game_seconds(case.n_pursuers, case.n_evaders, case.pursuer_policy, case.evader_policy,
-                                     case.t_max, case.dt)
+                                     case.t_max, case.dt, case.pursuer_speed, case.evader_speed)
     return int(min(100_000, max(1, round(SHARD_SECONDS / seconds))))
 
 

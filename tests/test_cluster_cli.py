@@ -152,6 +152,9 @@ def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
     pd.testing.assert_frame_equal(got, in_process_games(config_path, tmp_path))
 
 
+RUNTIME_ENV = '{"excludes": ["workers/", "farm/"]}'  # the installed, precompiled package runs
+
+
 def test_ray_job_submit_smoke_sweep(groups, tmp_path):
     dashboard = free_port()
     start_head(groups, tmp_path, cpus=2, dashboard_port=dashboard)
@@ -161,7 +164,7 @@ def test_ray_job_submit_smoke_sweep(groups, tmp_path):
     deadline = time.time() + 120
     while True:  # the head's job agent may need a moment after `ray start` on a loaded machine
         submit = subprocess.run(
-            [str(BIN / "ray"), "job", "submit", "--address", url, "--working-dir", ".", "--submission-id", job_id,
+            [str(BIN / "ray"), "job", "submit", "--address", url, "--working-dir", ".", "--runtime-env-json", RUNTIME_ENV, "--submission-id", job_id,
              "--no-wait", "--", "farm", "sweep", "configs/smoke.yaml", "--out", str(out), "--quiet"],
             cwd=REPO, env=ENV, capture_output=True, text=True, timeout=300,
         )

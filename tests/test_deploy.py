@@ -231,7 +231,9 @@ def test_rayjob_runs_a_sweep_of_an_existing_config_into_the_results_volume():
     out = args[args.index("--out") + 1]
     assert out.startswith("/data/"), "results must land on the /data volume, which outlives the cluster"
     # relative config paths resolve against the job's working dir: the image's /app
-    assert yaml.safe_load(spec["runtimeEnvYAML"])["working_dir"] == "/app"
+    runtime_env = yaml.safe_load(spec["runtimeEnvYAML"])
+    assert runtime_env["working_dir"] == "/app"
+    assert {"workers/", "farm/"} <= set(runtime_env["excludes"])  # the installed, precompiled package runs
 
 
 # ----- ray up ----------------------------------------------------------------------------------

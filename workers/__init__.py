@@ -1,4 +1,4 @@
-"""swarm-farm's data plane: pure numpy pursuit-evasion kernels (no Ray, no torch).
+"""swarm-farm's data plane: pursuit-evasion kernels in numpy and numba (no Ray, no torch).
 
     from workers import simulate_games
     res = simulate_games(pursuers, evaders, pursuer_policy="area_min", evader_policy="centroid")
@@ -7,10 +7,13 @@
 """
 
 from workers.arena import DEFAULT_ARENA, Arena, make_arena
-from workers.engine import ENGINE_VERSION, GameResults, simulate_games
+from workers.compiled import kernel_cache
 from workers.errors import InputError
-from workers.geometry import Cells, voronoi_cells
-from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
+
+with kernel_cache():  # every compiled kernel is defined in these modules
+    from workers.engine import ENGINE_VERSION, GameResults, simulate_games
+    from workers.geometry import Cells, voronoi_cells
+    from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
 __all__ = [
     "simulate_games",

@@ -1,23 +1,29 @@
-"""The compiled kernels' on-disk cache: kept fresh, and filled ahead of time.
+"""Where the compiled kernels are cached on disk, and filling that cache ahead of time.
 
-numba caches each compiled function beside its source (``__pycache__/*.nbi``,
-``*.nbc``) and reuses it while that one source file is unchanged; it does not
-notice a change in another file whose functions were inlined into it. The
-kernels here inline policies and geometry into the engine, so the cache is
-keyed on all of their sources at once: `ensure_fresh_cache` (run when
-the engine is imported) drops the package's numba cache files whenever any
-source differs from the last stamp. `precompile` compiles every kernel once, so
-that neither the test suite nor each Ray worker pays the first-call compilation
-(about a minute): `make install` runs it.
+numba caches each compiled function (``cache=True``) and reuses it while the one
+source file that defines it is unchanged; it does not notice a change in another
+file whose functions were inlined into it, and the engine inlines the policies and
+the geometry. So the kernels' cache folder is named after a hash of all their
+sources: any change to any of them starts a fresh folder, and a folder is never
+read by code other than the code that wrote it (no deletion, so no race between
+processes). The folder is ``numba-<hash>`` under the package's ``__pycache__`` when
+that is writable (shared by every process of a checkout: the test suite, each Ray
+worker), else under ``$NUMBA_CACHE_DIR`` or the user cache (``~/.cache/swarm-farm``).
+`kernel_cache` points numba there only while the package's kernels are being
+defined (numba reads the setting then), and puts the user's setting back after.
+
+`precompile` compiles every kernel once (about a minute), so that neither the test
+suite nor each Ray worker pays the first call: `make install` runs it.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["ensure_fresh_cache", "precompile"]
+__all__ = ["kernel_cache", "kernel_cache_dir", "precompile"]
 
 _ROOT = Path(__file__).resolve().parent
 
@@ -27,27 +33,43 @@ def _sources_digest() -> str:
     for path in sorted([_ROOT / "engine.py", _ROOT / "geometry.py", *(_ROOT / "policies").glob("*.py")]):
         h.update(str(path.relative_to(_ROOT)).encode())
         h.update(path.read_bytes())
-    return h.hexdigest()
+    return h.hexdigest()[:16]
 
 
-def ensure_fresh_cache() -> None:
-    """Drop the package's numba cache files if any source changed since they were written."""
-    digest = _sources_digest()
-    stamp = _ROOT / "__pycache__" / "numba-sources.sha256"
+def _writable(folder: Path) -> bool:
     try:
-        if stamp.read_text() == digest:
-            return
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".probe-{os.getpid()}"
+        probe.touch()
+        probe.unlink()
+        return True
     except OSError:
-        pass
+        return False
+
+
+def kernel_cache_dir() -> Path:
+    """The cache folder of this version of the kernels' sources (see the module doc)."""
+    name = f"numba-{_sources_digest()}"
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return Path(os.environ["NUMBA_CACHE_DIR"]) / "swarm-farm" / name
+    in_tree = _ROOT / "__pycache__"
+    if _writable(in_tree):
+        return in_tree / name
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "swarm-farm" / name
+
+
+@contextmanager
+def kernel_cache():
+    """numba's cache folder set to kernel_cache_dir() for the functions defined inside."""
+    from numba import config
+
+    before = config.CACHE_DIR
+    config.CACHE_DIR = str(kernel_cache_dir())
     try:
-        for cached in _ROOT.rglob("__pycache__/*.nb[ic]"):
-            cached.unlink(missing_ok=True)
-        stamp.parent.mkdir(exist_ok=True)
-        tmp = stamp.with_name(f".{stamp.name}.{os.getpid()}.tmp")
-        tmp.write_text(digest)
-        os.replace(tmp, stamp)
-    except OSError:  # a read-only install: its files do not change under it
-        pass
+        yield
+    finally:
+        config.CACHE_DIR = before
 
 
 def precompile() -> float:
@@ -66,4 +88,3 @@ def precompile() -> float:
     voronoi_cells(np.concatenate([p, e], axis=1), np.ones((1, 2), dtype=bool), np.zeros(2, dtype=np.int64),
                   np.arange(2), DEFAULT_ARENA).area_centroid()
     return time.perf_counter() - t0
-

@@ -26,14 +26,11 @@ import numpy as np
 from numba import njit
 
 from workers.arena import Arena, make_arena
-from workers.compiled import ensure_fresh_cache
 from workers.errors import InputError
 from workers.geometry import NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity, voronoi_cells
 from workers.policies import Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
 
 __all__ = ["ENGINE_VERSION", "GameResults", "simulate_games", "step_velocities", "estimated_game_seconds", "V_MAX"]
-
-ensure_fresh_cache()
 
 ENGINE_VERSION = "2.0.0"
 V_MAX = 1.0
@@ -114,10 +111,15 @@ def _work(n, cap):
 
 @njit(cache=True)
 def _step_state(n_p, n_e, cap, target, dt, vp, ve):
-    """A Step with fresh arrays for one game (positions and distances filled by the caller)."""
+    """A Step with fresh arrays for one game (positions and distances filled by the caller).
+
+    The neighbour entries: the evaders' cells are faces of one planar subdivision of
+    the arena, whose edges number at most 3 (n_p + n_e + k), each bounding two cells, so
+    all cells together have at most 6 (n_p + n_e + k) edges; cap (>= 2 (n + k)) adds slack."""
+    size = 6 * (n_p + n_e) + 2 * cap
     return Step(np.empty((n_p, 2)), np.empty((n_e, 2)), np.ones(n_e, dtype=np.bool_), np.empty((n_p, n_e)),
-                target, dt, vp, ve, np.zeros(n_e), np.empty((n_e, 2)), np.zeros(n_e, dtype=np.int64),
-                np.empty((n_e, cap), dtype=np.int64), np.empty((n_e, cap)), np.empty((n_e, cap, 2)),
+                target, dt, vp, ve, np.zeros(n_e), np.empty((n_e, 2)), np.zeros(n_e + 1, dtype=np.int64),
+                np.empty(size, dtype=np.int64), np.empty(size), np.empty((size, 2)),
                 np.full(n_p, -1, dtype=np.int64), np.empty((n_p, 2)))
 
 
@@ -138,9 +140,9 @@ def _evader_cells(s, w, av):
     best = np.full(n_p, np.inf)
     for j in range(n_p):
         s.pn_i[j] = -1
-    slot = n_p
+    slot, t = n_p, 0
     for i in range(n_e):
-        s.nb_n[i] = 0
+        s.nb_start[i] = t
         if not alive[i]:
             continue
         m = build_cell(slot, w.xs, w.ys, n, grid, w.cell_of, w.start, w.items, av, w.px, w.py, w.pl,
@@ -156,12 +158,14 @@ def _evader_cells(s, w, av):
             if length <= NEIGHBOUR_EDGE_MIN:
                 continue
             mx, my = 0.5 * (w.px[v] + w.px[u]), 0.5 * (w.py[v] + w.py[u])
-            t = s.nb_n[i]
-            s.nb_j[i, t], s.nb_len[i, t], s.nb_mid[i, t, 0], s.nb_mid[i, t, 1] = j, length, mx, my
-            s.nb_n[i] = t + 1
+            if t == s.nb_j.shape[0]:
+                raise RuntimeError("more shared edges than a planar subdivision has")
+            s.nb_j[t], s.nb_len[t], s.nb_mid[t, 0], s.nb_mid[t, 1] = j, length, mx, my
+            t += 1
             if s.d2[j, i] < best[j]:
                 best[j] = s.d2[j, i]
                 s.pn_i[j], s.pn_mid[j, 0], s.pn_mid[j, 1] = i, mx, my
+    s.nb_start[n_e] = t
 
 
 @njit(cache=True, inline="always")
@@ -301,15 +305,18 @@ def _step_velocities(P, E, alive, p_kind, e_kind, cells, target, dt, vp, ve, av)
 
 # ---------------------------------------------------------------- Python API
 def estimated_game_seconds(n_pursuers: int, n_evaders: int, pursuer_policy: str, evader_policy: str,
-                           t_max: float, dt: float) -> float:
-    """A rough single-core cost of one game, from the engine's measured cost per game-step
-    (benchmarks/engine.py: about 0.2 us a step, 0.6 us a cell plus 3 ns per agent in the
-    game, 2 ns a pursuer-evader pair, 20 ns an agent), over at most 700 steps, a typical
-    game's length when it is not cut short by t_max. Good to a factor of two; for sizing work."""
+                           t_max: float, dt: float, pursuer_speed: float = V_MAX, evader_speed: float = V_MAX) -> float:
+    """A rough single-core cost of one game, for sizing work (good to a factor of 2-3).
+
+    The engine's measured cost per game-step (benchmarks/engine.py): about 0.2 us a step,
+    0.6 us a cell plus 3 ns per agent in the game, 2 ns a pursuer-evader pair, 20 ns an
+    agent. The game's length: about 700 steps at equal speeds, longer with more evaders than
+    pursuers (caught one after another) and with slower pursuers, at most t_max / dt."""
     cells = get_pursuer_policy(pursuer_policy).needs_cells or get_evader_policy(evader_policy).needs_cells
     agents = n_pursuers + n_evaders
     per_step = 0.2e-6 + cells * n_evaders * (0.6e-6 + 3e-9 * agents) + 2e-9 * n_pursuers * n_evaders + 20e-9 * agents
-    return min(t_max / dt, 700.0) * per_step
+    steps = 700.0 * max(1.0, n_evaders / n_pursuers) * max(1.0, evader_speed / pursuer_speed) ** 2
+    return min(t_max / dt, steps) * per_step
 
 
 
@@ -432,7 +439,7 @@ def simulate_games(
 
     play(0)
     if record:  # the games again, now that their length is known
-        paths_p, paths_e = play(int(steps.max()) + 1)
+        paths_p, paths_e = play(int(steps.max(initial=0)) + 1)
     return GameResults(
         capture_times=np.where(capture_step >= 0, capture_step * dt, np.nan),
         capture_step=capture_step,

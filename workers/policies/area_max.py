@@ -17,13 +17,13 @@ NEEDS_CELLS = True
 
 @njit(cache=True, inline="always")
 def area_max(i, s):
-    if s.nb_n[i] == 0:
+    if s.nb_start[i + 1] == s.nb_start[i]:
         return centroid(i, s)
     ex, ey = s.E[i, 0], s.E[i, 1]
     wx, wy = 0.0, 0.0
-    for t in range(s.nb_n[i]):
-        j = s.nb_j[i, t]
-        weight = s.nb_len[i, t] / math.hypot(s.P[j, 0] - ex, s.P[j, 1] - ey)
-        wx += weight * (s.nb_mid[i, t, 0] - ex)
-        wy += weight * (s.nb_mid[i, t, 1] - ey)
+    for t in range(s.nb_start[i], s.nb_start[i + 1]):
+        j = s.nb_j[t]
+        weight = s.nb_len[t] / math.hypot(s.P[j, 0] - ex, s.P[j, 1] - ey)
+        wx += weight * (s.nb_mid[t, 0] - ex)
+        wy += weight * (s.nb_mid[t, 1] - ey)
     return unit_velocity(ex + wx, ey + wy, ex, ey, s.ve)

@@ -16,11 +16,11 @@ NEEDS_CELLS = True
 @njit(cache=True, inline="always")
 def constant_area(i, s):
     best, best_j, chosen = np.inf, -1, -1
-    for t in range(s.nb_n[i]):
-        j = s.nb_j[i, t]
+    for t in range(s.nb_start[i], s.nb_start[i + 1]):
+        j = s.nb_j[t]
         d = s.d2[j, i]
         if d < best or (d == best and j < best_j):
             best, best_j, chosen = d, j, t
     if chosen < 0:
         return centroid(i, s)
-    return unit_velocity(s.nb_mid[i, chosen, 0], s.nb_mid[i, chosen, 1], s.E[i, 0], s.E[i, 1], s.ve)
+    return unit_velocity(s.nb_mid[chosen, 0], s.nb_mid[chosen, 1], s.E[i, 0], s.E[i, 1], s.ve)

@@ -28,10 +28,10 @@ Step = namedtuple(
         "ve",      # float64 evaders' speed
         "area",    # (n_e,) float64 area of each live evader's cell
         "cen",     # (n_e, 2) float64 centroid of each live evader's cell
-        "nb_n",    # (n_e,) int64 number of pursuer neighbours of each live evader
-        "nb_j",    # (n_e, K) int64 those pursuers, in the cell's edge order
-        "nb_len",  # (n_e, K) float64 length of the shared edge (> 1e-9)
-        "nb_mid",  # (n_e, K, 2) float64 its midpoint C_b
+        "nb_start",  # (n_e + 1,) int64: evader i's pursuer neighbours are entries nb_start[i]:nb_start[i+1]
+        "nb_j",    # (K,) int64 the neighbouring pursuer of each entry, in the cell's edge order
+        "nb_len",  # (K,) float64 length of the shared edge (> 1e-9)
+        "nb_mid",  # (K, 2) float64 its midpoint C_b
         "pn_i",    # (n_p,) int64 nearest neighbouring live evader of each pursuer (ties: lowest index), -1 if none
         "pn_mid",  # (n_p, 2) float64 midpoint of the edge the pursuer shares with it
     ],
