@@ -70,9 +70,15 @@ class SwarmAllocationEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
 
     def __init__(self, config: AllocConfig | None = None, *, client=None, store: str | None = None,
-                 render_mode: str | None = None, **kwargs):
+                 render_mode: str | None = None, estimates: bool = False, **kwargs):
         """config or keyword arguments (AllocConfig fields); client: a
-        CaptureTimeClient, else an in-process one over `store`."""
+        CaptureTimeClient, else an in-process one over `store`; estimates: answer a
+        first visit of a team-size pair with the service's interpolation of its computed
+        neighbours while the exact value is computed in the background (counted in
+        info["estimates"]); otherwise wait for the exact value."""
+        self.estimates = estimates
+        self.engagements = 0  # engaged cells answered by the service, over the env's lifetime
+        self.estimated = 0  # of which by an interpolation (estimates=True)
         self.config = config or AllocConfig(**kwargs)
         cfg = self.config
         n = cfg.grid_size
@@ -155,7 +161,7 @@ class SwarmAllocationEnv(gym.Env):
         if cfg.team_sizes == "lattice":
             n_p, n_e = snap_many(n_p), snap_many(n_e)
         pairs = list(zip(n_p.tolist(), n_e.tolist()))
-        values = self.client.get_many(pairs)
+        values = self.client.get_many(pairs, estimate=self.estimates)
         frac = np.array([v["expected_frac_captured_tau"] for v in values])
         t = np.array([v["mean_capture_mean"] for v in values], dtype=np.float64)
         t = np.where(np.isfinite(t), t, cfg.t_max)
@@ -163,6 +169,8 @@ class SwarmAllocationEnv(gym.Env):
         score = float(np.sum(before * (1.0 - t / cfg.capture_time_norm)))
         self.I[cells] = before * (1.0 - frac)
         estimates = sum(bool(v.get("estimate")) for v in values)
+        self.engagements += len(cells)
+        self.estimated += estimates
         return score, float(np.sum(before - self.I[cells])), len(cells), estimates
 
     def reset(self, *, seed=None, options=None):

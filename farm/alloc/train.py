@@ -12,7 +12,7 @@ Config (RL-Zoo-style hyperparameters under `td3`):
     eval: {freq: 2000, episodes: 10}
     checkpoint_freq: 5000
     log_interval: 100       # episodes between TensorBoard rollout records
-    service: {mode: ray, store: results/capture_times.sqlite, address: null, warm_lattice: true}
+    service: {mode: ray, store: results/capture_times.sqlite, address: null, warm_lattice: true, estimates: false}
 
 A run folder holds model.zip, config.yaml, metrics.json, evaluations.npz (the
 training curve), checkpoints/ (with the replay buffer, for --resume), best/ and
@@ -68,6 +68,10 @@ class ServiceParams(_Strict):
     store: str = "results/capture_times.sqlite"
     address: str | None = None
     warm_lattice: bool = True
+    # During training (its steps and its periodic evaluations), a first visit's outcome comes
+    # from the service's interpolation of computed neighbours while the exact value is computed
+    # in the background (farm eval afterwards is exact).
+    estimates: bool = False
 
 
 class TrainConfig(_Strict):
@@ -196,8 +200,9 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     env_probe = SwarmAllocationEnv(config.env, client=object())
     client = make_client(config, env_probe.service_settings())
     warm(client, config, progress=show_progress)
-    env = LeanVecEnv([lambda: Monitor(SwarmAllocationEnv(config.env, client=client))])
-    eval_env = Monitor(SwarmAllocationEnv(config.env, client=client))
+    train_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+    env = LeanVecEnv([lambda: Monitor(train_env)])
+    eval_env = Monitor(SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates))
     p = config.td3
     n_act = env.action_space.shape[0]
     noise = NormalActionNoise(np.zeros(n_act), p.noise_std * np.ones(n_act)) if p.noise_type == "normal" else None
@@ -242,6 +247,8 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
         "steps_per_second": remaining / wall if wall > 0 else None,
         "update_seconds": model.update_seconds,
         "outside_update_share": 1 - model.update_seconds / wall if wall > 0 else None,
+        "engagements": train_env.engagements,  # engaged cells of the training steps
+        "estimated_share": train_env.estimated / train_env.engagements if train_env.engagements else 0.0,
         "final_eval_mean_return": float(evals["results"][-1].mean()) if evals is not None else None,
         "final_eval_std_return": float(evals["results"][-1].std()) if evals is not None else None,
         "best_eval_mean_return": float(evals["results"].mean(axis=1).max()) if evals is not None else None,

@@ -26,11 +26,11 @@ class ServiceSettings:
     sizes are replaced by each key's; its defaults are SPEC.md's), games and seed."""
 
     game: Case = field(default_factory=lambda: Case(1, 1))
-    games: int = 50
+    games: int = 64
     seed: int = 0
 
     @classmethod
-    def of(cls, *, games: int = 50, seed: int = 0, **game) -> "ServiceSettings":
+    def of(cls, *, games: int = 64, seed: int = 0, **game) -> "ServiceSettings":
         """ServiceSettings.of(games=16, t_max=10.0, evader_policy="centroid"): Case fields by name."""
         _known(game)
         return cls(replace(Case(1, 1), **game), games, seed)

@@ -3,7 +3,7 @@
 
     name: small
     store: results/capture_times.sqlite
-    settings: {games: 50, seed: 0, tau: 5.0, t_max: 60}      # ServiceSettings fields
+    settings: {games: 64, seed: 0, tau: 5.0, t_max: 60}      # ServiceSettings fields
     n_pursuers: [1, 2, 3, 4]
     n_evaders: [1, 2, 3]
     policies:                                                 # default: area_min vs centroid
@@ -32,7 +32,7 @@ class _Strict(BaseModel):
 class SettingsModel(GameModel):
     """The game settings of a table (team sizes come from n_pursuers / n_evaders)."""
 
-    games: int = Field(50, ge=2, le=1_000_000)
+    games: int = Field(64, ge=2, le=1_000_000)
     seed: int = Field(0, ge=0)
 
     @model_validator(mode="after")
