@@ -2,9 +2,9 @@
 
 1. client hit latency (memo, no Ray round trip)      target <= 20 us
 2. actor round trip for a batch of 9 cached keys    target <= 3 ms
-3. time to fill a 10 x 10 (n_p, n_e) table at 50 games per case, area_min vs
+3. time to fill a 10 x 10 (n_p, n_e) table at 64 games per case, area_min vs
    centroid, on a local Ray with 2 workers (misses computed on the farm).
-Usage: python benchmarks/service.py [--size 10] [--games 50]
+Usage: python benchmarks/service.py [--size 10] [--games 64]
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from farm.service import CaptureTimeClient, ServiceSettings, get_service  # noqa
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=10)
-    ap.add_argument("--games", type=int, default=50)
+    ap.add_argument("--games", type=int, default=64)
     a = ap.parse_args()
     import ray
 

@@ -150,3 +150,30 @@ def test_bad_config_names_the_field(bad, field):
     with pytest.raises(ValidationError) as err:
         AllocConfig(**bad)
     assert err.value.errors()[0]["loc"][0] == field
+
+
+def test_estimates_answer_first_visits_and_are_counted(tmp_path):
+    """With estimates on, an engaged cell whose team sizes were never computed takes the
+    service's interpolation of computed neighbours (its captured fraction removes the mass)
+    and is counted; with estimates off the same step waits for the exact value."""
+    store = str(tmp_path / "store.sqlite")
+    cfg = AllocConfig(**SMALL)
+    client = CaptureTimeClient(SwarmAllocationEnv(cfg, client=object()).service_settings(), local_store=store)
+    client.get_many([(3, 1), (3, 2), (5, 1), (5, 2)])  # neighbours of (4, 2)
+
+    def one_step(estimates):
+        env = SwarmAllocationEnv(cfg, client=CaptureTimeClient(client.settings, local_store=store), estimates=estimates)
+        env.reset(seed=0)
+        env.D, env.I = np.zeros(9), np.zeros(9)
+        env.D[4], env.D[3] = 0.4, 0.6  # 4 defenders stay in the centre
+        env.I[5] = 0.4  # 2 intruders move into it
+        stay = np.where(env.src == env.dst, 1.0, -1.0)
+        _, _, _, _, info = env.step(stay)
+        return env, info
+
+    env, info = one_step(True)
+    guess = env.client.get_many([(4, 2)], estimate=True)[0]
+    assert guess["estimate"] and info["estimates"] == 1 and (env.engagements, env.estimated) == (1, 1)
+    assert env.I[4] == pytest.approx(0.4 * (1 - guess["expected_frac_captured_tau"]), abs=1e-12)
+    env, info = one_step(False)
+    assert info["estimates"] == 0 and (env.engagements, env.estimated) == (1, 0)

@@ -159,3 +159,23 @@ def test_exit_point_and_speeds_can_be_set_and_varied(tmp_path):
     base_only = load_sweep_config(write(tmp_path, "name: t\nbase: {exit_point: [0, 5], evader_speed: 0.5}\n"))
     assert base_only.points()[0].case.exit_point == (0.0, 5.0) and base_only.points()[0].case.evader_speed == 0.5
     assert base_only.sweep_id() != load_sweep_config(write(tmp_path, "name: t\n")).sweep_id()
+
+
+def test_default_shard_size_follows_the_engines_cost_model():
+    """About half a second of work per shard by the engine's cost model: more games of
+    cheap cases, fewer of dear ones (more agents, cells, slower pursuers, longer t_max)."""
+    from farm.config import SHARD_SECONDS, default_shard_games
+    from workers import Case
+    from workers.engine import estimated_game_seconds
+
+    def seconds(c):
+        return estimated_game_seconds(c.n_pursuers, c.n_evaders, c.pursuer_policy, c.evader_policy, c.t_max, c.dt,
+                                      c.pursuer_speed, c.evader_speed)
+
+    cheap = Case(5, 1, pursuer_policy="pure_pursuit", evader_policy="target")
+    paper, dear, slow, short = Case(5, 1), Case(100, 50), Case(5, 1, pursuer_speed=0.5), Case(5, 1, t_max=2.0)
+    for case in (cheap, paper, dear, slow, short):
+        n = default_shard_games(case)
+        assert n == 1 or 0.5 * SHARD_SECONDS <= n * seconds(case) <= 2 * SHARD_SECONDS
+    assert default_shard_games(cheap) > default_shard_games(paper) > default_shard_games(dear) >= 1
+    assert default_shard_games(slow) < default_shard_games(paper) < default_shard_games(short)
