@@ -44,13 +44,14 @@ bench: $(STAMP)
 	$(PY) benchmarks/alloc.py
 
 # The paper's allocation experiments: train, evaluate against the baselines, figures.
-EXPERIMENTS := paper_3x3_c1_0 paper_3x3_c1_1.5 paper_3x3_100v100 larger_5x5
+EXPERIMENTS := paper_3x3_c1_0 paper_3x3_c1_1.5 paper_3x3_100v100 larger_5x5 larger_8x8
 experiments: $(STAMP)
 	for e in $(EXPERIMENTS); do \
 	  $(VENV)/bin/farm train configs/train/$$e.yaml --out results/runs/$$e --resume 2>/dev/null || \
 	  $(VENV)/bin/farm train configs/train/$$e.yaml --out results/runs/$$e; \
 	  $(VENV)/bin/farm eval results/runs/$$e --episodes 20 || exit 1; \
 	done
+	$(VENV)/bin/farm claims results/runs
 	$(VENV)/bin/farm report results
 
 clean:

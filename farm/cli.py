@@ -260,7 +260,8 @@ def cmd_train(a) -> int:
 
 
 def cmd_eval(a) -> int:
-    from farm.alloc.evaluate import GameFidelityClient, baselines, evaluate_policies, load_policy
+    from farm.alloc.evaluate import (GameFidelityClient, baselines, evaluate_policies, load_policy,
+                                     plot_behaviour_steps, steps_table)
     from farm.alloc.train import load_train_config, make_client
     from farm.alloc.env import SwarmAllocationEnv
     from farm.output import write_table
@@ -279,12 +280,15 @@ def cmd_eval(a) -> int:
 
     with (ray_cluster(config.service.address) if use_ray else nullcontext()):
         client = make_client(config, settings)
-        table, per = evaluate_policies(config.env, policies, client, a.episodes, a.seed, out=run_dir)
+        table, per, steps = evaluate_policies(config.env, policies, client, a.episodes, a.seed, out=run_dir)
         write_table(table, run_dir / "eval_table", "csv")
+        write_table(per, run_dir / "eval_episodes", "csv")
+        write_table(steps_table(steps), run_dir / "eval_steps", "csv")
+        plot_behaviour_steps(steps, table, run_dir / "behaviour_steps.png")
         print(table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
         if a.fidelity == "games":
             games_client = GameFidelityClient(settings, client, seed=a.seed)
-            gtable, _ = evaluate_policies(config.env, policies, games_client, a.episodes, a.seed)
+            gtable, _, _ = evaluate_policies(config.env, policies, games_client, a.episodes, a.seed)
             diffs = pd.DataFrame(games_client.differences)
             write_table(gtable, run_dir / "eval_table_games", "csv")
             write_table(diffs, run_dir / "fidelity_differences", "csv")
@@ -302,7 +306,25 @@ def cmd_eval(a) -> int:
                       f"mean {m:+.3f} ± {h:.3f} (95% CI over engagements, the service's values taken as fixed; "
                       f"they carry the sampling error of {settings.games} games per case), "
                       f"mean |game - service| {np.abs(d).mean():.3f} (one game per engagement: mostly noise)")
-    print(f"wrote {run_dir / 'eval_table.csv'} and density maps density_<policy>.png")
+    print(f"wrote {run_dir / 'eval_table.csv'}, eval_episodes.csv, eval_steps.csv, behaviour_steps.png and density maps "
+          f"density_<policy>.png")
+    return 0
+
+
+def cmd_claims(a) -> int:
+    from farm.alloc.claims import claims
+    from farm.output import write_table
+
+    runs = Path(a.runs_dir)
+    if not runs.is_dir():
+        raise CliError(f"{runs}: not a folder of training runs")
+    rows = claims(runs, a.c0, a.c15)
+    if not rows:
+        raise CliError(f"{runs}: no evaluated runs (run farm train, then farm eval, for each config)")
+    for r in rows:
+        print(f"{r['claim']}\n  measured: {r['measured']}\n  verdict:  {r['verdict']}")
+    write_table(pd.DataFrame(rows), runs / "claims", "csv")
+    print(f"wrote {runs / 'claims.csv'}")
     return 0
 
 
@@ -373,6 +395,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--seed", type=int, default=1000)
     ev.add_argument("--fidelity", choices=["service", "games"], default="service")
     ev.set_defaults(func=cmd_eval)
+
+    cl = sub.add_parser("claims", help="the paper's claims (a)-(c), measured on evaluated runs")
+    cl.add_argument("runs_dir", help="folder of run folders (e.g. results/runs)")
+    cl.add_argument("--c0", default="paper_3x3_c1_0", help="the C_capture = 0 run's folder name (make experiments names it so)")
+    cl.add_argument("--c15", default="paper_3x3_c1_1.5", help="the C_capture = 1.5 run's folder name")
+    cl.set_defaults(func=cmd_claims)
     return parser
 
 

@@ -190,7 +190,8 @@ def _first_line(e: Exception) -> str:
     if isinstance(e, ValidationError):
         err = e.errors()[0]
         loc = ".".join(str(x) for x in err["loc"])
-        return f"{loc}: {err['msg']}" if loc else err["msg"]
+        msg = err["msg"].removeprefix("Value error, ")
+        return f"{loc}: {msg}" if loc else msg
     return str(e).splitlines()[0]
 
 

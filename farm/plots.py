@@ -9,7 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.patches import Polygon as PolygonPatch  # noqa: E402
+from matplotlib.patches import Circle, Polygon as PolygonPatch  # noqa: E402
 
 from workers import GameResults  # noqa: E402
 
@@ -53,8 +53,17 @@ def draw_game(ax, res: GameResults, game: int, frame: int) -> None:
     ax.scatter(
         ep[-1, alive, 0], ep[-1, alive, 1], marker="o", s=30, color=EVADER_COLOR, zorder=3, label="evaders"
     )
-    if (~alive).any():
-        ax.scatter(ep[-1, ~alive, 0], ep[-1, ~alive, 1], marker="x", s=30, color=EVADER_COLOR, zorder=3)
+    escaped = np.zeros_like(alive) if res.escape_step is None else (res.escape_step[game] >= 0) & ~alive
+    caught = ~alive & ~escaped
+    if caught.any():
+        ax.scatter(ep[-1, caught, 0], ep[-1, caught, 1], marker="x", s=30, color=EVADER_COLOR, zorder=3,
+                   label="captured")
+    if escaped.any():
+        ax.scatter(ep[-1, escaped, 0], ep[-1, escaped, 1], marker="*", s=70, color="darkorange", zorder=4,
+                   label="escaped")
+    if res.exit_point is not None:
+        ax.add_patch(Circle(res.exit_point, res.capture_radius, facecolor="none", edgecolor="darkorange", lw=1.2,
+                            zorder=2, label="exit"))
     lo, hi = res.arena.vertices.min(axis=0), res.arena.vertices.max(axis=0)
     pad = 0.02 * float(np.max(hi - lo))
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
@@ -71,7 +80,7 @@ def plot_game(res: GameResults, path: str | Path, *, game: int = 0, frames=None,
     fig, axes = plt.subplots(1, len(frames), figsize=(4.2 * len(frames), 4.4), squeeze=False)
     for ax, frame in zip(axes[0], frames):
         draw_game(ax, res, game, frame)
-    axes[0][0].legend(loc="upper right", fontsize=8)
+    axes[0][-1].legend(loc="upper right", fontsize=8)  # the last panel shows every kind of marker
     if title:
         fig.suptitle(title)
     fig.tight_layout()

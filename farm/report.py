@@ -283,8 +283,14 @@ def _eval_section(root: Path) -> str | None:
     if not tables:
         return None
     label = {"eval_table.csv": "", "eval_table_games.csv": " (--fidelity games: every engaged cell's game simulated)"}
-    return "".join(f"<p class=src>{html.escape(str(p))}{html.escape(label[p.name])}</p>{_table(_read_table(p))}"
-                   for p in sorted(tables))
+    out = [f"<p class=src>{html.escape(str(p))}{html.escape(label[p.name])}</p>{_table(_read_table(p))}"
+           for p in sorted(tables)]
+    steps = sorted(root.rglob("behaviour_steps.png"))
+    if steps:
+        out.append("<p>Behaviour step by step (the trained policy beside the best baseline): coverage is the "
+                   "share of the intruder mass that shares a cell with defenders.</p>")
+        out.extend(f"<p class=src>{html.escape(str(p))}</p>{_img(_png(p), 'behaviour per step')}" for p in steps)
+    return "".join(out)
 
 
 def _density_section(root: Path) -> str | None:

@@ -11,7 +11,7 @@ from farm.alloc import AllocConfig, SwarmAllocationEnv, moves, n_actions
 from farm.alloc.baselines import BASELINES
 from farm.service import CaptureTimeClient
 
-SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, t_max=6.0)
+SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)
 
 
 @pytest.fixture(scope="module")
@@ -122,8 +122,8 @@ def test_reward_by_hand(store):
     client = CaptureTimeClient(env.service_settings(), local_store=store)
     v = client.get(int(round(D_next[4] * 10)), int(round(0.5 * 5)))
     remaining_centre = 0.5 * (1 - v["expected_frac_captured_tau"])
-    t = v["mean_capture_mean"] if np.isfinite(v["mean_capture_mean"]) else 6.0
-    expected = -0.7 * (remaining_centre + 0.3) + 1.5 * 0.5 * (1 - t / 8.0) - 2.0 * 0.2
+    t = v["mean_capture_mean"] if np.isfinite(v["mean_capture_mean"]) else env.config.t_max
+    expected = -0.7 * (remaining_centre + 0.3) + 1.5 * 0.5 * max(0.0, 1 - t / 8.0) - 2.0 * 0.2
     assert info["breached_step"] == pytest.approx(0.2)
     assert info["engaged_cells"] == 1
     assert r == pytest.approx(expected, abs=1e-12)

@@ -9,14 +9,19 @@ neighbours inside the grid), cell by cell in cell order, moves in row-major
   shifted:  p = (a + 1) / sum(a + 1)           (uniform when all are -1)
 giving a column-stochastic T (column j: where cell j's defenders go; infeasible
 moves exactly 0), and D' = T D.
-A step: defenders move; intruders drift vertically (optional) and advance one
-column left, the mass leaving the left edge breaching; then every cell holding
-both sides is engaged: n_p = round(D_c N_def) >= 1, n_e = max(1, round(I_c N_int)),
-and the capture-time service's expected fraction captured within tau removes
-that share of the cell's intruders. Reward:
-  R = -c_distribution * sum(I) + c_capture * sum_c I_c (1 - t_c / capture_time_norm)
+A step (step_seconds of game time, under engagement v2 the time an intruder needs
+to cross a cell): defenders move; intruders drift vertically (optional) and
+advance one column left, the mass leaving the left edge breaching; then every
+cell holding both sides is engaged: n_p = round(D_c N_def) >= 1,
+n_e = max(1, round(I_c N_int)), and the capture-time service's expected fraction
+of intruders captured within the window tau removes that share of the cell's
+intruders (under v2 the games are pure pursuit against intruders heading for the
+exit, which they escape through; escaped intruders go on with the column's
+advance, never counted as eliminated). Reward:
+  R = -c_distribution * sum(I) + c_capture * sum_c I_c max(0, 1 - t_c / capture_time_norm)
       - breach_penalty * (mass breached this step),
-t_c the mean capture time of the cell's game (t_max when nobody is caught).
+t_c the mean capture time of the cell's game (t_max when nobody is caught);
+capture_time_norm is tau under v2. See farm.alloc.config for the two models.
 """
 
 from __future__ import annotations
@@ -107,7 +112,8 @@ class SwarmAllocationEnv(gym.Env):
 
         c = self.config
         return ServiceSettings.of(pursuer_policy=c.pursuer_policy, evader_policy=c.evader_policy, tau=c.tau,
-                                  t_max=c.t_max, law=InitialLaw(kind=c.law), games=c.games, seed=c.seed)
+                                  t_max=c.t_max, law=InitialLaw(kind=c.law), games=c.games, seed=c.seed,
+                                  exit_point=c.exit_point, evader_speed=c.intruder_speed)
 
     # ----- the MDP ------------------------------------------------------------------
     def move_probabilities(self, action: np.ndarray) -> np.ndarray:
@@ -151,11 +157,15 @@ class SwarmAllocationEnv(gym.Env):
         return breach
 
     def _engage(self):
+        """Every cell holding both sides plays its game; returns (capture score, mass
+        eliminated, engaged cells, estimated answers, coverage, defenders per engaged cell)."""
         cfg = self.config
         n_p = np.rint(self.D * cfg.n_defenders).astype(np.int64)
+        total = float(self.I.sum())
         cells = np.flatnonzero((n_p >= 1) & (self.I > cfg.engage_min_mass))
         if len(cells) == 0:
-            return 0.0, 0.0, 0, 0
+            return 0.0, 0.0, 0, 0, 0.0, 0.0
+        coverage = float(self.I[cells].sum()) / total if total > 0 else 0.0
         n_e = np.maximum(1, np.rint(self.I[cells] * cfg.n_intruders).astype(np.int64))
         n_p = n_p[cells]
         if cfg.team_sizes == "lattice":
@@ -166,12 +176,13 @@ class SwarmAllocationEnv(gym.Env):
         t = np.array([v["mean_capture_mean"] for v in values], dtype=np.float64)
         t = np.where(np.isfinite(t), t, cfg.t_max)
         before = self.I[cells].copy()
-        score = float(np.sum(before * (1.0 - t / cfg.capture_time_norm)))
+        score = float(np.sum(before * np.maximum(0.0, 1.0 - t / cfg.capture_time_norm)))
         self.I[cells] = before * (1.0 - frac)
         estimates = sum(bool(v.get("estimate")) for v in values)
         self.engagements += len(cells)
         self.estimated += estimates
-        return score, float(np.sum(before - self.I[cells])), len(cells), estimates
+        return (score, float(np.sum(before - self.I[cells])), len(cells), estimates, coverage,
+                float(np.mean(n_p)))
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
@@ -191,23 +202,26 @@ class SwarmAllocationEnv(gym.Env):
         self.D = np.bincount(self.dst, weights=p * self.D[self.src], minlength=self.n * self.n)
         breach = self._advance_intruders()
         self.breached += breach
-        score, eliminated, engaged, estimates = self._engage()
+        score, eliminated, engaged, estimates, coverage, per_cell = self._engage()
         self.eliminated += eliminated
         self.steps += 1
         remaining = float(self.I.sum())
         reward = -cfg.c_distribution * remaining + cfg.c_capture * score - cfg.breach_penalty * breach
         terminated = remaining < cfg.epsilon
         truncated = not terminated and self.steps >= cfg.max_steps
-        info = self._info(breach, eliminated, engaged, estimates)
+        info = self._info(breach, eliminated, engaged, estimates, coverage, per_cell)
         return self._obs(), float(reward), bool(terminated), bool(truncated), info
 
     def _obs(self) -> np.ndarray:
         return np.minimum(np.maximum(np.concatenate([self.D, self.I]), 0.0), 1.0).astype(np.float32)
 
-    def _info(self, breach, eliminated, engaged, estimates) -> dict:
+    def _info(self, breach, eliminated, engaged, estimates, coverage=0.0, per_cell=0.0) -> dict:
+        """coverage: the share of the intruder mass (after its advance) in cells with defenders
+        (n_p >= 1), which are the engaged cells; defenders_per_engaged: mean n_p over them."""
         return {"breached_step": breach, "breached": self.breached, "eliminated_step": eliminated,
                 "eliminated": getattr(self, "eliminated", 0.0), "engaged_cells": engaged,
-                "estimates": estimates, "intruder_mass": float(self.I.sum())}
+                "estimates": estimates, "intruder_mass": float(self.I.sum()), "coverage": coverage,
+                "defenders_per_engaged": per_cell}
 
     def render(self):
         if self.render_mode != "rgb_array":

@@ -1,6 +1,12 @@
 """`farm eval RUN_DIR`: the trained policy and the baselines on the same seeded
-episodes; mean return, intruder mass eliminated, breaches and episode length
-with 95% CIs; density maps of one episode per policy.
+episodes; mean return, intruder mass eliminated, breaches, episode length and the
+behaviour measures (SPEC.md section 5), each with a 95% CI over episodes:
+  coverage: the share of the intruder mass sharing a cell with defenders, per step
+            (averaged over the episode's steps);
+  engaged: engaged cells per step;
+  defenders_per_engaged: defenders per engaged cell, over the steps with any;
+density maps of one episode per policy, and behaviour_steps.png: the measures step
+by step for the trained policy beside the best baseline.
 
 --fidelity games replaces the service's statistics by simulating every engaged
 cell's PE game at each step (all cells' games of a step in parallel as Ray
@@ -29,9 +35,13 @@ def mean_ci95(x: np.ndarray) -> tuple[float, float]:
     return float(np.mean(x)), float(stats.t.ppf(0.975, len(x) - 1) * np.std(x, ddof=1) / math.sqrt(len(x)))
 
 
+STEP_MEASURES = ("coverage", "engaged_cells", "defenders_per_engaged")
+
+
 def run_episode(env: SwarmAllocationEnv, policy, seed: int, record: bool = False):
+    """One episode; returns (summary dict, density frames if record, per-step measures (T, 3) float64)."""
     obs, _ = env.reset(seed=seed)
-    total, frames, steps = 0.0, [], 0
+    total, frames, steps, per_step = 0.0, [], 0, []
     n = env.n
     if record:
         frames.append((env.D.reshape(n, n).copy(), env.I.reshape(n, n).copy()))
@@ -40,21 +50,33 @@ def run_episode(env: SwarmAllocationEnv, policy, seed: int, record: bool = False
         obs, r, term, trunc, info = env.step(action)
         total += r
         steps += 1
+        per_step.append([info["coverage"], info["engaged_cells"],
+                         info["defenders_per_engaged"] if info["engaged_cells"] else np.nan])
         if record:
             frames.append((env.D.reshape(n, n).copy(), env.I.reshape(n, n).copy()))
         if term or trunc:
-            return {"return": total, "eliminated": info["eliminated"], "breached": info["breached"],
-                    "length": steps}, frames
+            m = np.array(per_step)
+            engaged_steps = m[:, 1] > 0
+            summary = {"return": total, "eliminated": info["eliminated"], "breached": info["breached"],
+                       "length": steps, "coverage": float(m[:, 0].mean()), "engaged": float(m[:, 1].mean()),
+                       "defenders_per_engaged": float(np.mean(m[engaged_steps, 2])) if engaged_steps.any() else np.nan}
+            return summary, frames, m
+
+
+TABLE_COLUMNS = ("return", "eliminated", "breached", "coverage", "engaged", "defenders_per_engaged", "length")
 
 
 def evaluate_policies(config, policies: dict, client, episodes: int, seed: int, out: Path | None = None):
-    """Every policy on episodes seeded seed..seed+episodes-1; returns (table, per-episode rows)."""
-    rows = []
+    """Every policy on episodes seeded seed..seed+episodes-1; returns (table, per-episode rows,
+    per-step measures {policy: list of (T, 3) arrays})."""
+    rows, steps = [], {}
     for name, policy in policies.items():
         env = SwarmAllocationEnv(config, client=client)
+        steps[name] = []
         for k in range(episodes):
-            result, frames = run_episode(env, policy, seed + k, record=(k == 0 and out is not None))
+            result, frames, per_step = run_episode(env, policy, seed + k, record=(k == 0 and out is not None))
             rows.append({"policy": name, "episode": k, **result})
+            steps[name].append(per_step)
             if frames:
                 plot_episode(frames, out / f"density_{name}.png", title=f"{name}: densities through episode 0 "
                              f"(seed {seed}); defenders blue, intruders red")
@@ -62,11 +84,62 @@ def evaluate_policies(config, policies: dict, client, episodes: int, seed: int, 
     table = []
     for name, g in per.groupby("policy", sort=False):
         row = {"policy": name, "episodes": len(g)}
-        for col in ("return", "eliminated", "breached", "length"):
-            m, h = mean_ci95(g[col].to_numpy(dtype=float))
+        for col in TABLE_COLUMNS:
+            x = g[col].to_numpy(dtype=float)
+            m, h = mean_ci95(x[np.isfinite(x)]) if np.isfinite(x).any() else (math.nan, math.nan)
             row[f"{col}_mean"], row[f"{col}_ci95"] = m, h
         table.append(row)
-    return pd.DataFrame(table), per
+    return pd.DataFrame(table), per, steps
+
+
+def step_means(runs: list[np.ndarray]) -> np.ndarray:
+    """Per-step measures of several episodes (lists of (T_k, 3)) -> (T, 3) float64 means over the
+    episodes still running at each step (NaN-aware)."""
+    length = max(len(r) for r in runs)
+    stack = np.full((len(runs), length, 3), np.nan)
+    for k, r in enumerate(runs):
+        stack[k, : len(r)] = r
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a step no episode engaged at: NaN
+        return np.nanmean(stack, axis=0)
+
+
+def steps_table(steps: dict) -> pd.DataFrame:
+    """Per-step measures of every policy and episode: one row each (policy, episode, step, ...)."""
+    rows = [{"policy": name, "episode": k, "step": t + 1, **dict(zip(STEP_MEASURES, m[t]))}
+            for name, runs in steps.items() for k, m in enumerate(runs) for t in range(len(m))]
+    return pd.DataFrame(rows)
+
+
+def plot_behaviour_steps(steps: dict, table: pd.DataFrame, path: Path, trained: str = "td3") -> Path | None:
+    """Coverage, engaged cells and defenders per engaged cell, step by step, for the trained
+    policy beside the baseline with the best mean return."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from farm.plots import save_figure
+
+    others = table[table["policy"] != trained].sort_values("return_mean", ascending=False)
+    names = [n for n in [trained, *others["policy"].head(1)] if n in steps]
+    if not names:
+        return None
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.2))
+    titles = ("coverage (share of intruder mass met)", "engaged cells", "defenders per engaged cell")
+    for name in names:
+        m = step_means(steps[name])
+        for j, ax in enumerate(axes):
+            ax.plot(np.arange(1, len(m) + 1), m[:, j], marker="o", label=name)
+    for ax, title in zip(axes, titles):
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("step")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    return save_figure(fig, path)
 
 
 class GameFidelityClient:
