@@ -166,6 +166,21 @@ def test_estimate_from_neighbours_is_flagged(tmp_path):
     assert client.get(3, 1)["estimate"] is False  # estimates are not memoized
 
 
+def test_estimates_reopened_store_and_other_settings(tmp_path):
+    """A reopened store's cases serve estimates from memory; another setting's cases never do."""
+    from farm.service.local import LocalService
+
+    path = tmp_path / "s.sqlite"
+    CaptureTimeClient(FAST, local_store=path).get_many([(2, 1), (4, 1)])
+    CaptureTimeClient(FAST.with_(tau=1.0), local_store=path).get_many([(3, 1)])
+    service = LocalService(path)
+    assert sorted(n[:2] for n in service.index.neighbours(FAST.key(3, 1))) == [(2, 1), (4, 1)]
+    est = service.get_many([FAST.key(3, 1)], True)[0]
+    assert est["estimate"] and "(3,1)" not in est["estimate_method"]
+    service.get_many([FAST.key(5, 1)])  # computed: now a neighbour too
+    assert sorted(n[:2] for n in service.index.neighbours(FAST.key(3, 1))) == [(2, 1), (4, 1), (5, 1)]
+
+
 # ---------------------------------------------------------------- on Ray
 
 

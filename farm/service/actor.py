@@ -15,7 +15,7 @@ import pandas as pd
 import ray
 
 from farm.runtime import NAMESPACE
-from farm.service.core import compute_shard, estimate, shard_ranges, stats_from_games
+from farm.service.core import NeighbourIndex, compute_shard, estimate, shard_ranges, stats_from_games
 from farm.service.keys import StatsKey
 from farm.service.store import StatsStore
 
@@ -35,6 +35,7 @@ class CaptureTimeService:
 
         self.store = StatsStore(store_path)
         self.cache: dict[str, dict] = self.store.load_all()
+        self.index = NeighbourIndex(self.store, self.cache)
         self.inflight: dict[str, asyncio.Future] = {}
         self.tasks: set = set()
         self.computations: Counter = Counter()
@@ -60,7 +61,7 @@ class CaptureTimeService:
             self.metrics.miss()
             future = self.inflight.get(d) or self._start(key, d)
             if estimate_missing:
-                guess = estimate(key, self.store.neighbours(key))
+                guess = estimate(key, self.index.neighbours(key))
                 if guess is not None:
                     out[i] = guess
                     continue
@@ -74,6 +75,7 @@ class CaptureTimeService:
         value = self.store.get(key)
         if value is not None:
             self.cache[digest] = value
+            self.index.add(key, value)
         return value
 
     def _start(self, key: StatsKey, digest: str) -> asyncio.Future:
@@ -97,6 +99,7 @@ class CaptureTimeService:
             value = stats_from_games(key, pd.concat(frames, ignore_index=True))
             self.store.put(key, value)
             self.cache[digest] = value
+            self.index.add(key, value)
             self.computations[digest] += 1
             future.set_result(value)
         except BaseException as e:  # handed to every waiter, cancellation included

@@ -41,13 +41,33 @@ def compute_in_process(key: StatsKey) -> dict:
     return stats_from_games(key, pd.concat(frames, ignore_index=True))
 
 
+class NeighbourIndex:
+    """The computed cases of each setting by team sizes, in memory, for estimates: reading
+    them from the store on every miss would parse and verify every row of the setting."""
+
+    def __init__(self, store, cache: dict[str, dict]):
+        """store: a StatsStore; cache: digest -> value of its sound rows (store.load_all())."""
+        self._by_settings: dict[str, dict[tuple[int, int], dict]] = {}
+        for digest, settings, n_p, n_e in store.sizes():
+            if digest in cache:
+                self._by_settings.setdefault(settings, {})[(n_p, n_e)] = cache[digest]
+
+    def add(self, key: StatsKey, value: dict) -> None:
+        self._by_settings.setdefault(key.settings_digest(), {})[key.sizes] = value
+
+    def neighbours(self, key: StatsKey) -> list[tuple[int, int, dict]]:
+        """Computed cases with the same settings as key: (n_p, n_e, value)."""
+        return [(n_p, n_e, v) for (n_p, n_e), v in self._by_settings.get(key.settings_digest(), {}).items()]
+
+
 def estimate(key: StatsKey, neighbours: list[tuple[int, int, dict]]) -> dict | None:
     """Inverse-distance (power 2) average over the nearest stored (n_p, n_e) of the
     same settings; None without neighbours. Flagged as an estimate, with its method."""
     if not neighbours:
         return None
     n_p, n_e = key.sizes
-    d = np.array([math.hypot(a - n_p, b - n_e) for a, b, _ in neighbours])
+    sizes = np.array([(a, b) for a, b, _ in neighbours], dtype=np.float64)
+    d = np.hypot(sizes[:, 0] - n_p, sizes[:, 1] - n_e)
     nearest = np.argsort(d, kind="stable")[:ESTIMATE_NEIGHBOURS]
     w = 1.0 / d[nearest] ** 2
     w /= w.sum()

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections import Counter
 
-from farm.service.core import compute_in_process, estimate
+from farm.service.core import NeighbourIndex, compute_in_process, estimate
 from farm.service.keys import StatsKey
 from farm.service.store import StatsStore
 
@@ -16,6 +16,7 @@ class LocalService:
     def __init__(self, store_path):
         self.store = StatsStore(store_path)
         self.cache = self.store.load_all()
+        self.index = NeighbourIndex(self.store, self.cache)
         self.counts = Counter()
         self.computations: Counter = Counter()
 
@@ -25,19 +26,22 @@ class LocalService:
             d = key.digest()
             value = self.cache.get(d) or self.store.get(key)
             if value is not None:
+                if d not in self.cache:
+                    self.index.add(key, value)
                 self.cache[d] = value
                 self.counts["hits"] += 1
                 out.append(value)
                 continue
             self.counts["misses"] += 1
             if estimate_missing:
-                guess = estimate(key, self.store.neighbours(key))
+                guess = estimate(key, self.index.neighbours(key))
                 if guess is not None:
                     out.append(guess)
                     continue
             value = compute_in_process(key)
             self.store.put(key, value)
             self.cache[d] = value
+            self.index.add(key, value)
             self.computations[d] += 1
             out.append(value)
         return out

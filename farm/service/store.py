@@ -126,19 +126,10 @@ class StatsStore:
                 out[row[0]] = value
         return out
 
-    def neighbours(self, key: StatsKey) -> list[tuple[int, int, dict]]:
-        """Stored cases with the same settings as key: (n_p, n_e, value)."""
+    def sizes(self) -> list[tuple[str, str, int, int]]:
+        """(key digest, settings digest, n_p, n_e) of every row, without reading the values."""
         with self._lock:
-            rows = self.db.execute(
-                "SELECT n_pursuers, n_evaders, key, key_json, value_json, checksum FROM stats WHERE settings = ?",
-                (key.settings_digest(),),
-            ).fetchall()
-        out = []
-        for n_p, n_e, *rest in rows:
-            value = self._row_value(*rest)
-            if value is not None:
-                out.append((n_p, n_e, value))
-        return out
+            return self.db.execute("SELECT key, settings, n_pursuers, n_evaders FROM stats").fetchall()
 
     def table(self) -> list[dict]:
         """All sound rows with their keys, for `farm table show`."""
