@@ -37,7 +37,7 @@ def main() -> None:
 
     torch.set_num_threads(1)
     config = AllocConfig(grid_size=3, n_defenders=100, n_intruders=50, c_capture=1.5, team_sizes="lattice",
-                         games=4, t_max=6.0)
+                         games=4)
     paper = load_train_config(Path(__file__).resolve().parents[1] / "configs/train/paper_3x3_c1_1.5.yaml")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -12,7 +12,7 @@ from farm.alloc import AllocConfig, SwarmAllocationEnv
 from farm.alloc.env import LATTICE, snap, snap_many
 from farm.alloc.td3 import AllocTD3, LeanVecEnv, _mode_free
 
-SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, t_max=6.0, c_capture=1.5)
+SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, c_capture=1.5)
 NET = {"net_arch": [400, 300]}
 
 
