@@ -28,7 +28,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from workers import ENGINE_VERSION, Case, game_statistics, run_games, summarize_case
+from workers import ENGINE_VERSION, Case, results_statistics, run_games, summarize_case
 
 from farm import metrics
 from farm.config import ConfigError, Point, SweepConfig
@@ -65,7 +65,7 @@ def case_seed(case: Case, seed: int) -> tuple[int, int]:
 def simulate_shard(case: Case, seed: int, shard: Shard) -> tuple[pd.DataFrame, int]:
     """Play one shard's games; returns its per-game rows and the game-steps simulated."""
     res = run_games(case, case_seed(case, seed), shard.start, shard.stop)
-    df = game_statistics(res.capture_times, case.tau, first_game=shard.start, escape_times=res.escape_times)
+    df = results_statistics(res, case.tau, first_game=shard.start)
     df.insert(0, "shard", np.int64(shard.number))
     df.insert(0, "point", np.int64(shard.point))
     df["steps"] = res.steps

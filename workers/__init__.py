@@ -34,6 +34,7 @@ from workers.montecarlo import (  # noqa: E402
     Case,
     InitialLaw,
     game_statistics,
+    results_statistics,
     run_case,
     run_games,
     sample_initial_positions,
@@ -48,5 +49,6 @@ __all__ += [
     "run_games",
     "run_case",
     "game_statistics",
+    "results_statistics",
     "summarize_case",
 ]

@@ -200,8 +200,6 @@ def build_cell(site, xs, ys, n, grid, cell_of, start, items, av, px, py, pl, wx,
                                 u -= 1
                             cand[u], cd2[u] = a, d2
                             nc += 1
-                if step == 0:
-                    break
                 gx += step
         for u in range(nc):
             if cd2[u] >= 4.0 * r2:

@@ -38,6 +38,7 @@ __all__ = [
     "sample_initial_positions",
     "run_games",
     "game_statistics",
+    "results_statistics",
     "summarize_case",
     "run_case",
     "TIME_METRICS",
@@ -254,6 +255,11 @@ def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0,
     )
 
 
+def results_statistics(res, tau: float, first_game: int = 0) -> pd.DataFrame:
+    """game_statistics of a GameResults' capture and escape times."""
+    return game_statistics(res.capture_times, tau, first_game=first_game, escape_times=res.escape_times)
+
+
 def _event_stats(times: np.ndarray, tau: float) -> dict[str, np.ndarray]:
     """Per game of times (B, n_e) float64, NaN = the event did not happen: n and n_tau
     (B,) int64, counts by t_max and by tau; first and mean (B,) float64, NaN when no
@@ -326,7 +332,7 @@ def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024, progress
     for start in range(0, n_games, batch_size):
         stop = min(n_games, start + batch_size)
         res = run_games(case, seed, start, stop)
-        frames.append(game_statistics(res.capture_times, case.tau, first_game=start, escape_times=res.escape_times))
+        frames.append(results_statistics(res, case.tau, first_game=start))
         if progress is not None:
             progress(stop)
     per_game = pd.concat(frames, ignore_index=True)

@@ -70,15 +70,16 @@ class AllocConfig(BaseModel):
         for name, value in ENGAGEMENT_DEFAULTS[engagement].items():
             if data.get(name) is None and (name != "exit_point" or "exit_point" not in data):
                 data[name] = value
-        if engagement == "v2":
+        if engagement == "v2":  # step -> window -> games' length and the score's norm
             speed = data.get("intruder_speed", 1.0)
             speed = speed if isinstance(speed, (int, float)) and not isinstance(speed, bool) and speed > 0 else 1.0
-            data.setdefault("step_seconds", None)
-            if data["step_seconds"] is None:
+            if data.get("step_seconds") is None:
                 data["step_seconds"] = CELL_SIDE / speed
-            for name in ("tau", "t_max", "capture_time_norm"):
+            if data.get("tau") is None:
+                data["tau"] = data["step_seconds"]
+            for name in ("t_max", "capture_time_norm"):
                 if data.get(name) is None:
-                    data[name] = data["tau"] if name != "tau" else data["step_seconds"]
+                    data[name] = data["tau"]
         return data
 
     @model_validator(mode="after")

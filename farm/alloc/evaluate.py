@@ -150,7 +150,7 @@ class GameFidelityClient:
     def __init__(self, settings, service_client, seed: int = 0):
         import ray
 
-        from workers import game_statistics, run_games
+        from workers import results_statistics, run_games
 
         self.settings = settings
         self.service = service_client
@@ -160,7 +160,7 @@ class GameFidelityClient:
         @ray.remote(num_cpus=1)
         def play(case, seed_words):
             res = run_games(case, seed_words, 0, 1)
-            return game_statistics(res.capture_times, case.tau, escape_times=res.escape_times).iloc[0].to_dict()
+            return results_statistics(res, case.tau).iloc[0].to_dict()
 
         self._play = play
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from workers import game_statistics, run_games, summarize_case
+from workers import results_statistics, run_games, summarize_case
 
 from farm.config import default_shard_games
 from farm.service.keys import StatsKey
@@ -23,7 +23,7 @@ def shard_ranges(key: StatsKey) -> list[tuple[int, int]]:
 def compute_shard(key: StatsKey, start: int, stop: int) -> pd.DataFrame:
     """Per-game statistics of games start..stop-1 of a key (game g seeded by [seed, g])."""
     res = run_games(key.case, (key.seed,), start, stop)
-    return game_statistics(res.capture_times, key.case.tau, first_game=start, escape_times=res.escape_times)
+    return results_statistics(res, key.case.tau, first_game=start)
 
 
 def stats_from_games(key: StatsKey, per_game: pd.DataFrame) -> dict:
