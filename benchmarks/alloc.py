@@ -1,11 +1,12 @@
 """Allocation env and TD3 trainer costs, one process, one core for torch.
 
 1. env step time with a warm capture-time cache (memo hits only)   target <= 0.2 ms
-2. share of TD3 training wall time spent outside the networks' updates
-   (env steps, action selection, replay buffer, callbacks)        target <= 5 %
-   side by side: stock stable-baselines3 TD3, farm's AllocTD3 (same algorithm,
-   lean per-step path), and the whole `farm train` loop (paper 3x3 hyperparameters
-   with its evaluation, checkpoint-with-replay-buffer and progress callbacks).
+2. share of TD3 training wall time spent outside the networks' updates (env steps,
+   action selection, replay buffer, callbacks), measured, no longer a target: stock
+   stable-baselines3 TD3 on DummyVecEnv timed two ways side by side (an override of the
+   public train(), and farm's UpdateTimer callback), and the whole `farm train` loop
+   (paper 3x3 hyperparameters with its evaluation, checkpoint-with-replay-buffer and
+   progress callbacks).
 Usage: python benchmarks/alloc.py [--steps 3000] [--train-steps 20000]   (about 8 min)
 """
 
@@ -30,9 +31,11 @@ def main() -> None:
     import torch
     from stable_baselines3 import TD3
 
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
     from farm.alloc import AllocConfig, SwarmAllocationEnv
-    from farm.alloc.td3 import AllocTD3
-    from farm.alloc.train import ServiceParams, TrainConfig, lattice_pairs, load_train_config, train
+    from farm.alloc.train import ServiceParams, TrainConfig, UpdateTimer, lattice_pairs, load_train_config, train
     from farm.service import CaptureTimeClient
 
     torch.set_num_threads(1)
@@ -42,8 +45,7 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp) / "s.sqlite"
-        probe = SwarmAllocationEnv(config, client=object())
-        client = CaptureTimeClient(probe.service_settings(), local_store=store)
+        client = CaptureTimeClient(config.service_settings(), local_store=store)
         t0 = time.perf_counter()
         client.get_many(lattice_pairs(config))
         t_warm = time.perf_counter() - t0
@@ -63,22 +65,22 @@ def main() -> None:
                 env.reset(seed=n)
         step_ms = (time.perf_counter() - t0) / n * 1e3
 
-        for label, cls in (("stable-baselines3 TD3", TD3), ("farm AllocTD3", AllocTD3)):
-            model = cls("MlpPolicy", env, learning_starts=100, batch_size=256, seed=0, device="cpu", verbose=0,
-                        policy_kwargs={"net_arch": [400, 300]})
-            spent = {"train": 0.0}
-            original = model.train
+        class TimedTD3(TD3):
+            train_seconds = 0.0
 
-            def timed_train(*args, _original=original, **kwargs):
+            def train(self, gradient_steps, batch_size=100):
                 t = time.perf_counter()
-                _original(*args, **kwargs)
-                spent["train"] += time.perf_counter() - t
+                super().train(gradient_steps, batch_size)
+                self.train_seconds += time.perf_counter() - t
 
-            model.train = timed_train
-            t0 = time.perf_counter()
-            model.learn(total_timesteps=a.steps)
-            total = time.perf_counter() - t0
-            rows.append((f"{label}, learn {a.steps} steps", total, a.steps, 1 - spent["train"] / total))
+        model = TimedTD3("MlpPolicy", DummyVecEnv([lambda: Monitor(env)]), learning_starts=100, batch_size=256,
+                         seed=0, device="cpu", verbose=0, policy_kwargs={"net_arch": [400, 300]})
+        timer = UpdateTimer()
+        t0 = time.perf_counter()
+        model.learn(total_timesteps=a.steps, callback=timer)
+        total = time.perf_counter() - t0
+        rows.append((f"TD3 learn {a.steps} steps, train() timed", total, a.steps, 1 - model.train_seconds / total))
+        rows.append((f"the same, UpdateTimer callback", total, a.steps, 1 - timer.update_seconds / total))
 
         run = TrainConfig(name="bench", seed=0, env=config,
                           td3=paper.td3.model_copy(update={"n_timesteps": a.train_steps}),
@@ -92,7 +94,6 @@ def main() -> None:
     print(f"{'TD3 400-300, batch 256, train_freq 1':<44}{'wall':>8}{'steps/s':>9}{'outside updates':>17}")
     for label, wall, steps, outside in rows:
         print(f"{label:<44}{wall:>7.1f}s{steps / wall:>9.0f}{100 * outside:>16.1f}%")
-    print(f"{'target':<44}{'':>17}{'<= 5%':>17}")
 
 
 if __name__ == "__main__":

@@ -34,7 +34,7 @@ from numba import njit  # noqa: E402
 import numpy_engine  # noqa: E402
 from workers import Case, sample_initial_positions, simulate_games  # noqa: E402
 from workers.policies import get_evader_policy, get_pursuer_policy  # noqa: E402
-from workers.reference import reference_game  # noqa: E402
+from shapely_reference import reference_game  # noqa: E402
 
 # label, n_p, n_e, pursuer policy, evader policy, batch B, reference games
 CASES = [

@@ -11,21 +11,25 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from workers import Case, InitialLaw, InputError, make_arena, run_games, simulate_games
-from workers.montecarlo import check_point, check_positive
+from workers import GAME_FIELDS, SwarmFarmError, sample_initial_positions, simulate_case
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
-from farm.config import ConfigError
-from farm.report import ReportError
-from farm.service.store import StoreCorruptError
-from farm.sweep import SweepError
+from farm.config import case_from
+from farm.errors import CliError
 
-
-_CASE = Case(1, 1)  # defaults of the game flags that are Case fields
-
-
-class CliError(Exception):
-    """A user error the CLI reports in one line."""
+# Flags of the game's settings: one per workers.Case field, default None (Case's default).
+GAME_FLAG_HELP = {
+    "pursuer_policy": f"one of {', '.join(sorted(PURSUER_POLICIES))}",
+    "evader_policy": f"one of {', '.join(sorted(EVADER_POLICIES))}",
+    "target": "target point of `target` evaders, 'x,y'",
+    "arena": "JSON file with the arena's vertices [[x, y], ...] (default: [0,10]^2 square)",
+    "exit_point": "'x,y': an evader within r_c of it escapes (model v2; default: no exit)",
+    "law": "initial positions: boxes (the paper's start boxes) or uniform",
+    "pursuer_speed": "pursuers' top speed",
+    "evader_speed": "evaders' top speed",
+}
+GAME_FLAGS = tuple(name for name in GAME_FIELDS if name not in ("n_pursuers", "n_evaders", "tau"))
+SPEED_FLAGS = ("pursuer_speed", "evader_speed")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -61,41 +65,54 @@ def _load_json(path: str, field: str):
         raise CliError(f"{field}: {path!r} is not valid JSON ({e.__class__.__name__})") from None
 
 
-def _add_game_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--pursuer-policy", default="area_min", help=f"one of {', '.join(sorted(PURSUER_POLICIES))}")
-    p.add_argument("--evader-policy", default="centroid", help=f"one of {', '.join(sorted(EVADER_POLICIES))}")
-    p.add_argument("--capture-radius", type=float, default=0.25)
-    p.add_argument("--dt", type=float, default=0.01)
-    p.add_argument("--t-max", type=float, default=60.0)
-    p.add_argument("--target", default="0,5", help="target point of `target` evaders, 'x,y'")
-    p.add_argument("--arena", help="JSON file with the arena's vertices [[x, y], ...] (default: [0,10]^2 square)")
-    p.add_argument("--exit-point", help="'x,y': an evader within r_c of it escapes (model v2; default: no exit)")
-    _add_speed_options(p)
+def _add_game_options(p: argparse.ArgumentParser, names=GAME_FLAGS) -> None:
+    from workers import Case
+
+    defaults = {f: v.default for f, v in Case.__dataclass_fields__.items()}
+    for name in names:
+        default = defaults.get(name)
+        shown = "the paper's boxes" if name == "law" else "none" if default is None else default
+        p.add_argument("--" + name.replace("_", "-"), dest=name, default=None, metavar=name.upper(),
+                       help=f"{GAME_FLAG_HELP.get(name, name.replace('_', ' '))} (default: {shown})")
 
 
-def _add_speed_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--pursuer-speed", type=float, default=_CASE.pursuer_speed, help="pursuers' top speed")
-    p.add_argument("--evader-speed", type=float, default=_CASE.evader_speed, help="evaders' top speed")
+def _game_settings(a, names=GAME_FLAGS) -> dict:
+    """The game flags given, as plain values for farm.config.case_from."""
+    out = {}
+    for name in names:
+        text = getattr(a, name)
+        if text is None:
+            continue
+        flag = "--" + name.replace("_", "-")
+        if name in ("target", "exit_point"):
+            out[name] = _floats(text, flag, 2)
+        elif name == "arena":
+            out[name] = _load_json(text, flag)
+        elif name == "law":
+            out[name] = {"kind": text}
+        else:
+            out[name] = text
+    return out
 
 
-def _speeds(a) -> dict[str, float]:
-    """The speed flags as Case fields, checked (one-line InputError naming the field)."""
-    speeds = {"pursuer_speed": a.pursuer_speed, "evader_speed": a.evader_speed}
-    for name, v in speeds.items():
-        check_positive(name, v)
-    return speeds
+def _case(fields: dict):
+    """case_from(fields), its error naming the flag when the field came from one."""
+    from farm.errors import ConfigError
+
+    try:
+        return case_from(fields)
+    except ConfigError as e:
+        field, _, problem = str(e).partition(": ")
+        name = field.split(".")[0]
+        if name in GAME_FLAGS or name in ("n_pursuers", "n_evaders"):
+            raise CliError(f"--{name.replace('_', '-')}{field[len(name):]}: {problem}") from None
+        raise
 
 
 def cmd_game(a) -> int:
     if a.plot and Path(a.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
         raise CliError(f"--plot: {a.plot!r} must end in .png, .pdf or .svg")
-    arena_vertices = _load_json(a.arena, "--arena") if a.arena else None
-    arena = make_arena(arena_vertices)
-    target = tuple(_floats(a.target, "--target", 2))
-    exit_point = None if a.exit_point is None else tuple(_floats(a.exit_point, "--exit-point", 2))
-    if exit_point is not None:
-        check_point("exit_point", exit_point)
-    speeds = _speeds(a)
+    settings = _game_settings(a)
     if a.positions:
         data = _load_json(a.positions, "--positions")
         if not isinstance(data, dict) or not {"pursuers", "evaders"} <= set(data):
@@ -106,13 +123,7 @@ def cmd_game(a) -> int:
             raise CliError("--pursuers and --evaders go together")
         pursuers, evaders = _points(a.pursuers, "--pursuers"), _points(a.evaders, "--evaders")
     else:
-        case = Case(
-            a.n_pursuers, a.n_evaders, pursuer_policy=a.pursuer_policy, evader_policy=a.evader_policy,
-            capture_radius=a.capture_radius, dt=a.dt, t_max=a.t_max, target=target,
-            arena=arena_vertices, law=InitialLaw(kind=a.law), exit_point=exit_point, **speeds,
-        ).validate()
-        from workers.montecarlo import sample_initial_positions
-
+        case = _case({"n_pursuers": a.n_pursuers, "n_evaders": a.n_evaders, **settings})
         p, e = sample_initial_positions(case, a.seed, 0, 1)
         pursuers, evaders = p[0], e[0]
     try:
@@ -120,15 +131,16 @@ def cmd_game(a) -> int:
         e = np.array(evaders, dtype=np.float64)[None]
     except (TypeError, ValueError):
         raise CliError("positions: expected lists of [x, y] pairs") from None
-    res = simulate_games(
-        p, e, pursuer_policy=a.pursuer_policy, evader_policy=a.evader_policy,
-        capture_radius=a.capture_radius, dt=a.dt, t_max=a.t_max, target=target, arena=arena,
-        record=bool(a.plot), exit_point=exit_point, **speeds,
-    )
-    extras = [f"{name.replace('_', ' ')} {v:g}" for name, v in speeds.items() if v != getattr(_CASE, name)]
+    if p.ndim != 3 or e.ndim != 3 or p.shape[1] == 0 or e.shape[1] == 0:
+        raise CliError("positions: expected non-empty lists of [x, y] pairs")
+    case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
+    res = simulate_case(case, p, e, record=bool(a.plot))
+    exit_point = case.exit_point
+    extras = [f"{name.replace('_', ' ')} {getattr(case, name):g}" for name in ("pursuer_speed", "evader_speed")
+              if getattr(case, name) != 1.0]
     if exit_point is not None:
         extras.append(f"exit at ({exit_point[0]:g}, {exit_point[1]:g})")
-    print(f"{p.shape[1]} pursuer(s) {a.pursuer_policy} vs {e.shape[1]} evader(s) {a.evader_policy}"
+    print(f"{p.shape[1]} pursuer(s) {case.pursuer_policy} vs {e.shape[1]} evader(s) {case.evader_policy}"
           + (f" ({', '.join(extras)})" if extras else ""))
     for i, (t, t_escape) in enumerate(zip(res.capture_times[0], res.escape_times[0])):
         if np.isfinite(t):
@@ -136,7 +148,7 @@ def cmd_game(a) -> int:
         elif np.isfinite(t_escape):
             shown = f"escaped at {t_escape:.2f} s"
         else:
-            shown = f"not captured by t_max = {a.t_max:g} s" + (", not escaped" if exit_point is not None else "")
+            shown = f"not captured by t_max = {case.t_max:g} s" + (", not escaped" if exit_point is not None else "")
         print(f"  evader {i} at ({e[0, i, 0]:.2f}, {e[0, i, 1]:.2f}): {shown}")
     if a.plot:
         from farm.plots import default_frames, plot_game
@@ -159,11 +171,10 @@ def cmd_pe_table(a) -> int:
 
     if a.games < 2:
         raise CliError(f"--games: need at least 2 games per case for a CI, got {a.games}")
-    speeds = _speeds(a)
-    base = Case(1, 1, **speeds).validate()
-    paper_speeds = all(v == getattr(_CASE, name) for name, v in speeds.items())
+    base = _case({"n_pursuers": 1, "n_evaders": 1, **_game_settings(a, SPEED_FLAGS)})
+    paper_speeds = base.pursuer_speed == base.evader_speed == 1.0
     out = a.out or ("results/pe-table" if paper_speeds
-                    else f"results/pe-table-speeds-{speeds['pursuer_speed']:g}-{speeds['evader_speed']:g}")
+                    else f"results/pe-table-speeds-{base.pursuer_speed:g}-{base.evader_speed:g}")
     if Path(out).exists() and not Path(out).is_dir():
         raise CliError(f"--out: {out} exists and is not a folder")
     t0 = time.perf_counter()
@@ -172,7 +183,7 @@ def cmd_pe_table(a) -> int:
         figures=not a.no_figures, base=base,
     )
     print(format_tables(summary))
-    print("Our numbers come from the model of SPEC.md; the paper's evader target point and runs are unknown.")
+    print("Our numbers come from the model of docs/model.md; the paper's evader target point and runs are unknown.")
     if not paper_speeds:
         print(f"These games ran at {speeds_text(base)}; the paper's figures are for equal speeds "
               "(1 and 1): a sensitivity check, not a fit.")
@@ -183,8 +194,7 @@ def cmd_pe_table(a) -> int:
 
 
 def cmd_sweep(a) -> int:
-    from farm.config import load_sweep_config
-    from farm.sweep import changed_fields, format_summary, print_info, run_sweep
+    from farm.sweep import format_summary, load_sweep_config, print_info, run_sweep
 
     if a.workers is not None and a.workers < 1:
         raise CliError(f"--workers: must be >= 1, got {a.workers}")
@@ -196,7 +206,7 @@ def cmd_sweep(a) -> int:
     )
     print_info(info)
     print(f"{config.name}: {len(summary)} point(s), {int(summary['n_games'].sum())} games")
-    print(format_summary(summary, changed_fields(config)))
+    print(format_summary(summary, config.vary.names()))
     print(f"results: {out}/summary.parquet, {out}/summary.csv, {out}/shards/")
     return 0
 
@@ -246,6 +256,10 @@ def cmd_train(a) -> int:
         config = config.model_copy(update={"td3": config.td3.model_copy(update={"n_timesteps": a.timesteps})})
     if a.service:
         config = config.model_copy(update={"service": config.service.model_copy(update={"mode": a.service})})
+    if a.threads is not None:
+        if a.threads < 1:
+            raise CliError(f"--threads: must be >= 1, got {a.threads}")
+        config = config.model_copy(update={"threads": a.threads})
     out = Path(a.out or Path("results") / "runs" / config.name)
     if config.service.mode == "ray":
         from farm.runtime import ray_cluster
@@ -263,7 +277,6 @@ def cmd_eval(a) -> int:
     from farm.alloc.evaluate import (GameFidelityClient, baselines, evaluate_policies, load_policy,
                                      plot_behaviour_steps, steps_table)
     from farm.alloc.train import load_train_config, make_client
-    from farm.alloc.env import SwarmAllocationEnv
     from farm.output import write_table
     from farm.runtime import ray_cluster
 
@@ -274,7 +287,7 @@ def cmd_eval(a) -> int:
     if a.episodes < 1:
         raise CliError(f"--episodes: must be >= 1, got {a.episodes}")
     policies = {"td3": load_policy(run_dir), **baselines(config.env.grid_size)}
-    settings = SwarmAllocationEnv(config.env, client=object()).service_settings()
+    settings = config.env.service_settings()
     use_ray = config.service.mode == "ray" or a.fidelity == "games"
     from contextlib import nullcontext
 
@@ -287,7 +300,7 @@ def cmd_eval(a) -> int:
         plot_behaviour_steps(steps, table, run_dir / "behaviour_steps.png")
         print(table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
         if a.fidelity == "games":
-            games_client = GameFidelityClient(settings, client, seed=a.seed)
+            games_client = GameFidelityClient(settings, client)
             gtable, _, _ = evaluate_policies(config.env, policies, games_client, a.episodes, a.seed)
             diffs = pd.DataFrame(games_client.differences)
             write_table(gtable, run_dir / "eval_table_games", "csv")
@@ -339,7 +352,6 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--evaders", help="evader positions 'x,y;x,y;...'")
     src.add_argument("--n-pursuers", type=int, default=3)
     src.add_argument("--n-evaders", type=int, default=1)
-    src.add_argument("--law", choices=["boxes", "uniform"], default="boxes", help="boxes: the paper's start boxes")
     src.add_argument("--seed", type=int, default=0)
     _add_game_options(g)
     g.add_argument("--plot", help="write a PNG of the trajectories and Voronoi cells here")
@@ -353,7 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
                                  "results/pe-table-speeds-P-E)")
     t.add_argument("--format", choices=["csv", "parquet"], default="csv")
     t.add_argument("--no-figures", action="store_true")
-    _add_speed_options(t)
+    _add_game_options(t, SPEED_FLAGS)
     t.set_defaults(func=cmd_pe_table)
 
     s = sub.add_parser("sweep", help="run a parametric Monte Carlo sweep on Ray (resumable)")
@@ -386,6 +398,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--resume", action="store_true", help="go on from the run folder's last checkpoint")
     tr.add_argument("--timesteps", type=int, help="override td3.n_timesteps")
     tr.add_argument("--service", choices=["ray", "local"], help="override service.mode")
+    tr.add_argument("--threads", type=int, help="override threads: torch threads while training (config default 1)")
     tr.add_argument("--quiet", action="store_true")
     tr.set_defaults(func=cmd_train)
 
@@ -408,7 +421,7 @@ def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)
-    except (CliError, InputError, ConfigError, SweepError, StoreCorruptError, ReportError) as e:
+    except SwarmFarmError as e:
         print(f"farm: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

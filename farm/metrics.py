@@ -16,8 +16,6 @@ EXPORTED = {
     "ray_swarm_farm_game_steps_total": "game-steps simulated, summed over games (counter)",
     "ray_swarm_farm_game_steps_per_second": "game-steps per second of the last shard of a worker (gauge)",
     "ray_swarm_farm_shards_done_total": "shards stored (counter)",
-    "ray_swarm_farm_shards_failed_total": "shard attempts that failed: worker or node died, error (counter)",
-    "ray_swarm_farm_shards_retried_total": "shards resubmitted after a failure (counter)",
     "ray_swarm_farm_pending_shards": "shards queued or running (gauge)",
     "ray_swarm_farm_service_hits_total": "capture-time service: keys answered from the cache (counter)",
     "ray_swarm_farm_service_misses_total": "capture-time service: keys not in the cache (counter)",
@@ -60,29 +58,19 @@ def record_shard(sweep: str, games: int, steps: int, seconds: float) -> None:
 
 
 class DriverMetrics:
-    """Driver side: shards done, failed, retried and pending of one sweep."""
+    """Driver side: shards done and pending of one sweep (Ray's own `ray_tasks{IsRetry!="0"}`
+    counts the shard attempts it retried after a worker or node died)."""
 
     def __init__(self, sweep: str):
         from ray.util.metrics import Counter, Gauge
 
         self.tags = {"sweep": sweep}
         self._done = Counter("swarm_farm_shards_done", description=EXPORTED["ray_swarm_farm_shards_done_total"], tag_keys=TAGS)
-        self._failed = Counter("swarm_farm_shards_failed", description=EXPORTED["ray_swarm_farm_shards_failed_total"],
-                               tag_keys=TAGS)
-        self._retried = Counter("swarm_farm_shards_retried",
-                                description=EXPORTED["ray_swarm_farm_shards_retried_total"], tag_keys=TAGS)
         self._pending = Gauge("swarm_farm_pending_shards", description=EXPORTED["ray_swarm_farm_pending_shards"],
                               tag_keys=TAGS)
-        # Ray counters cannot be incremented by 0: failed/retried appear at the first failure.
 
     def done(self) -> None:
         self._done.inc(1, tags=self.tags)
-
-    def failed(self) -> None:
-        self._failed.inc(1, tags=self.tags)
-
-    def retried(self) -> None:
-        self._retried.inc(1, tags=self.tags)
 
     def pending(self, n: int) -> None:
         self._pending.set(n, tags=self.tags)

@@ -9,19 +9,20 @@ from pathlib import Path
 import pandas as pd
 
 FORMATS = ("csv", "parquet")
-_UMASK = os.umask(0)
-os.umask(_UMASK)
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
+def atomic_write_bytes(path: Path, data: bytes, mode: int = 0o644) -> None:
+    """Write data to path through a temporary file in the same folder, fsynced, renamed
+    over path, the folder fsynced: a crash leaves the old file or the new one. The
+    file gets `mode` (the temporary file is created private, 0600)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
+            os.fchmod(f.fileno(), mode)
             os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
         dir_fd = os.open(path.parent, os.O_RDONLY)
         try:

@@ -1,4 +1,4 @@
-"""The paper's pursuit-evasion tables (section 4.1; SPEC.md section 3).
+"""The paper's pursuit-evasion tables (section 4.1; docs/model.md section 3).
 
 The team speeds default to the paper's (1 and 1); other speeds rerun the same
 cases as a sensitivity check, the paper's figures beside them unchanged.
@@ -49,10 +49,10 @@ def pe_tables(n_games: int = 50, seed: int = 0, base: Case | None = None, progre
             "pursuer_policy": pp,
             "evader_policy": ep,
             **{name: getattr(case, name) for name in SPEEDS},
-            "games": summary["n_games"],
-            "not_captured": summary["last_capture_n_censored"],
+            "games": summary.n_games,
+            "not_captured": summary.last_capture.n_censored,
         }
-        row.update({c: summary[f"last_capture_{c}"] for c in COLUMNS})
+        row.update({c: getattr(summary.last_capture, c) for c in COLUMNS})
         row["paper_mean"] = paper
         row["case_key"] = case.key()
         rows.append(row)

@@ -1,29 +1,56 @@
-"""Figures: game trajectories over shaded Voronoi cells (paper figures 2-5)."""
+"""Figures: game trajectories over shaded Voronoi cells (paper figures 2-5), heatmaps,
+and the one way every figure of the project is made and saved.
+
+Figures are matplotlib `Figure` objects drawn without pyplot, so no backend is chosen
+and no global state is touched: a user's own matplotlib setup is left as it is.
+"""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+from matplotlib.patches import Circle, Polygon as PolygonPatch
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.patches import Circle, Polygon as PolygonPatch  # noqa: E402
-
-from workers import GameResults  # noqa: E402
+from workers import GameResults
 
 PURSUER_COLOR = "tab:blue"
 EVADER_COLOR = "tab:red"
 
 
-def save_figure(fig, path: str | Path, dpi: int = 100) -> Path:
-    """Write fig to path (folders made as needed) and close it; returns the path."""
+def new_figure(rows: int = 1, cols: int = 1, figsize=(6, 4)):
+    """(Figure, axes (rows, cols) array of Axes) drawn without pyplot."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(rows, cols, squeeze=False)
+
+
+def save_figure(fig: Figure, path: str | Path, dpi: int = 100) -> Path:
+    """Write fig to path (folders made as needed); returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
-    plt.close(fig)
     return path
+
+
+def figure_png(fig: Figure, dpi: int = 100) -> bytes:
+    """fig as PNG bytes."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def draw_heatmap(fig: Figure, ax, grid: pd.DataFrame, title: str, cmap: str = "viridis") -> None:
+    """grid: n_pursuers rows x n_evaders columns of one statistic, drawn on ax with a colour bar."""
+    im = ax.imshow(grid.to_numpy(dtype=float), origin="lower", aspect="auto", cmap=cmap)
+    ax.set_xticks(range(len(grid.columns)), [str(c) for c in grid.columns])
+    ax.set_yticks(range(len(grid.index)), [str(i) for i in grid.index])
+    ax.set_xlabel("evaders n_e")
+    ax.set_ylabel("pursuers n_p")
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(im, ax=ax)
 
 
 def default_frames(res: GameResults, game: int) -> list[int]:
@@ -77,7 +104,7 @@ def plot_game(res: GameResults, path: str | Path, *, game: int = 0, frames=None,
     if res.pursuer_paths is None:
         raise ValueError("plot_game needs results simulated with record=True")
     frames = default_frames(res, game) if frames is None else sorted(set(frames))
-    fig, axes = plt.subplots(1, len(frames), figsize=(4.2 * len(frames), 4.4), squeeze=False)
+    fig, axes = new_figure(1, len(frames), figsize=(4.2 * len(frames), 4.4))
     for ax, frame in zip(axes[0], frames):
         draw_game(ax, res, game, frame)
     axes[0][-1].legend(loc="upper right", fontsize=8)  # the last panel shows every kind of marker

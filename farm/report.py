@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import json
 import sqlite3
 import time
@@ -20,11 +19,9 @@ import pandas as pd
 
 from workers import ENGINE_VERSION
 
+from farm.errors import NotAStoreError, ReportError, StoreCorruptError
+
 __all__ = ["ReportError", "build_report", "write_report"]
-
-
-class ReportError(ValueError):
-    """Bad input for the report: one line naming the file or folder."""
 
 
 def _read_table(path: Path) -> pd.DataFrame:
@@ -53,25 +50,17 @@ def _img(data: bytes, alt: str) -> str:
 
 
 def _fig_bytes(fig) -> bytes:
-    import matplotlib.pyplot as plt
+    from farm.plots import figure_png
 
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    return buf.getvalue()
+    return figure_png(fig, dpi=90)
 
 
 def _heatmap(grid: pd.DataFrame, title: str, alt: str) -> str:
     """An n_pursuers x n_evaders heatmap as an <img>."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.5, 4))
-    im = ax.imshow(grid.to_numpy(dtype=float), origin="lower", aspect="auto", cmap="viridis")
-    ax.set_xticks(range(len(grid.columns)), grid.columns)
-    ax.set_yticks(range(len(grid.index)), grid.index)
-    ax.set_xlabel("evaders")
-    ax.set_ylabel("pursuers")
-    ax.set_title(title, fontsize=8)
-    fig.colorbar(im, ax=ax)
+    from farm.plots import draw_heatmap, new_figure
+
+    fig, axes = new_figure(figsize=(5.5, 4))
+    draw_heatmap(fig, axes[0, 0], grid, title)
     fig.tight_layout()
     return _img(_fig_bytes(fig), alt)
 
@@ -81,13 +70,12 @@ def _table(df: pd.DataFrame) -> str:
     return f"<div class=scroll>{inner}</div>"
 
 
-def _plt():
-    import matplotlib
+def _axes(figsize):
+    """(Figure, Axes) of a one-panel chart."""
+    from farm.plots import new_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    fig, axes = new_figure(figsize=figsize)
+    return fig, axes[0, 0]
 
 
 # ----- sections -------------------------------------------------------------------
@@ -106,8 +94,7 @@ def _pe_section(root: Path) -> str | None:
         cols = ["table", "n_pursuers", "pursuer_policy", "evader_policy", "pursuer_speed", "evader_speed", "games",
                 "mean", "std", "ci95_low", "ci95_high", "min", "max", "paper_mean"]  # speeds: tables since engine 2
         view = df[[c for c in cols if c in df.columns]].rename(columns={"paper_mean": "paper"})
-        plt = _plt()
-        fig, ax = plt.subplots(figsize=(8, 3.4))
+        fig, ax = _axes((8, 3.4))
         labels = [f"{t.split(':')[0]}\n{n}p" for t, n in zip(df["table"], df["n_pursuers"])]
         x = range(len(df))
         ax.bar([i - 0.2 for i in x], df["mean"], 0.4, yerr=[df["mean"] - df["ci95_low"], df["ci95_high"] - df["mean"]],
@@ -154,17 +141,10 @@ def _sweep_section(root: Path) -> str | None:
                          "<p>No summary yet: rerun <code>farm sweep</code> on this folder to finish it.</p>")
             continue
         summary = _read_table(summary_path)
-        changed = []
-        vary = doc["config"].get("vary") or {}
-        for block in ("grid", "zip"):
-            changed += [k for k in (vary.get(block) or {}) if k not in changed]
-        if vary.get("random"):
-            changed += [k for k in vary["random"]["ranges"] if k not in changed]
-        cols = ["point", *changed, "n_games", "last_capture_mean", "last_capture_ci95_low", "last_capture_ci95_high",
-                "last_capture_n_censored", "frac_captured_tau_mean", "p_all_captured_tau"]
-        if "frac_escaped_mean" in summary and summary["frac_escaped_mean"].gt(0).any():  # games with an exit
-            cols += ["frac_escaped_tau_mean", "mean_escape_mean"]
-        view = summary[[c for c in cols if c in summary.columns]]
+        from farm.sweep import summary_view, varied_names
+
+        changed = varied_names(doc["config"].get("vary") or {})
+        view = summary_view(summary, changed)
         chart = _sweep_chart(summary, changed)
         runs = (folder / "runs.jsonl")
         run_lines = runs.read_text().splitlines() if runs.exists() else []
@@ -179,7 +159,6 @@ def _sweep_section(root: Path) -> str | None:
 
 
 def _sweep_chart(summary: pd.DataFrame, changed: list[str]) -> str:
-    plt = _plt()
     y = "last_capture_mean"
     if {"n_pursuers", "n_evaders"} <= set(changed):
         others = [c for c in changed if c not in ("n_pursuers", "n_evaders")]
@@ -194,7 +173,7 @@ def _sweep_chart(summary: pd.DataFrame, changed: list[str]) -> str:
         return ""
     x = numeric[0]
     others = [c for c in changed if c != x]
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    fig, ax = _axes((6, 3.5))
     for name, g in (summary.groupby(others) if others else [("", summary)]):
         g = g.sort_values(x)
         ax.errorbar(g[x], g[y], yerr=[g[y] - g["last_capture_ci95_low"], g["last_capture_ci95_high"] - g[y]],
@@ -208,74 +187,72 @@ def _sweep_chart(summary: pd.DataFrame, changed: list[str]) -> str:
 
 
 def _service_section(root: Path) -> str | None:
-    stores = sorted(root.rglob("*.sqlite"))
-    if not stores:
-        return None
-    from farm.service.store import NotAStoreError, StatsStore, StoreCorruptError
+    return "".join(filter(None, map(_store_html, sorted(root.rglob("*.sqlite"))))) or None
 
-    parts = []
-    for path in stores:
-        try:
-            store = StatsStore(path, read_only=True)
-            rows = store.table()
-            store.close()
-        except NotAStoreError:
-            continue
-        except (StoreCorruptError, sqlite3.Error) as e:
-            raise ReportError(str(e).splitlines()[0]) from None
-        if not rows:
-            continue
-        records = []
-        for r in rows:
-            case = r["key"]["case"]
-            v = r["value"]
-            settings = {k: v for k, v in case.items() if k not in ("n_pursuers", "n_evaders")}
-            settings.update(games=r["key"]["games"], seed=r["key"]["seed"])
-            records.append({"settings": json.dumps(settings, sort_keys=True),
-                            "pursuer_policy": case["pursuer_policy"], "evader_policy": case["evader_policy"],
-                            "n_pursuers": case["n_pursuers"], "n_evaders": case["n_evaders"],
-                            "games": r["key"]["games"], "tau": case["tau"],
-                            "mean_capture": v.get("mean_capture_mean"),
-                            "frac_within_tau": v.get("expected_frac_captured_tau"),
-                            "p_all_within_tau": v.get("p_all_captured_tau"),
-                            "engine": case["engine_version"]})
-        df = pd.DataFrame(records).sort_values(["pursuer_policy", "evader_policy", "n_pursuers", "n_evaders"])
-        figs = []
-        for (pp, ep, _), g in df.groupby(["pursuer_policy", "evader_policy", "settings"]):
-            grid = g.pivot(index="n_pursuers", columns="n_evaders", values="mean_capture")
-            title = (f"{pp} vs {ep}, {g['games'].iloc[0]} games, tau {g['tau'].iloc[0]:g}, "
-                     f"engine {g['engine'].iloc[0]}: mean capture time (s)")
-            figs.append(_heatmap(grid, title, f"{pp} vs {ep} heatmap"))
-        parts.append(f"<p class=src>{html.escape(str(path))}: {len(df)} cases</p><div class=grid>{''.join(figs)}</div>"
-                     f"<details><summary>all cases</summary>{_table(df.drop(columns='settings'))}</details>")
-    return "".join(parts) or None
+
+def _store_html(path: Path) -> str | None:
+    """One capture-time store's heatmaps and cases; None for another SQLite file or an empty store."""
+    from farm.service.store import StatsStore
+
+    try:
+        store = StatsStore(path, read_only=True)
+        rows = store.table()
+        store.close()
+    except NotAStoreError:
+        return None
+    except (StoreCorruptError, sqlite3.Error) as e:
+        raise ReportError(str(e).splitlines()[0]) from None
+    if not rows:
+        return None
+    records = []
+    for r in rows:
+        case = r["key"]["case"]
+        v = r["value"]
+        settings = {k: v for k, v in case.items() if k not in ("n_pursuers", "n_evaders")}
+        settings.update(games=r["key"]["games"], seed=r["key"]["seed"])
+        records.append({"settings": json.dumps(settings, sort_keys=True),
+                        "pursuer_policy": case["pursuer_policy"], "evader_policy": case["evader_policy"],
+                        "n_pursuers": case["n_pursuers"], "n_evaders": case["n_evaders"],
+                        "games": r["key"]["games"], "tau": case["tau"],
+                        "mean_capture": v.mean_capture.mean,
+                        "frac_within_tau": v.frac_captured_tau,
+                        "p_all_within_tau": v.p_all_captured_tau,
+                        "engine": case["engine_version"]})
+    df = pd.DataFrame(records).sort_values(["pursuer_policy", "evader_policy", "n_pursuers", "n_evaders"])
+    figs = []
+    for (pp, ep, _), g in df.groupby(["pursuer_policy", "evader_policy", "settings"]):
+        grid = g.pivot(index="n_pursuers", columns="n_evaders", values="mean_capture")
+        title = (f"{pp} vs {ep}, {g['games'].iloc[0]} games, tau {g['tau'].iloc[0]:g}, "
+                 f"engine {g['engine'].iloc[0]}: mean capture time (s)")
+        figs.append(_heatmap(grid, title, f"{pp} vs {ep} heatmap"))
+    return (f"<p class=src>{html.escape(str(path))}: {len(df)} cases</p><div class=grid>{''.join(figs)}</div>"
+            f"<details><summary>all cases</summary>{_table(df.drop(columns='settings'))}</details>")
 
 
 def _training_section(root: Path) -> str | None:
-    curves = sorted(root.rglob("evaluations.npz"))
-    if not curves:
-        return None
+    return "".join(map(_curve_html, sorted(root.rglob("evaluations.npz")))) or None
+
+
+def _curve_html(path: Path) -> str:
+    """One run's training curve, with its metrics.json's numbers when present."""
     import numpy as np
 
-    from farm.alloc.train import training_curve_figure
+    from farm.alloc.plots import training_curve_figure
 
-    out = []
-    for path in curves:
-        try:
-            data = np.load(path)
-            steps, results = data["timesteps"], data["results"]
-        except Exception as e:
-            raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
-        fig = training_curve_figure(steps, results)
-        out.append(f"<p class=src>{html.escape(str(path))}</p>{_img(_fig_bytes(fig), 'training curve')}")
-        metrics = path.with_name("metrics.json")
-        m = _read_json(metrics) if metrics.exists() else None
-        if isinstance(m, dict):
-            shown = {"timesteps": "steps", "wall_seconds": "wall (s)", "steps_per_second": "steps/s",
-                     "outside_update_share": "share outside updates", "final_eval_mean_return": "final eval return",
-                     "best_eval_mean_return": "best eval return"}
-            out.append(_table(pd.DataFrame([{label: m.get(k) for k, label in shown.items()}])))
-    return "".join(out)
+    try:
+        data = np.load(path)
+        steps, results = data["timesteps"], data["results"]
+    except Exception as e:
+        raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
+    out = f"<p class=src>{html.escape(str(path))}</p>{_img(_fig_bytes(training_curve_figure(steps, results)), 'training curve')}"
+    metrics = path.with_name("metrics.json")
+    m = _read_json(metrics) if metrics.exists() else None
+    if isinstance(m, dict):
+        shown = {"timesteps": "steps", "wall_seconds": "wall (s)", "steps_per_second": "steps/s",
+                 "update_seconds": "update (s)", "outside_update_share": "share outside updates",
+                 "final_eval_mean_return": "final eval return", "best_eval_mean_return": "best eval return"}
+        out += _table(pd.DataFrame([{label: m.get(k) for k, label in shown.items()}]))
+    return out
 
 
 def _eval_section(root: Path) -> str | None:

@@ -16,7 +16,7 @@ DEFAULT_LOCAL_CPUS = 2
 def check_reachable(address: str, timeout: float = 5.0) -> None:
     """Fail at once, in one line, when nothing answers at a host:port address (Ray
     itself retries for minutes); "auto" and addresses without a port are left to Ray."""
-    from farm.config import ConfigError
+    from farm.errors import ClusterError
 
     try:
         parts = urlsplit("//" + address.split("://", 1)[-1])
@@ -29,7 +29,7 @@ def check_reachable(address: str, timeout: float = 5.0) -> None:
         socket.create_connection((host, port), timeout=timeout).close()
     except OSError as e:
         why = e.strerror or type(e).__name__
-        raise ConfigError(f"address {address}: no Ray cluster answers there ({why}); "
+        raise ClusterError(f"address {address}: no Ray cluster answers there ({why}); "
                           "start one with `ray start --head` or leave the address out for a local Ray") from None
 
 

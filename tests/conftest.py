@@ -1,5 +1,7 @@
 import socket
 
+import yaml
+
 import numpy as np
 import pytest
 
@@ -36,3 +38,13 @@ def ray_local():
              logging_level="ERROR", log_to_driver=False)
     yield port
     ray.shutdown()
+
+
+def write_sweep(path, **changes):
+    """A small sweep config (2 x 2 points of area_min games, 2 evaders) written to path,
+    top-level fields replaced by `changes`; returns path."""
+    config = {"name": "ray-test", "seed": 7, "games_per_point": 24, "shard_games": 6,
+              "base": {"n_evaders": 2, "t_max": 20},
+              "vary": {"grid": {"n_pursuers": [2, 4], "evader_policy": ["centroid", "constant_area"]}}}
+    path.write_text(yaml.safe_dump({**config, **changes}, sort_keys=False))
+    return path

@@ -1,4 +1,4 @@
-"""The allocation MDP (SPEC.md section 5) as a gymnasium env."""
+"""The allocation MDP (docs/model.md section 5) as a gymnasium env."""
 
 import warnings
 
@@ -105,7 +105,7 @@ def test_same_seed_same_episode(store):
 
 
 def test_reward_by_hand(store):
-    """One engineered step checked against SPEC.md's formula with the service's numbers."""
+    """One engineered step checked against docs/model.md's formula with the service's numbers."""
     env = make(store, c_distribution=0.7, c_capture=1.5, breach_penalty=2.0, capture_time_norm=8.0)
     env.reset(seed=0)
     env.D = np.zeros(9)
@@ -119,10 +119,10 @@ def test_reward_by_hand(store):
     p = env.move_probabilities(stay)
     D_next = np.bincount(env.dst, weights=p * env.D[env.src], minlength=9)
     _, r, _, _, info = env.step(stay)
-    client = CaptureTimeClient(env.service_settings(), local_store=store)
+    client = CaptureTimeClient(env.config.service_settings(), local_store=store)
     v = client.get(int(round(D_next[4] * 10)), int(round(0.5 * 5)))
-    remaining_centre = 0.5 * (1 - v["expected_frac_captured_tau"])
-    t = v["mean_capture_mean"] if np.isfinite(v["mean_capture_mean"]) else env.config.t_max
+    remaining_centre = 0.5 * (1 - v.frac_captured_tau)
+    t = v.mean_capture.mean if np.isfinite(v.mean_capture.mean) else env.config.t_max
     expected = -0.7 * (remaining_centre + 0.3) + 1.5 * 0.5 * max(0.0, 1 - t / 8.0) - 2.0 * 0.2
     assert info["breached_step"] == pytest.approx(0.2)
     assert info["engaged_cells"] == 1
@@ -158,7 +158,7 @@ def test_estimates_answer_first_visits_and_are_counted(tmp_path):
     and is counted; with estimates off the same step waits for the exact value."""
     store = str(tmp_path / "store.sqlite")
     cfg = AllocConfig(**SMALL)
-    client = CaptureTimeClient(SwarmAllocationEnv(cfg, client=object()).service_settings(), local_store=store)
+    client = CaptureTimeClient(cfg.service_settings(), local_store=store)
     client.get_many([(3, 1), (3, 2), (5, 1), (5, 2)])  # neighbours of (4, 2)
 
     def one_step(estimates):
@@ -173,7 +173,7 @@ def test_estimates_answer_first_visits_and_are_counted(tmp_path):
 
     env, info = one_step(True)
     guess = env.client.get_many([(4, 2)], estimate=True)[0]
-    assert guess["estimate"] and info["estimates"] == 1 and (env.engagements, env.estimated) == (1, 1)
-    assert env.I[4] == pytest.approx(0.4 * (1 - guess["expected_frac_captured_tau"]), abs=1e-12)
+    assert guess.estimate and info["estimates"] == 1 and (env.engagements, env.estimated) == (1, 1)
+    assert env.I[4] == pytest.approx(0.4 * (1 - guess.frac_captured_tau), abs=1e-12)
     env, info = one_step(False)
     assert info["estimates"] == 0 and (env.engagements, env.estimated) == (1, 0)

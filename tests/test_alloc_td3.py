@@ -1,5 +1,8 @@
-"""AllocTD3 and LeanVecEnv: SB3's TD3 and DummyVecEnv with a lean per-step path, checked
-against the stock classes."""
+"""The trainer uses stable-baselines3 as it ships: the update timer is a plain callback
+that changes nothing in training, and measures what an override of train() measures;
+the lattice snap of team sizes."""
+
+import time
 
 import numpy as np
 import pytest
@@ -10,7 +13,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
 from farm.alloc.env import LATTICE, snap, snap_many
-from farm.alloc.td3 import AllocTD3, LeanVecEnv, _mode_free
+from farm.alloc.train import UpdateTimer
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, c_capture=1.5)
 NET = {"net_arch": [400, 300]}
@@ -22,7 +25,7 @@ def store(tmp_path_factory):
 
 
 def make(store):
-    return SwarmAllocationEnv(AllocConfig(**SMALL), store=store)
+    return DummyVecEnv([lambda: Monitor(SwarmAllocationEnv(AllocConfig(**SMALL), store=store))])
 
 
 def test_snap_is_the_nearest_lattice_size_in_log_scale():
@@ -35,88 +38,52 @@ def test_snap_is_the_nearest_lattice_size_in_log_scale():
     assert snap(100_000) == 256 and set(snap_many(x).tolist()) == set(LATTICE)
 
 
-def test_mode_free_detects_mode_dependent_layers(store):
-    model = AllocTD3("MlpPolicy", make(store), policy_kwargs=NET, device="cpu")
-    assert _mode_free(model.policy)
-    assert not _mode_free(torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.Dropout(0.1)))
-    assert not _mode_free(torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.BatchNorm1d(2)))
-    assert not _mode_free(torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.GELU()))
+class TimedTD3(TD3):
+    """An independent clock: SB3's public train() timed from inside."""
+
+    train_seconds = 0.0
+
+    def train(self, gradient_steps, batch_size=100):
+        t0 = time.perf_counter()
+        super().train(gradient_steps, batch_size)
+        self.train_seconds += time.perf_counter() - t0
 
 
-def test_numpy_actor_tracks_the_torch_actor(store, tmp_path, rng):
-    """The numpy forward reads the parameters the optimizer and the soft update change
-    in place: it equals the torch actor before training, after training, after load."""
-    model = AllocTD3("MlpPolicy", make(store), policy_kwargs=NET, learning_starts=50, batch_size=32, seed=0,
-                     device="cpu")
-    obs = rng.uniform(0, 1, (7, 18)).astype(np.float32)
-
-    def agree(m):
-        with torch.no_grad():
-            expected = m.actor(torch.as_tensor(obs)).numpy()
-        assert np.abs(m._actor_forward(obs) - expected).max() < 1e-5
-
-    agree(model)
-    before = model._actor_forward(obs)
-    model.learn(120)
-    assert np.abs(model._actor_forward(obs) - before).max() > 1e-4, "the actor did not train"
-    agree(model)
-    assert 0 < model.update_seconds
-    model.save(tmp_path / "m.zip")
-    loaded = AllocTD3.load(tmp_path / "m.zip", device="cpu")
-    agree(loaded)
-    np.testing.assert_allclose(loaded._actor_forward(obs), model._actor_forward(obs), atol=1e-6)
-    vector = model.policy.parameters_to_vector()
-    model.policy.load_from_vector(vector * 0.5)  # replaces the parameters' storage: the views follow
-    agree(model)
-    plain = TD3.load(tmp_path / "m.zip", device="cpu")  # the saved model is plain SB3
-    np.testing.assert_allclose(plain.predict(obs, deterministic=True)[0], loaded._actor_forward(obs), atol=1e-5)
+def test_update_timer_measures_the_updates_and_changes_nothing(store):
+    """Same seed with and without the timer: the same transitions and the same trained actor
+    (the callback only reads the clock). The timer's update time covers every train() call
+    (an override of train() measures it from inside) and little more."""
+    models = []
+    for timer in (None, UpdateTimer()):
+        torch.manual_seed(0)
+        model = TimedTD3("MlpPolicy", make(store), policy_kwargs=NET, learning_starts=60, batch_size=32, seed=3,
+                         device="cpu")
+        model.learn(200, callback=timer)
+        models.append((model, timer))
+    (plain, _), (timed, timer) = models
+    np.testing.assert_array_equal(plain.replay_buffer.actions[:200], timed.replay_buffer.actions[:200])
+    np.testing.assert_array_equal(plain.replay_buffer.rewards[:200], timed.replay_buffer.rewards[:200])
+    for a, b in zip(plain.actor.parameters(), timed.actor.parameters()):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert timed.train_seconds > 0
+    assert timed.train_seconds <= timer.update_seconds <= timed.train_seconds + 0.5 * timed.train_seconds + 0.05
 
 
-def test_same_transitions_as_stock_td3(store):
-    """Same seed: AllocTD3 (numpy actor, no mode switches, LeanVecEnv) and SB3's TD3 (predict,
-    DummyVecEnv) store the same transitions, up to float32 rounding of the actions."""
-    buffers = []
-    for cls, vec in ((TD3, DummyVecEnv), (AllocTD3, LeanVecEnv)):
-        env = vec([lambda: Monitor(make(store))])
-        model = cls("MlpPolicy", env, policy_kwargs=NET, learning_starts=60, batch_size=32, seed=3, device="cpu")
-        model.learn(160)
-        buffers.append(model.replay_buffer)
-    a, b = buffers
-    assert a.pos == b.pos == 160
-    np.testing.assert_allclose(a.actions[:160], b.actions[:160], atol=1e-4)
-    np.testing.assert_allclose(a.observations[:160], b.observations[:160], atol=1e-4)
-    np.testing.assert_allclose(a.next_observations[:160], b.next_observations[:160], atol=1e-4)
-    np.testing.assert_allclose(a.rewards[:160], b.rewards[:160], atol=1e-4)
-    np.testing.assert_array_equal(a.dones[:160], b.dones[:160])
-    np.testing.assert_array_equal(a.timeouts[:160], b.timeouts[:160])
+def test_training_leaves_the_thread_setting_as_it_was(tmp_path):
+    """`threads` applies while a run trains; the caller's torch setting is back afterwards."""
+    from farm.alloc.train import TrainConfig, train
 
-
-def test_lean_vec_env_steps_like_dummy_vec_env(store, rng):
-    envs = [vec([lambda: Monitor(make(store))]) for vec in (DummyVecEnv, LeanVecEnv)]
-    for e in envs:
-        e.seed(11)
-    first = [e.reset() for e in envs]
-    np.testing.assert_array_equal(*first)
-    episodes = 0
-    for _ in range(40):
-        action = rng.uniform(-1, 1, (1, 49)).astype(np.float32)
-        (o1, r1, d1, i1), (o2, r2, d2, i2) = (e.step(action.copy()) for e in envs)
-        np.testing.assert_array_equal(o1, o2)
-        np.testing.assert_array_equal(r1, r2)
-        np.testing.assert_array_equal(d1, d2)
-        assert i1[0].keys() == i2[0].keys()
-        for k in i1[0]:
-            if k == "episode":
-                assert i1[0][k]["r"] == i2[0][k]["r"] and i1[0][k]["l"] == i2[0][k]["l"]
-            else:
-                np.testing.assert_array_equal(i1[0][k], i2[0][k])
-        episodes += int(d1[0])
-    assert episodes >= 3
-    with pytest.raises(ValueError, match="only Box observation spaces"):
-        import gymnasium
-
-        class DictEnv(gymnasium.Env):
-            observation_space = gymnasium.spaces.Dict({"x": gymnasium.spaces.Box(0, 1, (1,))})
-            action_space = gymnasium.spaces.Box(-1, 1, (1,))
-
-        LeanVecEnv([DictEnv])
+    config = TrainConfig(name="threads", env=AllocConfig(**SMALL), threads=1,
+                         td3={"n_timesteps": 40, "learning_starts": 20, "batch_size": 16,
+                              "policy_kwargs": {"net_arch": [32, 32]}},
+                         eval={"freq": 40, "episodes": 1}, checkpoint_freq=40,
+                         service={"mode": "local", "store": str(tmp_path / "s.sqlite")})
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        metrics = train(config, tmp_path / "run", show_progress=False)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    assert metrics["timesteps"] == 40 and 0 < metrics["update_seconds"] < metrics["wall_seconds"]
+    assert TD3.load(tmp_path / "run" / "model.zip", device="cpu").num_timesteps == 40

@@ -9,16 +9,14 @@ import signal
 import subprocess
 import sys
 import tempfile
-import textwrap
 import time
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import free_port
+from conftest import free_port, write_sweep
 
-from farm.config import load_sweep_config
-from farm.sweep import SweepRun, run_sweep
+from farm.sweep import SweepRun, load_sweep_config, run_sweep
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -26,22 +24,11 @@ ENV = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "
        "PYTHONUNBUFFERED": "1"}
 ENV.pop("RAY_ADDRESS", None)
 
-SWEEP = """
-name: cluster-test
-seed: 3
-games_per_point: 64
-shard_games: 8
-base: {n_evaders: 2, t_max: 30}
-vary:
-  grid: {n_pursuers: [3, 5], evader_policy: [centroid, constant_area]}
-"""
-
-
 @pytest.fixture
 def config_path(tmp_path):
-    p = tmp_path / "sweep.yaml"
-    p.write_text(textwrap.dedent(SWEEP))
-    return p
+    return write_sweep(tmp_path / "sweep.yaml", name="cluster-test", seed=3, games_per_point=64, shard_games=8,
+                       base={"n_evaders": 2, "t_max": 30},
+                       vary={"grid": {"n_pursuers": [3, 5], "evader_policy": ["centroid", "constant_area"]}})
 
 
 def in_process_games(config_path, tmp_path):

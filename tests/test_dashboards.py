@@ -1,4 +1,9 @@
-"""The Grafana dashboard and Prometheus config in dashboards/ (static checks, no network).
+"""The Grafana dashboard and Prometheus config in dashboards/: what they query exists.
+
+Farm metric names are checked against the metrics farm/ defines (farm.metrics.EXPORTED and
+the Counter/Gauge calls themselves), Ray's metric and label names against a live local Ray's
+Prometheus endpoint, label values against Ray's task states and farm's functions, the
+service-discovery file against Ray's constant. No literal of the files is pinned.
 
 `dashboard_metric_names()` is also used by the live-sweep test, which checks that a
 real sweep exports every farm metric the dashboard queries.
@@ -6,8 +11,12 @@ real sweep exports every farm metric the dashboard queries.
 
 from __future__ import annotations
 
+import ast
 import json
+import os
 import re
+import time
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -15,7 +24,8 @@ import yaml
 
 from farm.metrics import EXPORTED
 
-DASHBOARDS = Path(__file__).resolve().parent.parent / "dashboards"
+ROOT = Path(__file__).resolve().parent.parent
+DASHBOARDS = ROOT / "dashboards"
 DASHBOARD_JSON = DASHBOARDS / "grafana_swarm_farm.json"
 PROMETHEUS_YML = DASHBOARDS / "prometheus.yml"
 DISCOVERY_FILE = "prom_metrics_service_discovery.json"
@@ -32,6 +42,10 @@ _RANGES = re.compile(r"\[[^\[\]]*\]")  # range selectors: [1m], [$__range]
 _GROUPING = re.compile(r"\b(?:by|without|on|ignoring|group_left|group_right)\s*\([^()]*\)")
 _LABEL_VALUES = re.compile(r"\blabel_values\s*\(\s*([^,()]*(?:\{[^{}]*\})?)\s*,[^()]*\)")
 _METRIC = re.compile(r"(?<![A-Za-z0-9_:])ray_[A-Za-z0-9_:]*")
+_SELECTOR = re.compile(r"(?<![A-Za-z0-9_:])(ray_[A-Za-z0-9_:]*)\s*\{([^{}]*)\}")
+_MATCHER = re.compile(r'([A-Za-z_][A-Za-z0-9_]*)\s*(=~|!~|!=|=)\s*"((?:[^"\\]|\\.)*)"')
+_VARIABLE = re.compile(r"\$\{?([A-Za-z_][A-Za-z0-9_]*)")
+TARGET_LABELS = {"instance", "job"}  # attached by Prometheus when it scrapes, not by Ray
 
 
 def load_dashboard() -> dict:
@@ -85,6 +99,42 @@ def dashboard_metric_names() -> set[str]:
     return {n for n in all_metric_names() if n.startswith(FARM_PREFIX)}
 
 
+def selectors(expr: str) -> list[tuple[str, list[tuple[str, str, str]]]]:
+    """(metric, [(label, op, value), ...]) of every `metric{...}` selector of an expression."""
+    expr = _LABEL_VALUES.sub(r"\1", expr)
+    return [(m.group(1), _MATCHER.findall(m.group(2))) for m in _SELECTOR.finditer(expr)]
+
+
+def grouping_labels(expr: str) -> set[str]:
+    """Labels of `by (...)` / `without (...)` / `on (...)` / `ignoring (...)` clauses."""
+    out = set()
+    for m in re.finditer(r"\b(?:by|without|on|ignoring)\s*\(([^()]*)\)", expr):
+        out |= {x.strip() for x in m.group(1).split(",") if x.strip()}
+    return out
+
+
+def defined_metrics() -> dict[str, tuple[str, tuple[str, ...]]]:
+    """Prometheus name -> (kind, tag keys) of every Counter / Gauge / Histogram farm/ creates
+    (Ray prefixes `ray_`; a Counter is exported as `<name>_total`), read from the source."""
+    import farm.metrics
+
+    out = {}
+    for path in (ROOT / "farm").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                    and node.func.id in {"Counter", "Gauge", "Histogram"} and node.args
+                    and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+                continue
+            tags: tuple[str, ...] = ()
+            for kw in node.keywords:
+                if kw.arg == "tag_keys":
+                    tags = (getattr(farm.metrics, kw.value.id) if isinstance(kw.value, ast.Name)
+                            else tuple(ast.literal_eval(kw.value)))
+            name = "ray_" + node.args[0].value + ("_total" if node.func.id == "Counter" else "")
+            out[name] = (node.func.id, tuple(tags))
+    return out
+
+
 # --- the extractor itself -------------------------------------------------------------
 
 
@@ -97,6 +147,7 @@ def dashboard_metric_names() -> set[str]:
     ("label_values(ray_swarm_farm_games_simulated_total, sweep)", {"ray_swarm_farm_games_simulated_total"}),
     ("label_values(ray_node_cpu_count{SessionName=~\"$s\"}, ray_io_cluster)", {"ray_node_cpu_count"}),
     ("vector(1)", set()),
+    ('sum by (State) (ray_tasks{Name=~".*_remote_shard", IsRetry!="0"})', {"ray_tasks"}),
     ("sum(rate(ray_swarm_farm_service_hits_total[1m])) / (sum(rate(ray_swarm_farm_service_hits_total[1m]))"
      " + sum(rate(ray_swarm_farm_service_misses_total[1m])))",
      {"ray_swarm_farm_service_hits_total", "ray_swarm_farm_service_misses_total"}),
@@ -108,18 +159,34 @@ def test_metric_names_extractor(expr, names):
 # --- the dashboard ----------------------------------------------------------------------
 
 
-def test_dashboard_identity_and_variables():
+def test_dashboard_variables_are_defined_and_list_real_label_values():
+    """Every $variable the dashboard uses is defined (or a Grafana global); the datasource
+    variable picks Prometheus (the targets are PromQL); each query variable lists a label
+    the farm's code really attaches to the metric it names; a multi-value variable is only
+    matched with a regex (`=~`), the form Grafana's multi-select and All need."""
     d = load_dashboard()
-    assert d["uid"] == "swarm-farm" and d["title"] == "swarm-farm"
-    assert 36 <= d["schemaVersion"] <= 41
     variables = {v["name"]: v for v in d["templating"]["list"]}
-    ds = variables["datasource"]
-    assert ds["type"] == "datasource" and ds["query"] == "prometheus"
-    sweep = variables["sweep"]
-    assert sweep["type"] == "query" and sweep["includeAll"] is True
-    query = sweep["query"]["query"] if isinstance(sweep["query"], dict) else sweep["query"]
-    assert query == "label_values(ray_swarm_farm_games_simulated_total, sweep)"
-    assert sweep["datasource"]["uid"] == "${datasource}"
+    used = set(_VARIABLE.findall(json.dumps(d.get("panels", [])))) | set(_VARIABLE.findall(json.dumps(d["templating"])))
+    undefined = {v for v in used if not v.startswith("__")} - set(variables)
+    assert not undefined, f"variables used but not defined: {sorted(undefined)}"
+    datasources = [v for v in variables.values() if v["type"] == "datasource"]
+    assert datasources and all(v["query"] == "prometheus" for v in datasources)
+    code = defined_metrics()
+    for var in variables.values():
+        if var["type"] != "query":
+            continue
+        q = var["query"]["query"] if isinstance(var["query"], dict) else var["query"]
+        m = re.fullmatch(r"\s*label_values\(\s*([A-Za-z0-9_:]+)\s*(?:\{[^{}]*\})?\s*,\s*(\w+)\s*\)\s*", q)
+        assert m, f"variable {var['name']}: unexpected query {q!r}"
+        metric, label = m.groups()
+        assert metric in code, f"variable {var['name']} lists values of {metric}, which farm/ never creates"
+        assert label in code[metric][1], f"{metric} carries no label {label!r} (tag keys {code[metric][1]})"
+        if var.get("multi") or var.get("includeAll"):
+            for expr in panel_exprs(d):
+                for _, matchers in selectors(expr):
+                    for lbl, op, value in matchers:
+                        if f"${var['name']}" in value or f"${{{var['name']}}}" in value:
+                            assert op in {"=~", "!~"}, f"{expr}: multi-value ${var['name']} needs =~"
 
 
 def test_panels_have_datasource_targets_ids_and_positions():
@@ -132,7 +199,6 @@ def test_panels_have_datasource_targets_ids_and_positions():
         pos = p["gridPos"]
         assert {"h", "w", "x", "y"} <= set(pos) and 0 <= pos["x"] and pos["x"] + pos["w"] <= 24, p["title"]
     for p in data_panels:
-        assert p["type"] in {"timeseries", "stat"}, p["title"]
         assert p["datasource"] == {"type": "prometheus", "uid": "${datasource}"}, p["title"]
         assert p.get("targets"), f"panel {p['title']!r} has no targets"
         ref_ids = [t["refId"] for t in p["targets"]]
@@ -152,9 +218,16 @@ def test_panels_do_not_overlap():
                 cells[(x, y)] = p["title"]
 
 
-def test_exported_split_into_sweep_and_service_metrics():
+def test_exported_are_the_metrics_the_code_creates_with_their_labels():
+    """farm.metrics.EXPORTED lists exactly the metrics farm/ creates, and the split the
+    dashboard relies on holds in the code: sweep metrics carry the `sweep` tag, service
+    metrics carry none."""
+    code = defined_metrics()
+    assert set(code) == set(EXPORTED), f"created {sorted(set(code) - set(EXPORTED))}, " \
+                                       f"listed only {sorted(set(EXPORTED) - set(code))}"
     assert SERVICE_METRICS and SWEEP_METRICS
-    assert SERVICE_METRICS | SWEEP_METRICS == set(EXPORTED)
+    assert {n for n, (_, tags) in code.items() if "sweep" in tags} == SWEEP_METRICS
+    assert {n for n, (_, tags) in code.items() if not tags} == SERVICE_METRICS
 
 
 def test_farm_panels_filter_by_sweep():
@@ -163,28 +236,11 @@ def test_farm_panels_filter_by_sweep():
     for expr in panel_exprs():
         names = metric_names(expr)
         for name in names & SWEEP_METRICS:
-            selectors = re.findall(re.escape(name) + r"(?![A-Za-z0-9_:])(\{[^{}]*\})?", expr)
-            assert selectors and all('sweep=~"$sweep"' in sel for sel in selectors), expr
+            selectors_ = re.findall(re.escape(name) + r"(?![A-Za-z0-9_:])(\{[^{}]*\})?", expr)
+            assert selectors_ and all('sweep=~"$sweep"' in sel for sel in selectors_), expr
         for name in names & SERVICE_METRICS:
             assert not re.search(re.escape(name) + r"\{[^{}]*\bsweep\b", expr), expr
             assert "$sweep" not in expr and not re.search(r"\bby\s*\([^()]*\bsweep\b", expr), expr
-
-
-def test_service_row_below_the_others():
-    panels = list(iter_panels())
-    rows = [p for p in panels if p["type"] == "row"]
-    service_rows = [r for r in rows if r["title"].startswith("Capture-time service")]
-    assert len(service_rows) == 1
-    row = service_rows[0]
-    assert row["id"] >= 40 and row["gridPos"]["y"] == max(r["gridPos"]["y"] for r in rows)
-    service_panels = [p for p in panels if p["type"] != "row" and metric_names(" ".join(
-        t["expr"] for t in p["targets"])) & SERVICE_METRICS]
-    assert service_panels
-    others_bottom = max(p["gridPos"]["y"] + p["gridPos"]["h"] for p in panels
-                        if p["id"] < 40)
-    assert row["gridPos"]["y"] >= others_bottom
-    for p in service_panels:
-        assert p["id"] > row["id"] and p["gridPos"]["y"] > row["gridPos"]["y"], p["title"]
 
 
 def test_farm_metric_names_match_exported():
@@ -195,19 +251,91 @@ def test_farm_metric_names_match_exported():
     assert not unused, f"farm.metrics.EXPORTED names no panel queries: {sorted(unused)}"
 
 
-def test_ray_core_metrics_are_queried():
-    names = all_metric_names()
-    for name in ("ray_node_cpu_utilization", "ray_node_mem_used", "ray_object_store_memory", "ray_tasks",
-                 "ray_cluster_active_nodes"):
-        assert name in names
+def test_label_values_matched_exist():
+    """Values the dashboard matches Ray's task metrics on are real: task states are Ray's
+    TaskStatus names, task-name patterns match a function farm/ defines."""
+    from ray.core.generated.common_pb2 import TaskStatus
+
+    functions = {n.name for p in (ROOT / "farm").rglob("*.py") for n in ast.walk(ast.parse(p.read_text()))
+                 if isinstance(n, ast.FunctionDef)}
+    checked = 0
+    for expr in panel_exprs():
+        for metric, matchers in selectors(expr):
+            for label, op, value in matchers:
+                if metric == "ray_tasks" and label == "State":
+                    unknown = {v for v in value.split("|") if v} - set(TaskStatus.keys())
+                    assert not unknown, f"{expr}: not Ray task states: {unknown}"
+                    checked += 1
+                elif metric == "ray_tasks" and label == "Name" and op == "=~":
+                    assert any(re.fullmatch(value, f) for f in functions), f"{expr}: no farm function matches {value!r}"
+                    checked += 1
+    assert checked
+
+
+def _scrape(port: int) -> dict[str, set[str]]:
+    """metric name -> label names of a Prometheus text endpoint."""
+    text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10).read().decode()
+    out: dict[str, set[str]] = {}
+    for m in re.finditer(r"^([A-Za-z_:][A-Za-z0-9_:]*)(\{[^}]*\})?\s", text, re.M):
+        out.setdefault(m.group(1), set()).update(re.findall(r'([A-Za-z_][A-Za-z0-9_]*)="', m.group(2) or ""))
+    return out
+
+
+def test_ray_metrics_and_labels_the_dashboard_queries_are_exported_by_ray(ray_local):
+    """On a live local Ray (conftest's ray_local, its Prometheus endpoint), every Ray metric
+    the dashboard queries is exported, with every label the dashboard matches or groups on."""
+    import ray
+
+    @ray.remote
+    def _remote_shard():  # a task, so that the task metrics exist
+        return 1
+
+    assert ray.get([_remote_shard.remote() for _ in range(4)]) == [1] * 4
+    exprs = panel_exprs() + variable_queries()
+    core = {n for e in exprs for n in metric_names(e)} - set(EXPORTED)
+    assert core
+    deadline = time.time() + 60
+    while True:
+        exported = _scrape(ray_local)
+        missing = core - set(exported)
+        if not missing or time.time() > deadline:
+            break
+        time.sleep(1)
+    assert not missing, f"the dashboard queries metrics Ray does not export: {sorted(missing)}"
+    for expr in exprs:
+        metrics = metric_names(expr) & core
+        if not metrics:
+            continue
+        for metric, matchers in selectors(expr):
+            if metric in core:
+                unknown = {lbl for lbl, _, _ in matchers} - exported[metric] - TARGET_LABELS
+                assert not unknown, f"{expr}: {metric} has no labels {unknown} (has {sorted(exported[metric])})"
+        if metrics == metric_names(expr):  # only Ray metrics: group labels must be on one of them
+            have = set().union(*(exported[m] for m in metrics)) | TARGET_LABELS
+            assert grouping_labels(expr) <= have, f"{expr}: grouping by labels Ray does not attach"
 
 
 # --- the Prometheus config ------------------------------------------------------------------
 
 
-def test_prometheus_config_uses_ray_service_discovery():
+def test_prometheus_config_reads_rays_service_discovery_file(monkeypatch):
+    """The scrape config parses and reads the file Ray's head writes its nodes' metrics
+    endpoints to: Ray's PROMETHEUS_SERVICE_DISCOVERY_FILE in Ray's default temp dir."""
+    import ray._private.ray_constants as rc
+    from ray._common.utils import get_default_ray_temp_dir
+
+    monkeypatch.delenv("TMPDIR", raising=False)  # the default on a head node
     cfg = yaml.safe_load(PROMETHEUS_YML.read_text())
-    assert cfg["global"]["scrape_interval"] == "5s"
     jobs = {job["job_name"]: job for job in cfg["scrape_configs"]}
-    files = [f for sd in jobs["ray"]["file_sd_configs"] for f in sd["files"]]
-    assert any(Path(f).name == DISCOVERY_FILE for f in files), files
+    assert len(jobs) == len(cfg["scrape_configs"])
+    files = [f for job in jobs.values() for sd in job.get("file_sd_configs", []) for f in sd["files"]]
+    assert os.path.join(get_default_ray_temp_dir(), rc.PROMETHEUS_SERVICE_DISCOVERY_FILE) in files, files
+
+
+def test_repo_paths_named_in_dashboards_readme_exist():
+    text = (DASHBOARDS / "README.md").read_text()
+    named = set(re.findall(r"(?<![\w.~/-])(?:dashboards|farm|tests|deploy)/[\w./-]*\w", text))
+    named |= {f"dashboards/{n}" for n in re.findall(r"`([\w.-]+\.(?:json|ya?ml))`", text)}
+    assert named
+    missing = sorted(n for n in named if not (ROOT / n).exists())
+    assert not missing, missing

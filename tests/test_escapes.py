@@ -1,5 +1,5 @@
-"""Escapes (SPEC.md section 1, "Escape") and team speeds in the batched engine,
-against analytic values and the slow reference (workers.reference).
+"""Escapes (docs/model.md section 1, "Escape") and team speeds in the batched engine,
+against analytic values and the slow reference (tests/shapely_reference.py).
 
 GameResults fields used here (B games, n_e evaders):
   capture_times (B, n_e) float64, NaN = not captured;  capture_step (B, n_e) int64, -1
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from workers import InputError, simulate_games
-from workers.reference import reference_game
+from shapely_reference import reference_game
 
 DT, RC = 0.01, 0.25
 EXIT = (0.0, 5.0)

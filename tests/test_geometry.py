@@ -1,4 +1,4 @@
-"""Cells of the batched clipper against scipy's Voronoi (workers.reference) and invariants."""
+"""Cells of the batched clipper against scipy's Voronoi (tests/shapely_reference.py) and invariants."""
 
 import numpy as np
 import pytest
@@ -6,7 +6,7 @@ import pytest
 from conftest import HEXAGON, SQUARE, TRIANGLE, points_in
 from workers import make_arena, voronoi_cells
 from workers.geometry import NEIGHBOUR_EDGE_MIN
-from workers.reference import reference_cells
+from shapely_reference import reference_cells
 
 
 def all_cells(points, arena):

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from workers import Case, InitialLaw, InputError, game_statistics, run_case, sample_initial_positions, summarize_case
+from workers import (CaptureStats, Case, InitialLaw, InputError, game_statistics, run_case,
+                     sample_initial_positions)
 
 
 def test_paper_law_boxes(rng):
@@ -40,7 +41,24 @@ def test_run_case_same_seed_same_numbers_whatever_the_batching():
     a, sa = run_case(case, 12, seed=3, batch_size=12)
     b, sb = run_case(case, 12, seed=3, batch_size=5)
     np.testing.assert_array_equal(a.to_numpy(dtype=float), b.to_numpy(dtype=float))
-    assert sa == sb
+    np.testing.assert_equal(sa.flat(), sb.flat())
+
+
+def _flat(per_game) -> dict:
+    return CaptureStats.from_games(per_game).flat()
+
+
+def test_capture_stats_flat_round_trip_and_the_stores_former_rows():
+    """flat() and from_flat() are inverse; a store row written before CaptureStats (with
+    expected_frac_captured_tau, estimate and key beside the statistics) reads the same."""
+    _, stats = run_case(Case(2, 2, t_max=10.0), 5, seed=1)
+    row = stats.flat()
+    np.testing.assert_equal(CaptureStats.from_flat(row).flat(), row)
+    former = {**row, "expected_frac_captured_tau": row["frac_captured_tau_mean"], "estimate": False, "key": "ab"}
+    np.testing.assert_equal(CaptureStats.from_flat(former).flat(), row)
+    assert CaptureStats.from_flat(former).frac_captured_tau == stats.frac_captured_tau
+    with pytest.raises(InputError, match="unknown fields bogus"):
+        CaptureStats.from_flat({**row, "bogus": 1})
 
 
 def test_game_statistics_by_hand():
@@ -53,7 +71,7 @@ def test_game_statistics_by_hand():
     np.testing.assert_allclose(df["frac_captured"], [1.0, 2 / 3, 0.0])
     np.testing.assert_allclose(df["frac_captured_tau"], [2 / 3, 2 / 3, 0.0])
     assert list(df["all_captured_tau"]) == [False, False, False]
-    s = summarize_case(df)
+    s = _flat(df)
     assert s["n_games"] == 3
     assert s["last_capture_n_censored"] == 2 and s["last_capture_mean"] == 6.0
     assert s["first_capture_mean"] == 1.5 and s["first_capture_std"] == pytest.approx(math.sqrt(0.5))
@@ -173,7 +191,7 @@ def test_summarize_case_escape_statistics():
     nan = math.nan
     ct = np.array([[1.0, nan], [nan, nan], [2.0, 3.0], [nan, nan]])
     et = np.array([[nan, 2.0], [4.0, 8.0], [nan, nan], [nan, nan]])
-    s = summarize_case(game_statistics(ct, tau=5.0, escape_times=et))
+    s = _flat(game_statistics(ct, tau=5.0, escape_times=et))
     assert s["frac_escaped_mean"] == pytest.approx((0.5 + 1.0 + 0 + 0) / 4)
     assert s["frac_escaped_tau_mean"] == pytest.approx((0.5 + 0.5 + 0 + 0) / 4)
     # first_escape per game: 2, 4, nan, nan; mean_escape: 2, 6, nan, nan
@@ -184,7 +202,7 @@ def test_summarize_case_escape_statistics():
     assert s["first_escape_ci95_low"] == pytest.approx(3.0 - half)
     assert s["mean_escape_mean"] == 4.0 and s["mean_escape_max"] == 6.0
     # the capture numbers are the same as without escapes
-    plain = summarize_case(game_statistics(ct, tau=5.0))
+    plain = _flat(game_statistics(ct, tau=5.0))
     same = {k: v for k, v in plain.items() if "escape" not in k}
     assert all(s[k] == v or (math.isnan(s[k]) and math.isnan(v)) for k, v in same.items())
     # nobody escaped: NaN time statistics, everything censored
@@ -200,6 +218,7 @@ def test_run_case_records_escapes():
     case = Case(1, 2, pursuer_policy="pure_pursuit", evader_policy="target", exit_point=(0.0, 5.0), t_max=15.0,
                 tau=10.0, pursuer_speed=0.5)
     per_game, s = run_case(case, 6, seed=0)
+    s = s.flat()
     res = run_games(case, 0, 0, 6)
     assert not (np.isfinite(res.capture_times) & np.isfinite(res.escape_times)).any()
     np.testing.assert_array_equal(per_game[["frac_escaped", "first_escape", "mean_escape"]].to_numpy(),
@@ -215,5 +234,6 @@ def test_run_case_records_escapes():
 def test_faster_pursuers_capture_sooner():
     slow, fast = (run_case(Case(3, 1, pursuer_policy="pure_pursuit", evader_policy="target", pursuer_speed=v), 8,
                            seed=0)[1] for v in (1.0, 2.0))
-    assert fast["last_capture_mean"] < slow["last_capture_mean"]
-    assert slow == run_case(Case(3, 1, pursuer_policy="pure_pursuit", evader_policy="target"), 8, seed=0)[1]
+    assert fast.last_capture.mean < slow.last_capture.mean
+    np.testing.assert_equal(slow.flat(), run_case(Case(3, 1, pursuer_policy="pure_pursuit", evader_policy="target"),
+                                                  8, seed=0)[1].flat())

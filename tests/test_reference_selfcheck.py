@@ -1,4 +1,4 @@
-"""Sanity checks of the slow reference implementation (workers/reference.py)."""
+"""Sanity checks of the slow reference implementation (tests/shapely_reference.py)."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import shapely
 
-from workers.reference import reference_cells, reference_game, reference_velocities
+from shapely_reference import reference_cells, reference_game, reference_velocities
 
 SQUARE = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
 HEXAGON = np.array(

@@ -14,31 +14,29 @@ import pytest
 
 from farm.service import CaptureTimeClient, ServiceSettings, StatsStore, StoreCorruptError
 from farm.service.core import compute_in_process
-from workers import Case, InitialLaw, InputError, run_case
+from workers import CaptureStats, Case, InitialLaw, InputError, run_case
 
 FAST = ServiceSettings.of(games=6, t_max=20.0)
 
 
-def same(a: dict, b: dict) -> bool:
-    return a.keys() == b.keys() and all(
+def same(a: CaptureStats, b: CaptureStats) -> bool:
+    """Equal statistics (NaN equal to NaN), both computed from games."""
+    fa, fb = a.flat(), b.flat()
+    return a.estimate is None and b.estimate is None and fa.keys() == fb.keys() and all(
         (x == y) or (isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y))
-        for x, y in ((a[k], b[k]) for k in a)
+        for x, y in ((fa[k], fb[k]) for k in fa)
     )
 
 
 def test_value_is_the_case_statistics(tmp_path):
     client = CaptureTimeClient(FAST, local_store=tmp_path / "s.sqlite")
     v = client.get(3, 2)
+    assert isinstance(v, CaptureStats)
     case = Case(3, 2, t_max=20.0)
-    per_game, summary = run_case(case, 6, seed=(0,))
-    for k, x in summary.items():
-        assert v[k] == pytest.approx(x, nan_ok=True)
-    assert v["expected_frac_captured_tau"] == summary["frac_captured_tau_mean"]
-    assert v["n_games"] == 6 and v["estimate"] is False
-    for name in ("first_capture", "mean_capture", "last_capture", "first_escape", "mean_escape"):
-        for s in ("mean", "std", "q05", "q50", "q95", "n_censored"):
-            assert f"{name}_{s}" in v
-    assert v["frac_escaped_mean"] == 0.0 and v["frac_escaped_tau_mean"] == 0.0  # no exit: nobody escapes
+    per_game, summary = run_case(case, 6, seed=0)
+    assert same(v, summary)  # bit for bit: game g is default_rng([seed, g]) on both paths
+    assert v.n_games == 6 and v.estimate is None
+    assert v.frac_escaped == 0.0 and v.frac_escaped_tau == 0.0  # no exit: nobody escapes
 
 
 def test_miss_computes_stores_and_reloads(tmp_path):
@@ -119,9 +117,9 @@ def test_escape_statistics_reach_the_service(tmp_path):
     settings = ServiceSettings.of(games=4, t_max=12.0, tau=10.0, pursuer_policy="pure_pursuit",
                                   evader_policy="target", exit_point=(0.0, 5.0), pursuer_speed=0.5)
     v = CaptureTimeClient(settings, local_store=tmp_path / "s.sqlite").get(1, 2)
-    _, summary = run_case(settings.key(1, 2).case, 4, seed=(0,))
-    assert v["frac_escaped_tau_mean"] == summary["frac_escaped_tau_mean"] > 0
-    assert v["first_escape_mean"] == pytest.approx(summary["first_escape_mean"])
+    _, summary = run_case(settings.key(1, 2).case, 4, seed=0)
+    assert v.frac_escaped_tau == summary.frac_escaped_tau > 0
+    assert v.first_escape.mean == summary.first_escape.mean
 
 
 def test_damaged_row_is_reported_and_never_served(tmp_path):
@@ -134,7 +132,7 @@ def test_damaged_row_is_reported_and_never_served(tmp_path):
     client = CaptureTimeClient(FAST, local_store=path)
     assert client.local.stats()["corrupt_rows"]  # reported on load
     v = client.get(2, 2)  # recomputed, not the damaged row
-    assert v["n_games"] == 6 and same(v, good)
+    assert v.n_games == 6 and same(v, good)
     assert client.local.stats()["computations"]
 
 
@@ -161,9 +159,10 @@ def test_estimate_from_neighbours_is_flagged(tmp_path):
     client = CaptureTimeClient(FAST, local_store=tmp_path / "s.sqlite")
     a, b = client.get(2, 1), client.get(4, 1)
     est = client.get_many([(3, 1)], estimate=True)[0]
-    assert est["estimate"] is True and "(2,1)" in est["estimate_method"] and "(4,1)" in est["estimate_method"]
-    assert est["mean_capture_mean"] == pytest.approx(0.5 * (a["mean_capture_mean"] + b["mean_capture_mean"]))
-    assert client.get(3, 1)["estimate"] is False  # estimates are not memoized
+    assert est.n_games == 0 and "(2,1)" in est.estimate and "(4,1)" in est.estimate
+    assert est.mean_capture.mean == pytest.approx(0.5 * (a.mean_capture.mean + b.mean_capture.mean))
+    assert est.frac_captured_tau == pytest.approx(0.5 * (a.frac_captured_tau + b.frac_captured_tau))
+    assert client.get(3, 1).estimate is None  # estimates are not memoized
 
 
 def test_estimates_reopened_store_and_other_settings(tmp_path):
@@ -176,7 +175,7 @@ def test_estimates_reopened_store_and_other_settings(tmp_path):
     service = LocalService(path)
     assert sorted(n[:2] for n in service.index.neighbours(FAST.key(3, 1))) == [(2, 1), (4, 1)]
     est = service.get_many([FAST.key(3, 1)], True)[0]
-    assert est["estimate"] and "(3,1)" not in est["estimate_method"]
+    assert est.estimate and "(3,1)" not in est.estimate
     service.get_many([FAST.key(5, 1)])  # computed: now a neighbour too
     assert sorted(n[:2] for n in service.index.neighbours(FAST.key(3, 1))) == [(2, 1), (4, 1), (5, 1)]
 
@@ -225,11 +224,11 @@ def test_actor_miss_restart_and_single_flight(ray_local, tmp_path):
 
     # Estimates answer at once while the exact value is computed in the background.
     est = CaptureTimeClient(FAST, service=service).get_many([(4, 1)], estimate=True)[0]
-    assert est["estimate"] is True and "nearest stored" in est["estimate_method"]
+    assert "nearest stored" in est.estimate
     deadline = time.time() + 120
     while FAST.key(4, 1).digest() not in ray.get(service.stats.remote())["computations"] and time.time() < deadline:
         time.sleep(0.2)
-    assert CaptureTimeClient(FAST, service=service).get(4, 1)["estimate"] is False
+    assert CaptureTimeClient(FAST, service=service).get(4, 1).estimate is None
 
     # hits, misses, in-flight and compute seconds reach Prometheus.
     from farm.metrics import EXPORTED

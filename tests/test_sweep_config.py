@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from farm.config import ConfigError, load_sweep_config
+from farm.config import ConfigError
+from farm.sweep import load_sweep_config
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -54,32 +55,35 @@ def test_grid_zip_random_product(tmp_path):
 
 
 def test_sweep_id_changes_with_what_changes_numbers(tmp_path):
-    a = load_sweep_config(write(tmp_path, "name: t\nseed: 1\n")).sweep_id()
-    b = load_sweep_config(write(tmp_path, "name: t\nseed: 2\n")).sweep_id()
-    c = load_sweep_config(write(tmp_path, "name: t\nseed: 1\nbase: {dt: 0.02}\n")).sweep_id()
-    d = load_sweep_config(write(tmp_path, "name: u\nseed: 1\n")).sweep_id()
+    base = "base: {n_pursuers: 3, n_evaders: 1"
+    a = load_sweep_config(write(tmp_path, f"name: t\nseed: 1\n{base}}}\n")).sweep_id()
+    b = load_sweep_config(write(tmp_path, f"name: t\nseed: 2\n{base}}}\n")).sweep_id()
+    c = load_sweep_config(write(tmp_path, f"name: t\nseed: 1\n{base}, dt: 0.02}}\n")).sweep_id()
+    d = load_sweep_config(write(tmp_path, f"name: u\nseed: 1\n{base}}}\n")).sweep_id()
     assert len({a, b, c}) == 3 and a == d
 
 
 BAD = [
     ("name: t\ncolour: red\n", "colour: Extra inputs are not permitted"),
-    ("name: t\nbase: {n_pursuers: 0}\n", "base.n_pursuers: Input should be greater than or equal to 1"),
-    ("name: t\nbase: {dt: -1}\n", "base.dt: Input should be greater than 0"),
-    ("name: t\nbase: {pursuer_policy: chase}\n", "base: pursuer_policy: unknown policy 'chase'"),
-    ("name: t\nbase: {speed: 2}\n", "base.speed: Extra inputs are not permitted"),
+    ("name: t\nbase: {n_pursuers: 0, n_evaders: 1}\n", "base: n_pursuers: must be a whole number >= 1, got 0"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, dt: -1}\n", "base: dt: must be positive and finite, got -1.0"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, pursuer_policy: chase}\n", "base: pursuer_policy: unknown policy 'chase'"),
+    ("name: t\nbase: {speed: 2}\n", "base: speed: not a game setting (choose from n_pursuers, n_evaders"),
     ("name: t\nvary: {grid: {speed: [1, 2]}}\n", "'speed' cannot vary"),
     ("name: t\nvary: {zip: {dt: [0.1, 0.2], tau: [1]}}\n", "zip: lists must have the same length"),
-    ("name: t\nvary: {grid: {evader_policy: [centroid, hide]}}\n", "vary: point 1 (evader_policy='hide'): evader_policy: unknown policy 'hide'"),
-    ("name: t\nvary: {grid: {n_evaders: [1, -1]}}\n", "vary: point 1 (n_evaders=-1)"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1}\nvary: {grid: {evader_policy: [centroid, hide]}}\n", "vary: point 1 (evader_policy='hide'): evader_policy: unknown policy 'hide'"),
+    ("name: t\nbase: {n_pursuers: 2}\nvary: {grid: {n_evaders: [1, -1]}}\n", "vary: point 1 (n_evaders=-1)"),
     ("name: t\nvary: {random: {n: 3, ranges: {dt: [0.2, 0.1]}}}\n", "dt: range must be [low, high]"),
-    ("name: t\nbase: {pursuer_speed: 0}\n", "base.pursuer_speed: Input should be greater than 0"),
-    ("name: t\nbase: {evader_speed: .inf}\n", "base.evader_speed: Input should be a finite number"),
-    ("name: t\nbase: {exit_point: [1]}\n", "base.exit_point"),
-    ("name: t\nbase: {exit_point: [.nan, 5]}\n", "base: exit_point: must be a finite point (x, y)"),
-    ("name: t\nvary: {grid: {evader_speed: [1, -1]}}\n", "vary: point 1 (evader_speed=-1): evader_speed: Input should be greater than 0"),
-    ("name: t\nvary: {grid: {exit_point: [[0, 5], [0, .inf]]}}\n", "vary: point 1 (exit_point=[0, inf]): exit_point: must be a finite point"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, pursuer_speed: 0}\n", "base: pursuer_speed: must be positive and finite, got 0.0"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, evader_speed: .inf}\n", "base: evader_speed: must be positive and finite, got inf"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, exit_point: [1]}\n", "base: exit_point.1: Field required"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, exit_point: [.nan, 5]}\n", "base: exit_point: must be a finite point (x, y)"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1}\nvary: {grid: {evader_speed: [1, -1]}}\n", "vary: point 1 (evader_speed=-1): evader_speed: must be positive and finite, got -1.0"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1}\nvary: {grid: {exit_point: [[0, 5], [0, .inf]]}}\n", "vary: point 1 (exit_point=[0, inf]): exit_point: must be a finite point"),
     ("name: t\nvary: {random: {n: 2, ranges: {exit_point: [0, 5]}}}\n", "'exit_point' cannot be drawn at random"),
     ("name: t\ngames_per_point: many\n", "games_per_point: Input should be a valid integer"),
+    ("name: t\n", "base: n_pursuers: Field required"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, engine_version: '1.0'}\n", "base: engine_version: not a game setting"),
     ("name: 'a b'\n", "name: String should match pattern"),
     ("- just\n- a list\n", "must be a mapping"),
     ("name: [unclosed\n", "not valid YAML (line"),
@@ -96,14 +100,14 @@ def test_bad_config_one_line(tmp_path, text, message):
 
 
 def test_cli_bad_config_is_one_line_and_keeps_results(tmp_path):
-    good = write(tmp_path, "name: t\ngames_per_point: 4\nbase: {n_pursuers: 2, t_max: 10}\n")
+    good = write(tmp_path, "name: t\ngames_per_point: 4\nbase: {n_pursuers: 2, n_evaders: 1, t_max: 10}\n")
     out = tmp_path / "out"
     run = lambda *a: subprocess.run([sys.executable, "-m", "farm.cli", *map(str, a)], capture_output=True, text=True, timeout=300)
     r = run("sweep", good, "--out", out, "--no-ray", "--quiet")
     assert r.returncode == 0, r.stderr
     before = {p.name: p.read_bytes() for p in (out / "shards").iterdir()}
     bad = tmp_path / "bad.yaml"
-    bad.write_text("name: t\nbase: {n_pursuers: 3}\n")
+    bad.write_text("name: t\nbase: {n_pursuers: 3, n_evaders: 1}\n")
     for args, message in [
         (("sweep", bad, "--out", out, "--no-ray"), "holds sweep"),
         (("sweep", tmp_path / "nope.yaml"), "no such config file"),
@@ -118,15 +122,15 @@ def test_cli_bad_config_is_one_line_and_keeps_results(tmp_path):
 
 def test_nan_target_is_rejected_before_anything_runs(tmp_path):
     with pytest.raises(ConfigError, match="target: must be a finite point"):
-        load_sweep_config(write(tmp_path, "name: t\nbase: {target: [.nan, 5]}\n"))
+        load_sweep_config(write(tmp_path, "name: t\nbase: {n_pursuers: 1, n_evaders: 1, target: [.nan, 5]}\n"))
 
 
 def test_point_numbers_do_not_depend_on_their_place(tmp_path):
     from farm.sweep import run_sweep, SweepRun
 
-    a = load_sweep_config(write(tmp_path, "name: t\ngames_per_point: 3\nbase: {t_max: 10}\nvary: {grid: {n_pursuers: [2, 3]}}\n"))
+    a = load_sweep_config(write(tmp_path, "name: t\ngames_per_point: 3\nbase: {n_evaders: 1, t_max: 10}\nvary: {grid: {n_pursuers: [2, 3]}}\n"))
     b_path = tmp_path / "b.yaml"
-    b_path.write_text("name: t\ngames_per_point: 3\nbase: {t_max: 10}\nvary: {grid: {n_pursuers: [1, 3]}}\n")
+    b_path.write_text("name: t\ngames_per_point: 3\nbase: {n_evaders: 1, t_max: 10}\nvary: {grid: {n_pursuers: [1, 3]}}\n")
     b = load_sweep_config(b_path)
     ga = (run_sweep(a, tmp_path / "a", use_ray=False, show_progress=False), SweepRun(a, tmp_path / "a").read_games())[1]
     gb = (run_sweep(b, tmp_path / "b", use_ray=False, show_progress=False), SweepRun(b, tmp_path / "b").read_games())[1]
@@ -137,14 +141,14 @@ def test_point_numbers_do_not_depend_on_their_place(tmp_path):
 
 
 def test_exit_point_and_speeds_can_be_set_and_varied(tmp_path):
-    from farm.config import VARIABLE_FIELDS
+    from farm.sweep import VARIABLE_FIELDS
 
     assert {"exit_point", "pursuer_speed", "evader_speed"} <= set(VARIABLE_FIELDS)
-    default = load_sweep_config(write(tmp_path, "name: t\n")).points()[0].case
+    default = load_sweep_config(write(tmp_path, "name: t\nbase: {n_pursuers: 3, n_evaders: 1}\n")).points()[0].case
     assert (default.exit_point, default.pursuer_speed, default.evader_speed) == (None, 1.0, 1.0)
     cfg = load_sweep_config(write(tmp_path, """
         name: t
-        base: {exit_point: [0, 5], evader_speed: 0.5}
+        base: {n_pursuers: 3, n_evaders: 1, exit_point: [0, 5], evader_speed: 0.5}
         vary:
           grid: {pursuer_speed: [1, 2]}
           zip: {exit_point: [[0, 5], null]}
@@ -156,9 +160,9 @@ def test_exit_point_and_speeds_can_be_set_and_varied(tmp_path):
     assert {p.case.exit_point for p in points} == {(0.0, 5.0), None}
     assert all(0.5 <= p.case.evader_speed <= 1.5 for p in points) and len({p.case.evader_speed for p in points}) == 2
     assert len({p.case.key() for p in points}) == len(points)
-    base_only = load_sweep_config(write(tmp_path, "name: t\nbase: {exit_point: [0, 5], evader_speed: 0.5}\n"))
+    base_only = load_sweep_config(write(tmp_path, "name: t\nbase: {n_pursuers: 3, n_evaders: 1, exit_point: [0, 5], evader_speed: 0.5}\n"))
     assert base_only.points()[0].case.exit_point == (0.0, 5.0) and base_only.points()[0].case.evader_speed == 0.5
-    assert base_only.sweep_id() != load_sweep_config(write(tmp_path, "name: t\n")).sweep_id()
+    assert base_only.sweep_id() != load_sweep_config(write(tmp_path, "name: t\nbase: {n_pursuers: 3, n_evaders: 1}\n")).sweep_id()
 
 
 def test_default_shard_size_follows_the_engines_cost_model():

@@ -8,7 +8,7 @@
 
 from workers.arena import DEFAULT_ARENA, Arena, make_arena
 from workers.compiled import kernel_cache
-from workers.errors import InputError
+from workers.errors import InputError, SwarmFarmError
 
 with kernel_cache():  # every compiled kernel is defined in these modules
     from workers.engine import ENGINE_VERSION, GameResults, simulate_games
@@ -20,6 +20,7 @@ __all__ = [
     "GameResults",
     "ENGINE_VERSION",
     "InputError",
+    "SwarmFarmError",
     "Arena",
     "DEFAULT_ARENA",
     "make_arena",
@@ -30,15 +31,19 @@ __all__ = [
 ]
 
 from workers.montecarlo import (  # noqa: E402
+    GAME_FIELDS,
     PAPER_LAW,
+    SEEDING,
+    CaptureStats,
     Case,
     InitialLaw,
+    TimeSummary,
     game_statistics,
     results_statistics,
     run_case,
     run_games,
     sample_initial_positions,
-    summarize_case,
+    simulate_case,
 )
 
 __all__ += [
@@ -47,8 +52,12 @@ __all__ += [
     "PAPER_LAW",
     "sample_initial_positions",
     "run_games",
+    "simulate_case",
     "run_case",
     "game_statistics",
     "results_statistics",
-    "summarize_case",
+    "CaptureStats",
+    "TimeSummary",
+    "GAME_FIELDS",
+    "SEEDING",
 ]

@@ -1,6 +1,6 @@
 """The pursuit-evasion engine, compiled (numba): each game stepped to its end on its own.
 
-Semantics (SPEC.md sections 1-2): explicit Euler with fixed dt; at step k the
+Semantics (docs/model.md sections 1-2): explicit Euler with fixed dt; at step k the
 controls of every agent come from the state at k, then all agents move, then
 positions are projected onto the arena. After the move, evader i is captured at
 t = (k+1) dt when its distance to the nearest pursuer is below r_c (strictly);
@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from workers.arena import Arena, make_arena
-from workers.errors import InputError
+from workers.errors import InputError, point, positive
 from workers.geometry import NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity, voronoi_cells
 from workers.policies import Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
 
@@ -338,26 +338,6 @@ def _positions(name: str, value, arena: Arena) -> np.ndarray:
     return a
 
 
-def _positive(name: str, value) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: must be a number, got {value!r}") from None
-    if not np.isfinite(x) or x <= 0:
-        raise InputError(f"{name}: must be positive and finite, got {value!r}")
-    return x
-
-
-def _point(name: str, value) -> np.ndarray:
-    try:
-        p = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: must be a finite point (x, y), got {value!r}") from None
-    if p.shape != (2,) or not np.all(np.isfinite(p)):
-        raise InputError(f"{name}: must be a finite point (x, y), got {value!r}")
-    return p
-
-
 def _arena_arrays(arena: Arena):
     lo, hi = arena.vertices.min(axis=0), arena.vertices.max(axis=0)
     return (arena.is_axis_box, np.ascontiguousarray(lo), np.ascontiguousarray(hi), np.ascontiguousarray(arena.vertices),
@@ -378,6 +358,27 @@ def step_velocities(pursuers, evaders, alive, *, pursuer_policy="area_min", evad
         np.ascontiguousarray(alive, dtype=np.bool_), pp.kind, ep.kind, pp.needs_cells or ep.needs_cells,
         np.asarray(target, dtype=np.float64), float(dt), float(pursuer_speed), float(evader_speed),
         np.ascontiguousarray(arena.vertices))
+
+
+def checked_games(pursuers, evaders, arena, capture_radius, dt, t_max, target):
+    """The games' common arguments checked (one-line InputError naming the argument) and as
+    the engine uses them: (arena Arena, pursuers (B, n_p, 2), evaders (B, n_e, 2) float64,
+    r_c, dt, t_max float, target (2,) float64, n_steps int)."""
+    arena = make_arena(arena)
+    p = _positions("pursuers", pursuers, arena)
+    e = _positions("evaders", evaders, arena)
+    if p.shape[0] != e.shape[0]:
+        raise InputError(f"evaders: batch size {e.shape[0]} differs from pursuers' {p.shape[0]}")
+    r_c = positive("capture_radius", capture_radius)
+    dt = positive("dt", dt)
+    t_max = positive("t_max", t_max)
+    goal = point("target", target)
+    n_steps = math.floor(t_max / dt + 1e-9)
+    if n_steps < 1:
+        raise InputError(f"t_max: {t_max} is shorter than one step dt={dt}")
+    if n_steps > MAX_STEPS:
+        raise InputError(f"t_max/dt: {n_steps} steps is more than the engine's limit of {MAX_STEPS}")
+    return arena, p, e, r_c, dt, t_max, goal, n_steps
 
 
 def simulate_games(
@@ -404,25 +405,13 @@ def simulate_games(
     point (x, y) an evader escapes through when within capture_radius of it;
     pursuer_speed, evader_speed: each team's top speed. Returns GameResults.
     """
-    arena = make_arena(arena)
     pp = get_pursuer_policy(pursuer_policy)
     ep = get_evader_policy(evader_policy)
-    p = _positions("pursuers", pursuers, arena)
-    e = _positions("evaders", evaders, arena)
-    if p.shape[0] != e.shape[0]:
-        raise InputError(f"evaders: batch size {e.shape[0]} differs from pursuers' {p.shape[0]}")
-    r_c = _positive("capture_radius", capture_radius)
-    dt = _positive("dt", dt)
-    t_max = _positive("t_max", t_max)
-    vp = _positive("pursuer_speed", pursuer_speed)
-    ve = _positive("evader_speed", evader_speed)
-    goal = _point("target", target)
-    exit_xy = np.zeros(2) if exit_point is None else _point("exit_point", exit_point)
-    n_steps = math.floor(t_max / dt + 1e-9)
-    if n_steps < 1:
-        raise InputError(f"t_max: {t_max} is shorter than one step dt={dt}")
-    if n_steps > MAX_STEPS:
-        raise InputError(f"t_max/dt: {n_steps} steps is more than the engine's limit of {MAX_STEPS}")
+    arena, p, e, r_c, dt, t_max, goal, n_steps = checked_games(pursuers, evaders, arena, capture_radius, dt, t_max,
+                                                               target)
+    vp = positive("pursuer_speed", pursuer_speed)
+    ve = positive("evader_speed", evader_speed)
+    exit_xy = np.zeros(2) if exit_point is None else point("exit_point", exit_point)
 
     n_games, n_p, n_e = p.shape[0], p.shape[1], e.shape[1]
     capture_step = np.empty((n_games, n_e), dtype=np.int64)
@@ -440,21 +429,7 @@ def simulate_games(
     play(0)
     if record:  # the games again, now that their length is known
         paths_p, paths_e = play(int(steps.max(initial=0)) + 1)
-    return GameResults(
-        capture_times=np.where(capture_step >= 0, capture_step * dt, np.nan),
-        capture_step=capture_step,
-        steps=steps,
-        dt=dt,
-        t_max=t_max,
-        capture_radius=r_c,
-        arena=arena,
-        pursuer_policy=pursuer_policy,
-        evader_policy=evader_policy,
-        escape_times=np.where(escape_step >= 0, escape_step * dt, np.nan),
-        escape_step=escape_step,
-        exit_point=None if exit_point is None else (float(exit_xy[0]), float(exit_xy[1])),
-        pursuer_speed=vp,
-        evader_speed=ve,
-        pursuer_paths=paths_p if record else None,
-        evader_paths=paths_e if record else None,
-    )
+    exit_xy = None if exit_point is None else (float(exit_xy[0]), float(exit_xy[1]))
+    return GameResults(np.where(capture_step >= 0, capture_step * dt, np.nan), capture_step, steps, dt, t_max, r_c,
+                       arena, pursuer_policy, evader_policy, np.where(escape_step >= 0, escape_step * dt, np.nan),
+                       escape_step, exit_xy, vp, ve, paths_p if record else None, paths_e if record else None)

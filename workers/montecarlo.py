@@ -1,14 +1,21 @@
-"""Monte Carlo cases: initial-position laws, per-game statistics, per-case summaries.
+"""Monte Carlo cases: the game model (Case), initial-position laws, per-game
+statistics and per-case summaries (CaptureStats).
 
-Game i of a case draws its initial positions from its own generator,
-``numpy.random.default_rng([*seed, i])`` (seed an int or a tuple of ints), so a case's numbers do not depend on
-how its games are cut into batches, shards or workers.
+`Case` is the one definition of a game's parameters, with their defaults,
+normalisation and validation; configs, the service's keys and the CLI are built
+from it (docs/model.md sections 1-4).
 
-Censoring (SPEC.md section 4): an evader not captured by t_max has capture time
+Seeding (docs/model.md section 6): game g of a case with seed s draws its initial
+positions from ``numpy.random.default_rng([*s, g])`` (s an int or a tuple of ints)
+and from nothing else, so game g is the same game whoever plays it (run_case, a
+sweep's shard on any worker, the capture-time service) and however its games are
+cut into batches. Cases with the same seed share their streams (common random numbers).
+
+Censoring (docs/model.md section 4): an evader not captured by t_max has capture time
 NaN. Per game, `first_capture` is NaN when nobody was captured, `last_capture`
 (the game's end) is NaN unless everybody was, `mean_capture` averages the
 captured evaders only; fractions count uncaptured evaders as not captured.
-Escapes (model v2, a Case with an exit_point) are treated the same way: an evader
+Escapes (a Case with an exit_point) are treated the same way: an evader
 that never escaped has escape time NaN, `first_escape` / `mean_escape` are NaN
 when nobody escaped, and without an exit point every escape column says nobody
 escaped. Per case, time statistics are over the games where the quantity is
@@ -28,7 +35,7 @@ import pandas as pd
 
 from workers.arena import make_arena
 from workers.engine import ENGINE_VERSION, simulate_games
-from workers.errors import InputError
+from workers.errors import InputError, point, positive
 from workers.policies import get_evader_policy, get_pursuer_policy
 
 __all__ = [
@@ -37,18 +44,21 @@ __all__ = [
     "Case",
     "sample_initial_positions",
     "run_games",
+    "simulate_case",
     "game_statistics",
     "results_statistics",
-    "summarize_case",
+    "TimeSummary",
+    "CaptureStats",
     "run_case",
     "TIME_METRICS",
-    "check_point",
-    "check_positive",
+    "SEEDING",
+    "GAME_FIELDS",
 ]
 
 Box = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max
 TIME_METRICS = ("first_capture", "mean_capture", "last_capture", "first_escape", "mean_escape")
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
+SEEDING = "default_rng([*seed, game])"  # part of every sweep's id: sweeps seeded otherwise are never mixed in
 
 
 @dataclass(frozen=True)
@@ -58,6 +68,8 @@ class InitialLaw:
     kind "boxes": pursuers in pursuer_box, evaders in evader_box (each
     (x_min, x_max, y_min, y_max)); kind "uniform": everyone uniform in the arena.
     """
+
+    __pydantic_config__ = {"extra": "forbid"}  # read from configs by pydantic: unknown names are errors
 
     kind: Literal["boxes", "uniform"] = "boxes"
     pursuer_box: Box = (3.0, 5.0, 0.0, 10.0)
@@ -69,7 +81,11 @@ PAPER_LAW = InitialLaw()
 
 @dataclass(frozen=True)
 class Case:
-    """Everything that changes a Monte Carlo case's numbers (SPEC.md section 4)."""
+    """A game's parameters: everything that changes a Monte Carlo case's numbers
+    (docs/model.md section 4), the engine's version included. Build with Case(n_p, n_e,
+    **settings) from code, or with farm.config.case_from(mapping) from config values."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # read from configs by pydantic: unknown names are errors
 
     n_pursuers: int
     n_evaders: int
@@ -116,10 +132,10 @@ class Case:
         get_pursuer_policy(self.pursuer_policy)
         get_evader_policy(self.evader_policy)
         for name in _POSITIVE_FIELDS:
-            check_positive(name, getattr(self, name))
+            positive(name, getattr(self, name))
         for name in _POINT_FIELDS:
             if name != "exit_point" or self.exit_point is not None:
-                check_point(name, getattr(self, name))
+                point(name, getattr(self, name))
         arena = make_arena(self.arena)
         if self.law.kind == "boxes":
             for name in ("pursuer_box", "evader_box"):
@@ -145,20 +161,8 @@ class Case:
 # Field names by kind, for normalisation and validation (Case's numbers).
 _POSITIVE_FIELDS = ("capture_radius", "dt", "t_max", "tau", "pursuer_speed", "evader_speed")
 _POINT_FIELDS = ("target", "exit_point")
-
-
-def check_positive(name: str, value) -> None:
-    """InputError (one line naming the field) unless value is a positive finite number."""
-    if (isinstance(value, bool) or not isinstance(value, (int, float, np.number))
-            or not math.isfinite(value) or value <= 0):
-        raise InputError(f"{name}: must be positive and finite, got {value!r}")
-
-
-def check_point(name: str, value) -> None:
-    """InputError (one line naming the field) unless value is a finite point (x, y) of floats."""
-    if (not isinstance(value, tuple) or len(value) != 2
-            or not all(isinstance(x, float) and math.isfinite(x) for x in value)):
-        raise InputError(f"{name}: must be a finite point (x, y), got {value!r}")
+# The game settings a config may name (the engine's version is not a setting).
+GAME_FIELDS = tuple(name for name in Case.__dataclass_fields__ if name != "engine_version")
 
 
 def _seed_words(seed) -> list[int]:
@@ -172,8 +176,7 @@ def _seed_words(seed) -> list[int]:
 def sample_initial_positions(case: Case, seed, start: int, stop: int):
     """Initial positions of games start..stop-1 of a case.
 
-    seed: int or tuple of ints (a sweep uses (sweep seed, point index)).
-    Returns pursuers (stop-start, n_p, 2) and evaders (stop-start, n_e, 2) float64;
+    seed: int or tuple of ints. Returns pursuers (stop-start, n_p, 2) and evaders (stop-start, n_e, 2) float64;
     game i uses default_rng([*seed, i]) alone.
     """
     words = _seed_words(seed)
@@ -201,6 +204,12 @@ def _in_box(rng: np.random.Generator, box: Box, n: int) -> np.ndarray:
 def run_games(case: Case, seed, start: int, stop: int, *, record: bool = False):
     """Simulate games start..stop-1 of a case in one batch; returns GameResults."""
     pursuers, evaders = sample_initial_positions(case, seed, start, stop)
+    return simulate_case(case, pursuers, evaders, record=record)
+
+
+def simulate_case(case: Case, pursuers, evaders, *, record: bool = False):
+    """Simulate games of a case's settings from given starts: pursuers (B, n_p, 2) and
+    evaders (B, n_e, 2) float64 (the team sizes are the arrays'); returns GameResults."""
     return simulate_games(
         pursuers,
         evaders,
@@ -275,53 +284,117 @@ def _event_stats(times: np.ndarray, tau: float) -> dict[str, np.ndarray]:
             "all": happened.all(axis=1), "all_tau": within.all(axis=1)}
 
 
-def summarize_case(per_game: pd.DataFrame) -> dict:
-    """Per-case summary of game_statistics rows: a flat dict of floats and ints.
+TIME_STATS = ("mean", "std", "ci95_low", "ci95_high", "min", "max", "q05", "q25", "q50", "q75", "q95",
+              "n_censored")
 
-    For each time metric m of TIME_METRICS (captures and escapes): m_mean, m_std
-    (ddof=1), m_ci95_low/high (Student t on the mean), m_min, m_max, m_q05..m_q95,
-    m_n_censored; plus n_games, frac_captured_mean, frac_captured_tau_mean,
-    p_all_captured_tau, frac_escaped_mean, frac_escaped_tau_mean.
-    """
-    from scipy import stats
 
-    out: dict = {"n_games": int(len(per_game))}
-    for m in TIME_METRICS:
-        x = per_game[m].to_numpy(dtype=np.float64)
-        x = x[np.isfinite(x)]
+@dataclass(frozen=True)
+class TimeSummary:
+    """One time metric over a case's games: statistics of the games where it is finite
+    (std with ddof=1, a Student-t 95% CI on the mean, quantiles), NaN when there are none
+    (std and the CI also for a single game); n_censored games were left out."""
+
+    mean: float
+    std: float
+    ci95_low: float
+    ci95_high: float
+    min: float
+    max: float
+    q05: float
+    q25: float
+    q50: float
+    q75: float
+    q95: float
+    n_censored: int
+
+    @classmethod
+    def of(cls, times: np.ndarray) -> "TimeSummary":
+        """times: (B,) float64 per game, NaN = censored."""
+        from scipy import stats
+
+        x = times[np.isfinite(times)]
         n = len(x)
-        out[f"{m}_n_censored"] = int(len(per_game) - n)
         if n == 0:
-            for s in ("mean", "std", "ci95_low", "ci95_high", "min", "max"):
-                out[f"{m}_{s}"] = math.nan
-            for q in QUANTILES:
-                out[f"{m}_q{int(q * 100):02d}"] = math.nan
-            continue
+            return cls(*[math.nan] * 11, n_censored=len(times))
         mean = float(np.mean(x))
         std = float(np.std(x, ddof=1)) if n > 1 else math.nan
         half = float(stats.t.ppf(0.975, n - 1) * std / math.sqrt(n)) if n > 1 else math.nan
-        out.update(
-            {
-                f"{m}_mean": mean,
-                f"{m}_std": std,
-                f"{m}_ci95_low": mean - half,
-                f"{m}_ci95_high": mean + half,
-                f"{m}_min": float(np.min(x)),
-                f"{m}_max": float(np.max(x)),
-            }
-        )
-        for q, v in zip(QUANTILES, np.quantile(x, QUANTILES)):
-            out[f"{m}_q{int(q * 100):02d}"] = float(v)
-    out["frac_captured_mean"] = float(per_game["frac_captured"].mean())
-    out["frac_captured_tau_mean"] = float(per_game["frac_captured_tau"].mean())
-    out["p_all_captured_tau"] = float(per_game["all_captured_tau"].mean())
-    out["frac_escaped_mean"] = float(per_game["frac_escaped"].mean())
-    out["frac_escaped_tau_mean"] = float(per_game["frac_escaped_tau"].mean())
-    return out
+        q = [float(v) for v in np.quantile(x, QUANTILES)]
+        return cls(mean, std, mean - half, mean + half, float(np.min(x)), float(np.max(x)), *q,
+                   n_censored=int(len(times) - n))
+
+
+# CaptureStats' fractions and their names in the flat layout (sweep summaries, the store's rows).
+_FRACTIONS = {"frac_captured": "frac_captured_mean", "frac_captured_tau": "frac_captured_tau_mean",
+              "p_all_captured_tau": "p_all_captured_tau", "frac_escaped": "frac_escaped_mean",
+              "frac_escaped_tau": "frac_escaped_tau_mean"}
+# Keys the capture-time store wrote beside the statistics before CaptureStats (read, not written).
+_FORMER_KEYS = {"expected_frac_captured_tau", "estimate", "estimate_method", "key"}
+
+
+@dataclass(frozen=True)
+class CaptureStats:
+    """A case's statistics over its games (docs/model.md section 4): what run_case returns
+    and what the capture-time service answers.
+
+    frac_captured / frac_captured_tau: mean over games of the fraction of evaders captured
+    by t_max / within tau (the allocation env's expected share of intruders removed);
+    p_all_captured_tau: share of games with every evader captured within tau; the escape
+    fractions likewise; one TimeSummary per time metric of TIME_METRICS. estimate: None
+    for statistics of played games; for the service's interpolation of neighbouring cases,
+    how it was made (n_games is then 0).
+    """
+
+    n_games: int
+    frac_captured: float
+    frac_captured_tau: float
+    p_all_captured_tau: float
+    frac_escaped: float
+    frac_escaped_tau: float
+    first_capture: TimeSummary
+    mean_capture: TimeSummary
+    last_capture: TimeSummary
+    first_escape: TimeSummary
+    mean_escape: TimeSummary
+    estimate: str | None = None
+
+    @classmethod
+    def from_games(cls, per_game: pd.DataFrame) -> "CaptureStats":
+        """The statistics of game_statistics rows (one per game)."""
+        fractions = {name: float(per_game[column].mean()) for name, column in
+                     (("frac_captured", "frac_captured"), ("frac_captured_tau", "frac_captured_tau"),
+                      ("p_all_captured_tau", "all_captured_tau"), ("frac_escaped", "frac_escaped"),
+                      ("frac_escaped_tau", "frac_escaped_tau"))}
+        times = {m: TimeSummary.of(per_game[m].to_numpy(dtype=np.float64)) for m in TIME_METRICS}
+        return cls(n_games=int(len(per_game)), **fractions, **times)
+
+    def flat(self) -> dict:
+        """One flat row: n_games, m_<stat> for every time metric m and statistic, and the
+        fractions as frac_captured_mean, frac_captured_tau_mean, p_all_captured_tau,
+        frac_escaped_mean, frac_escaped_tau_mean (a sweep's summary columns)."""
+        out: dict = {"n_games": self.n_games}
+        for m in TIME_METRICS:
+            out.update({f"{m}_{s}": v for s, v in asdict(getattr(self, m)).items()})
+        out.update({flat: getattr(self, name) for name, flat in _FRACTIONS.items()})
+        return out
+
+    @classmethod
+    def from_flat(cls, row: dict, estimate: str | None = None) -> "CaptureStats":
+        """The inverse of flat(); also reads the store's rows written before CaptureStats."""
+        unknown = set(row) - set(cls.flat_names()) - _FORMER_KEYS
+        if unknown:
+            raise InputError(f"CaptureStats: unknown fields {', '.join(sorted(unknown))}")
+        times = {m: TimeSummary(**{s: row[f"{m}_{s}"] for s in TIME_STATS}) for m in TIME_METRICS}
+        fractions = {name: row[flat] for name, flat in _FRACTIONS.items()}
+        return cls(n_games=int(row["n_games"]), **fractions, **times, estimate=estimate)
+
+    @staticmethod
+    def flat_names() -> tuple[str, ...]:
+        return ("n_games", *(f"{m}_{s}" for m in TIME_METRICS for s in TIME_STATS), *_FRACTIONS.values())
 
 
 def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024, progress=None):
-    """Run a whole case in batches; returns (per_game DataFrame, summary dict).
+    """Run games 0..n_games-1 of a case in batches; returns (per_game DataFrame, CaptureStats).
 
     progress: optional callable(games_done) called after each batch.
     """
@@ -336,4 +409,4 @@ def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024, progress
         if progress is not None:
             progress(stop)
     per_game = pd.concat(frames, ignore_index=True)
-    return per_game, summarize_case(per_game)
+    return per_game, CaptureStats.from_games(per_game)

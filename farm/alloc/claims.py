@@ -1,4 +1,4 @@
-"""The paper's three qualitative claims (SPEC.md section 5, (a)-(c)), measured on
+"""The paper's three qualitative claims (docs/model.md section 5, (a)-(c)), measured on
 evaluated training runs (`farm eval` output) and stated with their numbers:
 
 (a) with C_capture = 0 the allocator spreads the defenders over the intruder cells,
@@ -39,7 +39,7 @@ def plateau_minutes(run: Path) -> tuple[float, float, float] | None:
     ev = np.load(npz)
     steps, returns = ev["timesteps"], ev["results"].mean(axis=1)
     m = json.loads(metrics.read_text())
-    best, first = returns.max(), returns[0]
+    best = returns.max()
     reached = np.flatnonzero(returns >= best - 0.05 * max(best - returns.min(), 1e-12))[0]
     total = m["timesteps"]
     minutes = m["wall_seconds"] / 60

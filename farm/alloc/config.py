@@ -1,21 +1,35 @@
-"""The allocation MDP's settings (SPEC.md section 5), one typed model, every default here.
+"""The allocation MDP's settings (docs/model.md section 5), one typed model.
+
+The MDP's own fields are declared here. The games behind each engagement are
+workers.Case's settings (every Case field but the team sizes, which each cell's
+densities set) and may be named here too, e.g. `evader_speed: 0.5` or
+`law: {kind: uniform}`; they are not declared again: AllocConfig's game fields
+are made from Case's, and a field left out takes its engagement's value, else
+Case's default.
 
 Engagement model v2 (the default) ties the layers together: one MDP step lasts the
-time an intruder needs to cross a cell (step_seconds = cell side / intruder speed =
-10 s), the engagement window is that step (tau = step_seconds), the cell's games run
-no longer (t_max = tau) and are the paper's Table 1 setting, pure pursuit against
-intruders heading for the exit (0, 5) that escape through it, and the capture score
-is normalised by the window (capture_time_norm = tau). v1 (`engagement: v1`) is the
-earlier model, for comparison: area_min against centroid, tau 5 s, t_max 10 s, no
-exit, capture_time_norm 10. Fields left out take their engagement's value; a value
-that contradicts the engagement's coupling is one clear error.
+time an intruder needs to cross a cell (step_seconds = cell side / the intruders'
+speed `evader_speed` = 10 s), the engagement window is that step (tau = step_seconds),
+the cell's games run no longer (t_max = tau) and are the paper's Table 1 setting,
+pure pursuit against intruders heading for the exit (0, 5) that escape through it,
+and the capture score is normalised by the window (capture_time_norm = tau). v1
+(`engagement: v1`) is the earlier model, for comparison: area_min against centroid,
+tau 5 s, t_max 10 s, no exit, capture_time_norm 10. A value that contradicts the
+engagement's coupling is one clear error.
 """
 
 from __future__ import annotations
 
+import typing
+from dataclasses import fields as dataclass_fields
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, create_model, model_validator
+
+from workers import Case
+
+from farm.config import SETTING_FIELDS, Strict, case_from
+from farm.service.keys import ServiceSettings
 
 CELL_SIDE = 10.0  # each cell is one PE arena, the square [0, 10]^2
 EXIT = (0.0, 5.0)  # the intruders' exit: the middle of the cell's left (defenders') side
@@ -25,11 +39,10 @@ ENGAGEMENT_DEFAULTS = {
            "capture_time_norm": 10.0, "exit_point": None},
     "v2": {"pursuer_policy": "pure_pursuit", "evader_policy": "target", "exit_point": EXIT},
 }
+_SERVICE = ServiceSettings()
 
 
-class AllocConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class _AllocFields(Strict):
     grid_size: int = Field(3, ge=2, le=32)
     n_defenders: int = Field(100, ge=1, le=100_000)
     n_intruders: int = Field(50, ge=1, le=100_000)
@@ -44,19 +57,19 @@ class AllocConfig(BaseModel):
     engage_min_mass: float = Field(1e-6, ge=0)
     team_sizes: Literal["exact", "lattice"] = "exact"
     engagement: Literal["v1", "v2"] = "v2"
-    # The PE games behind each engagement (the capture-time service's settings); None: the
-    # engagement's value (module doc).
-    intruder_speed: float = Field(1.0, gt=0, allow_inf_nan=False)  # the evaders' speed in the cell's games
-    step_seconds: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: CELL_SIDE / intruder_speed
-    pursuer_policy: str | None = None
-    evader_policy: str | None = None
-    tau: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: step_seconds
-    t_max: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: tau
+    step_seconds: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: CELL_SIDE / evader_speed
     capture_time_norm: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: tau
-    exit_point: tuple[float, float] | None = None  # v2: EXIT; v1: none
-    law: Literal["boxes", "uniform"] = "boxes"  # boxes: the paper's start boxes (SPEC.md section 3)
-    games: int = Field(64, ge=2, le=100_000)
-    seed: int = Field(0, ge=0)
+    games: int = Field(_SERVICE.games, ge=2, le=100_000)  # games per case in the capture-time service
+    seed: int = Field(_SERVICE.seed, ge=0)  # the service's seed of those games
+
+
+# workers.Case's settings, each optional: None means the engagement's value, else Case's default.
+_CASE_TYPES = typing.get_type_hints(Case)
+_GAME_FIELDS = {name: (_CASE_TYPES[name] | None, None) for name in SETTING_FIELDS}
+
+
+class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIELDS)):
+    """The MDP's fields (above) and the engagement games' Case settings (made from Case)."""
 
     @model_validator(mode="before")
     @classmethod
@@ -64,6 +77,10 @@ class AllocConfig(BaseModel):
         if not isinstance(data, dict):
             return data
         data = dict(data)
+        if "intruder_speed" in data:  # the spellings of run folders written before version 0.2
+            data.setdefault("evader_speed", data.pop("intruder_speed"))
+        if isinstance(data.get("law"), str):
+            data["law"] = {"kind": data["law"]}
         engagement = data.get("engagement", "v2")
         if engagement not in ENGAGEMENT_DEFAULTS:
             return data  # the field's own check names the problem
@@ -71,8 +88,9 @@ class AllocConfig(BaseModel):
             if data.get(name) is None and (name != "exit_point" or "exit_point" not in data):
                 data[name] = value
         if engagement == "v2":  # step -> window -> games' length and the score's norm
-            speed = data.get("intruder_speed", 1.0)
-            speed = speed if isinstance(speed, (int, float)) and not isinstance(speed, bool) and speed > 0 else 1.0
+            speed = data.get("evader_speed")
+            speed = speed if isinstance(speed, (int, float)) and not isinstance(speed, bool) and speed > 0 else \
+                _default("evader_speed")
             if data.get("step_seconds") is None:
                 data["step_seconds"] = CELL_SIDE / speed
             if data.get("tau") is None:
@@ -84,19 +102,39 @@ class AllocConfig(BaseModel):
 
     @model_validator(mode="after")
     def _coupled(self):
+        case = self.game()  # Case's own checks of the game's settings
         if self.engagement == "v1":
             if self.step_seconds is not None:
                 raise ValueError("step_seconds: only engagement v2 ties the step to a cell crossing; "
                                  "leave it out under v1")
-        else:
-            if abs(self.tau - self.step_seconds) > 1e-9 * self.step_seconds:
-                raise ValueError(f"tau: under engagement v2 the window is the step (step_seconds = "
-                                 f"{self.step_seconds:g} s), got {self.tau:g} (for the earlier model, set "
-                                 f"engagement: v1)")
-        if self.t_max < self.tau - 1e-9:
-            raise ValueError(f"t_max: the games ({self.t_max:g} s) must last the window tau ({self.tau:g} s)")
+        elif abs(case.tau - self.step_seconds) > 1e-9 * self.step_seconds:
+            raise ValueError(f"tau: under engagement v2 the window is the step (step_seconds = "
+                             f"{self.step_seconds:g} s), got {case.tau:g} (for the earlier model, set "
+                             f"engagement: v1)")
+        if case.t_max < case.tau - 1e-9:
+            raise ValueError(f"t_max: the games ({case.t_max:g} s) must last the window tau ({case.tau:g} s)")
         return self
+
+    def game(self) -> Case:
+        """The engagement games' Case (team sizes 1 v 1; each engaged cell sets its own)."""
+        given = {name: getattr(self, name) for name in SETTING_FIELDS if getattr(self, name) is not None}
+        return case_from({"n_pursuers": 1, "n_evaders": 1, **{k: _plain(v) for k, v in given.items()}})
+
+    def service_settings(self) -> ServiceSettings:
+        """The capture-time service's settings of the engagements."""
+        return ServiceSettings(self.game(), self.games, self.seed)
 
     def window_defaults(self) -> dict:
         """The engagement-dependent settings as resolved: step_seconds, tau, t_max, capture_time_norm."""
         return {k: getattr(self, k) for k in ("step_seconds", "tau", "t_max", "capture_time_norm")}
+
+
+def _default(name: str):
+    return next(f.default for f in dataclass_fields(Case) if f.name == name)
+
+
+def _plain(value):
+    """A pydantic-validated value back to plain data for case_from (dataclasses to dicts)."""
+    from dataclasses import asdict, is_dataclass
+
+    return asdict(value) if is_dataclass(value) else value

@@ -1,4 +1,4 @@
-"""The N x N grid allocation MDP (paper section 3, SPEC.md section 5) as a gymnasium env.
+"""The N x N grid allocation MDP (paper section 3, docs/model.md section 5) as a gymnasium env.
 
 State: defenders' density D (sums to 1) and intruders' density I (sums to the
 surviving fraction) over cells c = row * N + col. Observation [D, I], float32.
@@ -26,11 +26,14 @@ capture_time_norm is tau under v2. See farm.alloc.config for the two models.
 
 from __future__ import annotations
 
+import logging
 
 import gymnasium as gym
 import numpy as np
 
 from farm.alloc.config import AllocConfig
+
+log = logging.getLogger(__name__)
 
 LATTICE = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 
@@ -77,7 +80,8 @@ class SwarmAllocationEnv(gym.Env):
     def __init__(self, config: AllocConfig | None = None, *, client=None, store: str | None = None,
                  render_mode: str | None = None, estimates: bool = False, **kwargs):
         """config or keyword arguments (AllocConfig fields); client: a
-        CaptureTimeClient, else an in-process one over `store`; estimates: answer a
+        CaptureTimeClient, else an in-process one over `store` (default: the user's store,
+        farm.service.store.default_store_path(), logged at INFO); estimates: answer a
         first visit of a team-size pair with the service's interpolation of its computed
         neighbours while the exact value is computed in the background (counted in
         info["estimates"]); otherwise wait for the exact value."""
@@ -95,25 +99,18 @@ class SwarmAllocationEnv(gym.Env):
         self.render_mode = render_mode
         if client is None:
             from farm.service import CaptureTimeClient
+            from farm.service.store import default_store_path
 
-            client = CaptureTimeClient(self.service_settings(), local_store=store or "results/capture_times.sqlite")
+            if store is None:
+                store = default_store_path()
+                log.info("capture-time store: %s", store)
+            client = CaptureTimeClient(self.config.service_settings(), local_store=store)
         self.client = client
         self.base = (n // 2) * n
         self.D = np.zeros(n * n)
         self.I = np.zeros(n * n)
         self.steps = 0
         self.breached = 0.0
-
-    def service_settings(self):
-        """The capture-time service's settings of this env's engagements."""
-        from workers import InitialLaw
-
-        from farm.service import ServiceSettings
-
-        c = self.config
-        return ServiceSettings.of(pursuer_policy=c.pursuer_policy, evader_policy=c.evader_policy, tau=c.tau,
-                                  t_max=c.t_max, law=InitialLaw(kind=c.law), games=c.games, seed=c.seed,
-                                  exit_point=c.exit_point, evader_speed=c.intruder_speed)
 
     # ----- the MDP ------------------------------------------------------------------
     def move_probabilities(self, action: np.ndarray) -> np.ndarray:
@@ -172,13 +169,13 @@ class SwarmAllocationEnv(gym.Env):
             n_p, n_e = snap_many(n_p), snap_many(n_e)
         pairs = list(zip(n_p.tolist(), n_e.tolist()))
         values = self.client.get_many(pairs, estimate=self.estimates)
-        frac = np.array([v["expected_frac_captured_tau"] for v in values])
-        t = np.array([v["mean_capture_mean"] for v in values], dtype=np.float64)
+        frac = np.array([v.frac_captured_tau for v in values])
+        t = np.array([v.mean_capture.mean for v in values], dtype=np.float64)
         t = np.where(np.isfinite(t), t, cfg.t_max)
         before = self.I[cells].copy()
         score = float(np.sum(before * np.maximum(0.0, 1.0 - t / cfg.capture_time_norm)))
         self.I[cells] = before * (1.0 - frac)
-        estimates = sum(bool(v.get("estimate")) for v in values)
+        estimates = sum(v.estimate is not None for v in values)
         self.engagements += len(cells)
         self.estimated += estimates
         return (score, float(np.sum(before - self.I[cells])), len(cells), estimates, coverage,

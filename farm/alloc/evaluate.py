@@ -1,6 +1,6 @@
 """`farm eval RUN_DIR`: the trained policy and the baselines on the same seeded
 episodes; mean return, intruder mass eliminated, breaches, episode length and the
-behaviour measures (SPEC.md section 5), each with a 95% CI over episodes:
+behaviour measures (docs/model.md section 5), each with a 95% CI over episodes:
   coverage: the share of the intruder mass sharing a cell with defenders, per step
             (averaged over the episode's steps);
   engaged: engaged cells per step;
@@ -10,7 +10,10 @@ by step for the trained policy beside the best baseline.
 
 --fidelity games replaces the service's statistics by simulating every engaged
 cell's PE game at each step (all cells' games of a step in parallel as Ray
-tasks) and reports how far those outcomes are from the service's.
+tasks) and reports how far those outcomes are from the service's. Each engagement
+of a case plays the case's next fresh game: game g of the case with the service's
+seed, g counting up from the service's number of games, so that these are games the
+service did not average and any game can be replayed by run_games.
 """
 
 from __future__ import annotations
@@ -116,18 +119,14 @@ def steps_table(steps: dict) -> pd.DataFrame:
 def plot_behaviour_steps(steps: dict, table: pd.DataFrame, path: Path, trained: str = "td3") -> Path | None:
     """Coverage, engaged cells and defenders per engaged cell, step by step, for the trained
     policy beside the baseline with the best mean return."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from farm.plots import save_figure
+    from farm.plots import new_figure, save_figure
 
     others = table[table["policy"] != trained].sort_values("return_mean", ascending=False)
     names = [n for n in [trained, *others["policy"].head(1)] if n in steps]
     if not names:
         return None
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.2))
+    fig, axes = new_figure(1, 3, figsize=(12, 3.2))
+    axes = axes[0]
     titles = ("coverage (share of intruder mass met)", "engaged cells", "defenders per engaged cell")
     for name in names:
         m = step_means(steps[name])
@@ -142,44 +141,54 @@ def plot_behaviour_steps(steps: dict, table: pd.DataFrame, path: Path, trained: 
     return save_figure(fig, path)
 
 
+def play_game(case, seed: int, game: int):
+    """(per-game statistics row, capture times (n_e,)) of game `game` of a case with a seed."""
+    from workers import results_statistics, run_games
+
+    res = run_games(case, seed, game, game + 1)
+    return results_statistics(res, case.tau, first_game=game), res.capture_times[0]
+
+
 class GameFidelityClient:
-    """Stands in for the service client: each engaged cell's game is simulated at
-    each step (one fresh start per cell, all cells' games in parallel on Ray),
-    while the service's answer for the same cell is kept for comparison."""
+    """Stands in for the service client: each engaged cell's game is simulated at each
+    step (the case's next fresh game, see the module doc; a step's games in parallel on
+    Ray), while the service's answer for the same cell is kept for comparison.
 
-    def __init__(self, settings, service_client, seed: int = 0):
+    first_game: the number of a case's first fresh game (default: the service's games).
+    """
+
+    def __init__(self, settings, service_client, first_game: int | None = None):
         import ray
-
-        from workers import results_statistics, run_games
 
         self.settings = settings
         self.service = service_client
-        self.rng = np.random.default_rng(seed)
+        self.first_game = settings.games if first_game is None else first_game
+        self.played: dict[str, int] = {}  # case key -> games played so far
         self.differences: list[dict] = []
-
-        @ray.remote(num_cpus=1)
-        def play(case, seed_words):
-            res = run_games(case, seed_words, 0, 1)
-            return results_statistics(res, case.tau).iloc[0].to_dict()
-
-        self._play = play
+        self._play = ray.remote(num_cpus=1)(play_game)
 
     def get_many(self, pairs, estimate=False):
         import ray
 
+        from workers import CaptureStats
+
         keys = [self.settings.key(*p) for p in pairs]
-        draws = [int(x) for x in self.rng.integers(0, 2**31, size=len(keys))]
-        refs = [self._play.remote(k.case, (k.seed, d)) for k, d in zip(keys, draws)]
-        games = ray.get(refs)  # one batch: the step's cells in parallel
+        numbers = []
+        for k in keys:
+            digest = k.digest()
+            numbers.append(self.first_game + self.played.get(digest, 0))
+            self.played[digest] = self.played.get(digest, 0) + 1
+        games = ray.get([self._play.remote(k.case, k.seed, g) for k, g in zip(keys, numbers)])  # a step's cells at once
         expected = self.service.get_many(pairs)
         out = []
-        for pair, g, v in zip(pairs, games, expected):
-            t = g["mean_capture"]
-            out.append({"expected_frac_captured_tau": g["frac_captured_tau"], "mean_capture_mean": t})
+        for pair, g, (row, capture_times), v in zip(pairs, numbers, games, expected):
+            stats = CaptureStats.from_games(row)
+            out.append(stats)
             self.differences.append({
-                "n_pursuers": pair[0], "n_evaders": pair[1],
-                "game_frac_tau": g["frac_captured_tau"], "service_frac_tau": v["expected_frac_captured_tau"],
-                "game_mean_capture": t, "service_mean_capture": v["mean_capture_mean"],
+                "n_pursuers": pair[0], "n_evaders": pair[1], "game": g,
+                "game_frac_tau": stats.frac_captured_tau, "service_frac_tau": v.frac_captured_tau,
+                "game_mean_capture": stats.mean_capture.mean, "service_mean_capture": v.mean_capture.mean,
+                "capture_times": capture_times.tolist(),
             })
         return out
 
@@ -189,7 +198,7 @@ def load_policy(run_dir: Path):
 
     path = run_dir / "model.zip"
     if not path.exists():
-        from farm.config import ConfigError
+        from farm.errors import ConfigError
 
         raise ConfigError(f"{run_dir}: no trained model (model.zip); run `farm train CONFIG --out {run_dir}`")
     return TD3.load(path, device="cpu")

@@ -27,13 +27,10 @@ def density_frame(D: np.ndarray, I: np.ndarray, step: int) -> np.ndarray:
 
 def plot_episode(frames: list[tuple[np.ndarray, np.ndarray]], path: str | Path, title: str = "") -> Path:
     """frames: (D, I) pairs (N, N) per step; one panel per step with the masses written in."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from farm.plots import new_figure
 
     k = len(frames)
-    fig, axes = plt.subplots(1, k, figsize=(2.4 * k, 2.9), squeeze=False)
+    fig, axes = new_figure(1, k, figsize=(2.4 * k, 2.9))
     for step, (ax, (D, I)) in enumerate(zip(axes[0], frames)):
         ax.imshow(_rgb(D, I), origin="upper")
         n = D.shape[0]
@@ -54,3 +51,28 @@ def plot_episode(frames: list[tuple[np.ndarray, np.ndarray]], path: str | Path, 
     from farm.plots import save_figure
 
     return save_figure(fig, path)
+
+
+def training_curve_figure(steps, results, title: str = ""):
+    """Evaluation return (mean and spread over episodes) against environment steps:
+    steps (K,) int, results (K, episodes) float -> a matplotlib Figure."""
+    from farm.plots import new_figure
+
+    mean, std = results.mean(axis=1), results.std(axis=1)
+    fig, axes = new_figure(figsize=(6, 3.6))
+    ax = axes[0, 0]
+    ax.plot(steps, mean, color="tab:blue", label="TD3 (deterministic eval)")
+    ax.fill_between(steps, mean - std, mean + std, color="tab:blue", alpha=0.2)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("episode return")
+    if title:
+        ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def plot_training_curve(steps, results, path: Path, title: str) -> Path:
+    from farm.plots import save_figure
+
+    return save_figure(training_curve_figure(steps, results, title), path)

@@ -12,13 +12,14 @@ Config (RL-Zoo-style hyperparameters under `td3`):
     eval: {freq: 2000, episodes: 10}
     checkpoint_freq: 5000
     log_interval: 100       # episodes between TensorBoard rollout records
+    threads: 1              # torch threads for the networks during training; null: torch's own choice
     service: {mode: ray, store: results/capture_times.sqlite, address: null, warm_lattice: true, estimates: false}
 
 A run folder holds model.zip, config.yaml, metrics.json, evaluations.npz (the
 training curve), checkpoints/ (with the replay buffer, for --resume), best/ and
-tb/ (TensorBoard). The algorithm is SB3's TD3 through farm.alloc.td3.AllocTD3
-(a lean per-step path; the saved model is plain SB3); metrics.json records the
-share of wall time spent outside the gradient updates.
+tb/ (TensorBoard). The algorithm is stable-baselines3's TD3 as it ships, on SB3's
+DummyVecEnv; metrics.json records the wall time of the gradient updates, timed by
+a callback (UpdateTimer), and the share of the run spent outside them.
 """
 
 from __future__ import annotations
@@ -31,17 +32,19 @@ from typing import Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+from stable_baselines3 import TD3
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from farm.alloc.config import AllocConfig
-from farm.config import ConfigError, load_yaml_model
+from farm.alloc.env import SwarmAllocationEnv
+from farm.config import DEFAULT_STORE, ConfigError, Strict, load_yaml_model
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class TD3Params(_Strict):
+class TD3Params(Strict):
     n_timesteps: int = Field(30_000, ge=1)
     policy: Literal["MlpPolicy"] = "MlpPolicy"
     learning_rate: float = Field(1e-3, gt=0)
@@ -58,14 +61,14 @@ class TD3Params(_Strict):
     policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}
 
 
-class EvalParams(_Strict):
+class EvalParams(Strict):
     freq: int = Field(2000, ge=1)
     episodes: int = Field(10, ge=1)
 
 
-class ServiceParams(_Strict):
+class ServiceParams(Strict):
     mode: Literal["ray", "local"] = "ray"
-    store: str = "results/capture_times.sqlite"
+    store: str = DEFAULT_STORE
     address: str | None = None
     warm_lattice: bool = True
     # During training (its steps and its periodic evaluations), a first visit's outcome comes
@@ -74,7 +77,7 @@ class ServiceParams(_Strict):
     estimates: bool = False
 
 
-class TrainConfig(_Strict):
+class TrainConfig(Strict):
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
     seed: int = Field(0, ge=0)
     env: AllocConfig = AllocConfig()
@@ -82,6 +85,7 @@ class TrainConfig(_Strict):
     eval: EvalParams = EvalParams()
     checkpoint_freq: int = Field(5000, ge=1)
     log_interval: int = Field(100, ge=1)  # episodes between TensorBoard rollout records
+    threads: int | None = Field(1, ge=1, le=1024)  # torch threads while training; None: torch's choice
     service: ServiceParams = ServiceParams()
 
 
@@ -133,28 +137,54 @@ def warm(client, config: TrainConfig, progress: bool = True) -> int:
     return len(pairs)
 
 
-class _Progress:
-    """SB3 callback: a tqdm bar of environment steps with steps/s and ETA."""
+class UpdateTimer(BaseCallback):
+    """Times the gradient updates through SB3's public callback hooks: an off-policy
+    algorithm calls train() between a rollout's end and the next rollout's start (or the
+    end of training), so those intervals add up to the update time (`update_seconds`)."""
 
-    def __new__(cls, total: int, done: int, enabled: bool):
-        from stable_baselines3.common.callbacks import BaseCallback
+    def __init__(self):
+        super().__init__()
+        self.update_seconds = 0.0
+        self._rollout_end: float | None = None
 
+    def _on_rollout_end(self) -> None:
+        self._rollout_end = time.perf_counter()
+
+    def _on_rollout_start(self) -> None:
+        self._close()
+
+    def _on_training_end(self) -> None:
+        self._close()
+
+    def _close(self) -> None:
+        if self._rollout_end is not None:
+            self.update_seconds += time.perf_counter() - self._rollout_end
+            self._rollout_end = None
+
+    def _on_step(self) -> bool:
+        return True
+
+
+class StepProgress(BaseCallback):
+    """A progress bar of environment steps with steps/s and ETA."""
+
+    def __init__(self, total: int, done: int, enabled: bool):
+        super().__init__()
+        self.total, self.done, self.enabled = total, done, enabled
+
+    def _on_training_start(self) -> None:
         from farm.progress import GameProgress
 
-        class ProgressCallback(BaseCallback):
-            def _on_training_start(self):
-                self.bar = GameProgress(total, done, enabled=enabled, desc="steps", unit="step")
-                self.last = self.num_timesteps
+        self.bar = GameProgress(self.total, self.done, enabled=self.enabled, desc="steps", unit="step")
+        self.last = self.num_timesteps
 
-            def _on_step(self):
-                self.bar.update(self.num_timesteps - self.last)
-                self.last = self.num_timesteps
-                return True
+    def _on_step(self) -> bool:
+        self.bar.update(self.num_timesteps - self.last)
+        self.last = self.num_timesteps
+        return True
 
-            def _on_training_end(self):
-                self.bar.close()
-
-        return ProgressCallback()
+    def _on_training_end(self) -> None:
+        self.bar.close()
 
 
 def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
@@ -172,12 +202,6 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
 def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True) -> dict:
     """Train (or resume) into run_dir; returns the metrics written to metrics.json."""
     import torch
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
-    from stable_baselines3.common.monitor import Monitor
-    from stable_baselines3.common.noise import NormalActionNoise
-
-    from farm.alloc.env import SwarmAllocationEnv
-    from farm.alloc.td3 import AllocTD3, LeanVecEnv
 
     run_dir = Path(run_dir)
     if run_dir.exists() and (run_dir / "config.yaml").exists() and not resume:
@@ -194,14 +218,22 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
         if comparable(before) != comparable(config):
             raise ConfigError(f"--resume: {run_dir} was trained with another config")
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(json.loads(config.model_dump_json()), sort_keys=False))
-    torch.set_num_threads(1)
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(json.loads(config.model_dump_json(exclude_none=True)),
+                                                         sort_keys=False))
+    threads_before = torch.get_num_threads()
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
+    try:
+        return _train(config, run_dir, resume, show_progress)
+    finally:
+        torch.set_num_threads(threads_before)
 
-    env_probe = SwarmAllocationEnv(config.env, client=object())
-    client = make_client(config, env_probe.service_settings())
+
+def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool) -> dict:
+    client = make_client(config, config.env.service_settings())
     warm(client, config, progress=show_progress)
     train_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
-    env = LeanVecEnv([lambda: Monitor(train_env)])
+    env = DummyVecEnv([lambda: Monitor(train_env)])
     eval_env = Monitor(SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates))
     p = config.td3
     n_act = env.action_space.shape[0]
@@ -211,12 +243,12 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     checkpoint = latest_checkpoint(run_dir) if resume else None
     if checkpoint:
         path, done_steps = checkpoint
-        model = AllocTD3.load(path, env=env, tensorboard_log=str(run_dir / "tb"), device="cpu")
+        model = TD3.load(path, env=env, tensorboard_log=str(run_dir / "tb"), device="cpu")
         buffer = path.with_name(f"rl_model_replay_buffer_{done_steps}_steps.pkl")
         if buffer.exists():
             model.load_replay_buffer(buffer)
     else:
-        model = AllocTD3(
+        model = TD3(
             p.policy, env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
             learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
             train_freq=p.train_freq, gradient_steps=p.gradient_steps, policy_delay=p.policy_delay,
@@ -224,15 +256,16 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
             seed=config.seed, verbose=0, device="cpu",
         )
     remaining = max(0, p.n_timesteps - done_steps)
+    timer = UpdateTimer()
     callbacks = CallbackList([
+        timer,
         EvalCallback(eval_env, eval_freq=config.eval.freq, n_eval_episodes=config.eval.episodes,
                      log_path=str(run_dir), best_model_save_path=str(run_dir / "best"), deterministic=True,
                      verbose=0),
         CheckpointCallback(save_freq=config.checkpoint_freq, save_path=str(run_dir / "checkpoints"),
                            save_replay_buffer=True, verbose=0),
-        _Progress(p.n_timesteps, done_steps, show_progress),
+        StepProgress(p.n_timesteps, done_steps, show_progress),
     ])
-    model.update_seconds = 0.0
     t0 = time.perf_counter()
     model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=not checkpoint,
                 tb_log_name="td3", log_interval=config.log_interval)
@@ -245,8 +278,8 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
         "resumed_from": done_steps if checkpoint else None,
         "wall_seconds": wall,
         "steps_per_second": remaining / wall if wall > 0 else None,
-        "update_seconds": model.update_seconds,
-        "outside_update_share": 1 - model.update_seconds / wall if wall > 0 else None,
+        "update_seconds": timer.update_seconds,
+        "outside_update_share": 1 - timer.update_seconds / wall if wall > 0 else None,
         "engagements": train_env.engagements,  # engaged cells of the training steps
         "estimated_share": train_env.estimated / train_env.engagements if train_env.engagements else 0.0,
         "final_eval_mean_return": float(evals["results"][-1].mean()) if evals is not None else None,
@@ -255,32 +288,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     }
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
     if evals is not None:
+        from farm.alloc.plots import plot_training_curve
+
         plot_training_curve(evals["timesteps"], evals["results"], run_dir / "training_curve.png", config.name)
     return metrics
-
-
-def training_curve_figure(steps, results, title: str = ""):
-    """Evaluation return (mean and spread over episodes) against environment steps:
-    steps (K,) int, results (K, episodes) float -> a matplotlib Figure."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    mean, std = results.mean(axis=1), results.std(axis=1)
-    fig, ax = plt.subplots(figsize=(6, 3.6))
-    ax.plot(steps, mean, color="tab:blue", label="TD3 (deterministic eval)")
-    ax.fill_between(steps, mean - std, mean + std, color="tab:blue", alpha=0.2)
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("episode return")
-    if title:
-        ax.set_title(title)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    return fig
-
-
-def plot_training_curve(steps, results, path: Path, title: str) -> Path:
-    from farm.plots import save_figure
-
-    return save_figure(training_curve_figure(steps, results, title), path)

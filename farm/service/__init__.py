@@ -6,7 +6,8 @@ misses on the farm; CaptureTimeClient puts a memo in front of it.
 
 from farm.service.client import CaptureTimeClient
 from farm.service.keys import ServiceSettings, StatsKey
-from farm.service.store import StatsStore, StoreCorruptError
+from farm.errors import StoreCorruptError
+from farm.service.store import StatsStore
 
 __all__ = ["CaptureTimeClient", "ServiceSettings", "StatsKey", "StatsStore", "StoreCorruptError", "get_service"]
 

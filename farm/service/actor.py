@@ -14,6 +14,8 @@ from pathlib import Path
 import pandas as pd
 import ray
 
+from workers import CaptureStats
+
 from farm.runtime import NAMESPACE
 from farm.service.core import NeighbourIndex, compute_shard, estimate, shard_ranges, stats_from_games
 from farm.service.keys import StatsKey
@@ -23,7 +25,7 @@ SERVICE_NAME = "capture-time-service"
 log = logging.getLogger(__name__)
 
 
-@ray.remote(num_cpus=1, max_retries=3)
+@ray.remote(num_cpus=1, max_retries=3, retry_exceptions=False)
 def _shard_task(key: StatsKey, start: int, stop: int) -> pd.DataFrame:
     return compute_shard(key, start, stop)
 
@@ -34,7 +36,7 @@ class CaptureTimeService:
         from farm import metrics
 
         self.store = StatsStore(store_path)
-        self.cache: dict[str, dict] = self.store.load_all()
+        self.cache: dict[str, CaptureStats] = self.store.load_all()
         self.index = NeighbourIndex(self.store, self.cache)
         self.inflight: dict[str, asyncio.Future] = {}
         self.tasks: set = set()
@@ -46,7 +48,7 @@ class CaptureTimeService:
         self.metrics = metrics.ServiceMetrics()
         self.metrics.inflight(0)
 
-    async def get_many(self, keys: list[StatsKey], estimate_missing: bool = False) -> list[dict]:
+    async def get_many(self, keys: list[StatsKey], estimate_missing: bool = False) -> list[CaptureStats]:
         out: list = [None] * len(keys)
         waits = []
         for i, key in enumerate(keys):
@@ -70,7 +72,7 @@ class CaptureTimeService:
             out[i] = await asyncio.shield(future)
         return out
 
-    def _from_store(self, key: StatsKey, digest: str) -> dict | None:
+    def _from_store(self, key: StatsKey, digest: str) -> CaptureStats | None:
         """A key another process stored since this actor started."""
         value = self.store.get(key)
         if value is not None:
@@ -96,7 +98,7 @@ class CaptureTimeService:
         t0 = time.perf_counter()
         try:
             frames = await asyncio.gather(*(self._shard(key, a, b) for a, b in shard_ranges(key)))
-            value = stats_from_games(key, pd.concat(frames, ignore_index=True))
+            value = stats_from_games(pd.concat(frames, ignore_index=True))
             self.store.put(key, value)
             self.cache[digest] = value
             self.index.add(key, value)

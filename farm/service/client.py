@@ -3,6 +3,8 @@ dict lookup and no Ray round trip; works in-process without Ray too."""
 
 from __future__ import annotations
 
+from workers import CaptureStats
+
 from farm.service.keys import ServiceSettings, StatsKey
 
 
@@ -23,22 +25,22 @@ class CaptureTimeClient:
             from farm.service.local import LocalService
 
             self.local = LocalService(local_store)
-        self._memo: dict[tuple[int, int], dict] = {}
+        self._memo: dict[tuple[int, int], CaptureStats] = {}
 
     def key(self, n_pursuers: int, n_evaders: int) -> StatsKey:
         return self.settings.key(n_pursuers, n_evaders)
 
-    def get(self, n_pursuers: int, n_evaders: int) -> dict:
+    def get(self, n_pursuers: int, n_evaders: int) -> CaptureStats:
         if n_pursuers.__class__ is not bool and n_evaders.__class__ is not bool:  # True == 1 as a dict key
             value = self._memo.get((n_pursuers, n_evaders))
             if value is not None:
                 return value
         return self.get_many([(n_pursuers, n_evaders)])[0]
 
-    def get_many(self, pairs, *, estimate: bool = False) -> list[dict]:
+    def get_many(self, pairs, *, estimate: bool = False) -> list[CaptureStats]:
         """One call for a batch (all engaged cells of a step): hits from the memo, the
         rest in a single service call. With estimate=True a missing key may come
-        back as an interpolation (value['estimate'] is True) while the exact value
+        back as an interpolation (its `estimate` says how) while the exact value
         is computed in the background; estimates are not memoized."""
         pairs = [tuple(p) for p in pairs]
         out: list = [None if any(x.__class__ is bool for x in p) else self._memo.get(p) for p in pairs]
@@ -53,6 +55,6 @@ class CaptureTimeClient:
                 values = ray.get(self.service.get_many.remote(keys, estimate))
             for i, value in zip(missing, values):
                 out[i] = value
-                if not value.get("estimate"):
+                if value.estimate is None:
                     self._memo[pairs[i]] = value
         return out

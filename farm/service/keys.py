@@ -1,6 +1,6 @@
 """What the capture-time service is asked: the key of a case's statistics.
 
-A key holds everything that changes the numbers (SPEC.md section 4): team sizes,
+A key holds everything that changes the numbers (docs/model.md section 4): team sizes,
 policies, arena, r_c, dt, t_max, tau, initial-position law, games per case, the
 seed and the engine's version (inside workers.Case), so stale results are never
 served after the engine changes.
@@ -13,9 +13,10 @@ import json
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
-import numpy as np
 
 from workers import Case, InputError
+
+from farm.config import SETTING_FIELDS
 
 __all__ = ["ServiceSettings", "StatsKey"]
 
@@ -23,29 +24,24 @@ __all__ = ["ServiceSettings", "StatsKey"]
 @dataclass(frozen=True)
 class ServiceSettings:
     """Everything of a key but the team sizes: the game (a workers.Case whose team
-    sizes are replaced by each key's; its defaults are SPEC.md's), games and seed."""
+    sizes are replaced by each key's), games and seed."""
 
     game: Case = field(default_factory=lambda: Case(1, 1))
     games: int = 64
     seed: int = 0
 
     @classmethod
-    def of(cls, *, games: int = 64, seed: int = 0, **game) -> "ServiceSettings":
-        """ServiceSettings.of(games=16, t_max=10.0, evader_policy="centroid"): Case fields by name."""
-        _known(game)
-        return cls(replace(Case(1, 1), **game), games, seed)
+    def of(cls, **fields) -> "ServiceSettings":
+        """ServiceSettings.of(games=16, t_max=10.0, evader_policy="centroid"): games, seed and
+        Case fields by name; the rest at their defaults."""
+        return cls().with_(**fields)
 
     def key(self, n_pursuers: int, n_evaders: int) -> "StatsKey":
-        sizes = []
-        for name, v in (("n_pursuers", n_pursuers), ("n_evaders", n_evaders)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise InputError(f"{name}: must be a whole number >= 1, got {v!r}")
-            sizes.append(int(v))
         if isinstance(self.games, bool) or not isinstance(self.games, int) or self.games < 2:
             raise InputError(f"games: must be a whole number >= 2, got {self.games!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise InputError(f"seed: must be a whole number >= 0, got {self.seed!r}")
-        case = replace(self.game, n_pursuers=sizes[0], n_evaders=sizes[1]).validate()
+        case = replace(self.game, n_pursuers=n_pursuers, n_evaders=n_evaders).validate()
         return StatsKey(case, self.games, self.seed)
 
     def with_(self, **changes) -> "ServiceSettings":
@@ -57,7 +53,7 @@ class ServiceSettings:
 
 def _known(game: dict) -> None:
     """Case fields other than the team sizes (which each key sets) are settings."""
-    unknown = sorted((set(game) - set(Case.__dataclass_fields__)) | (set(game) & {"n_pursuers", "n_evaders"}))
+    unknown = sorted(set(game) - set(SETTING_FIELDS))
     if unknown:
         raise InputError(f"ServiceSettings: not a game setting: {', '.join(unknown)}")
 

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from collections import Counter
 
+from workers import CaptureStats
+
 from farm.service.core import NeighbourIndex, compute_in_process, estimate
 from farm.service.keys import StatsKey
 from farm.service.store import StatsStore
@@ -20,7 +22,7 @@ class LocalService:
         self.counts = Counter()
         self.computations: Counter = Counter()
 
-    def get_many(self, keys: list[StatsKey], estimate_missing: bool = False) -> list[dict]:
+    def get_many(self, keys: list[StatsKey], estimate_missing: bool = False) -> list[CaptureStats]:
         out = []
         for key in keys:
             d = key.digest()

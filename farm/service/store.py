@@ -14,11 +14,15 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import sqlite3
 import threading
 import time
 from pathlib import Path
 
+from workers import CaptureStats
+
+from farm.errors import NotAStoreError, StoreCorruptError
 from farm.service.keys import StatsKey
 
 log = logging.getLogger(__name__)
@@ -38,20 +42,26 @@ CREATE INDEX IF NOT EXISTS stats_settings ON stats (settings);
 """
 
 
-class StoreCorruptError(RuntimeError):
-    """The store's file is damaged: one line naming it."""
-
-
-class NotAStoreError(RuntimeError):
-    """A sound SQLite file that is not a capture-time store."""
-
-
 def _checksum(key: str, key_json: str, value_json: str) -> str:
     return hashlib.sha256(f"{key}\n{key_json}\n{value_json}".encode()).hexdigest()
 
 
+STORE_ENV = "SWARM_FARM_STORE"
+
+
+def default_store_path() -> Path:
+    """The store used when none is named (an allocation env made without a client):
+    $SWARM_FARM_STORE, else capture_times.sqlite in the user's cache folder
+    ($XDG_CACHE_HOME/swarm-farm, by default ~/.cache/swarm-farm)."""
+    if os.environ.get(STORE_ENV):
+        return Path(os.environ[STORE_ENV])
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "swarm-farm" / "capture_times.sqlite"
+
+
 class StatsStore:
-    """key digest -> statistics dict, on disk."""
+    """key digest -> CaptureStats, on disk. A row's value is CaptureStats.flat() as JSON
+    (rows written before CaptureStats, with a few more keys, read the same)."""
 
     def __init__(self, path: str | Path, *, read_only: bool = False):
         self.path = Path(path)
@@ -87,26 +97,28 @@ class StatsStore:
     def close(self) -> None:
         self.db.close()
 
-    def _row_value(self, key, key_json, value_json, checksum) -> dict | None:
+    def _row_value(self, key, key_json, value_json, checksum) -> CaptureStats | None:
         if _checksum(key, key_json, value_json) != checksum:
             if key not in self.corrupt_rows:
                 log.error("capture-time store %s: row %s fails its checksum; not served, will be recomputed",
                           self.path, key)
             self.corrupt_rows.add(key)
             return None
-        return json.loads(value_json)
+        return CaptureStats.from_flat(json.loads(value_json))
 
-    def get(self, key: StatsKey) -> dict | None:
+    def get(self, key: StatsKey) -> CaptureStats | None:
         digest = key.digest()
         with self._lock:
             row = self.db.execute("SELECT key, key_json, value_json, checksum FROM stats WHERE key = ?",
                                   (digest,)).fetchone()
         return None if row is None else self._row_value(*row)
 
-    def put(self, key: StatsKey, value: dict) -> None:
+    def put(self, key: StatsKey, value: CaptureStats) -> None:
+        if value.estimate is not None:
+            raise ValueError("StatsStore.put: an estimate is never stored")
         digest = key.digest()
         key_json = json.dumps(key.to_dict(), sort_keys=True)
-        value_json = json.dumps(value, sort_keys=True)
+        value_json = json.dumps(value.flat(), sort_keys=True)
         n_p, n_e = key.sizes
         with self._lock:
             self.db.execute(
@@ -115,7 +127,7 @@ class StatsStore:
                  _checksum(digest, key_json, value_json), time.time()),
             )
 
-    def load_all(self) -> dict[str, dict]:
+    def load_all(self) -> dict[str, CaptureStats]:
         """Every sound row: digest -> value (damaged rows are reported and left out)."""
         with self._lock:
             rows = self.db.execute("SELECT key, key_json, value_json, checksum FROM stats").fetchall()

@@ -3,7 +3,7 @@
 
     name: small
     store: results/capture_times.sqlite
-    settings: {games: 64, seed: 0, tau: 5.0, t_max: 60}      # ServiceSettings fields
+    settings: {games: 64, seed: 0, tau: 5.0, t_max: 60}      # games, seed, workers.Case fields
     n_pursuers: [1, 2, 3, 4]
     n_evaders: [1, 2, 3]
     policies:                                                 # default: area_min vs centroid
@@ -14,52 +14,50 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, field_validator
 
-from farm.config import ConfigError, GameModel, load_yaml_model
+from farm.config import DEFAULT_STORE, SETTING_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
 from farm.service.keys import ServiceSettings
 
-DEFAULT_STORE = "results/capture_times.sqlite"
+SERVICE_FIELDS = ("games", "seed")  # a table's settings beyond the game's: ServiceSettings'
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class SettingsModel(GameModel):
-    """The game settings of a table (team sizes come from n_pursuers / n_evaders)."""
-
-    games: int = Field(64, ge=2, le=1_000_000)
-    seed: int = Field(0, ge=0)
-
-    @model_validator(mode="after")
-    def _no_team_sizes(self):
-        if "n_pursuers" in self.model_fields_set or "n_evaders" in self.model_fields_set:
-            raise ValueError("team sizes go in the table's n_pursuers / n_evaders lists, not in settings")
-        return self
-
-
-class PolicyPair(_Strict):
+class PolicyPair(Strict):
     pursuer_policy: str
     evader_policy: str
 
 
-class TableConfig(_Strict):
+class TableConfig(Strict):
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
     store: str = DEFAULT_STORE
-    settings: SettingsModel = SettingsModel()
+    settings: dict[str, Any] = {}  # games, seed and workers.Case fields but the team sizes
     n_pursuers: list[int] = Field(min_length=1)
     n_evaders: list[int] = Field(min_length=1)
     policies: list[PolicyPair] | None = None
 
+    @field_validator("settings")
+    @classmethod
+    def _setting_names(cls, v):
+        if "n_pursuers" in v or "n_evaders" in v:
+            raise ValueError("team sizes go in the table's n_pursuers / n_evaders lists, not in settings")
+        check_game_names(v, SETTING_FIELDS + SERVICE_FIELDS)
+        return v
+
+    def service_settings(self) -> ServiceSettings:
+        """The settings of the first policy pair (the settings' own pair when none is listed)."""
+        game = {k: v for k, v in self.settings.items() if k not in SERVICE_FIELDS}
+        own = {k: v for k, v in self.settings.items() if k in SERVICE_FIELDS}
+        return ServiceSettings(case_from({"n_pursuers": 1, "n_evaders": 1, **game}), **own)
+
     def settings_list(self) -> list[ServiceSettings]:
-        s = self.settings
-        base = ServiceSettings(s.to_case(validate=False), s.games, s.seed)  # each key validates its case
-        pairs = self.policies or [PolicyPair(pursuer_policy=s.pursuer_policy, evader_policy=s.evader_policy)]
-        return [base.with_(pursuer_policy=p.pursuer_policy, evader_policy=p.evader_policy) for p in pairs]
+        base = self.service_settings()
+        if not self.policies:
+            return [base]
+        return [base.with_(pursuer_policy=p.pursuer_policy, evader_policy=p.evader_policy) for p in self.policies]
 
     def keys(self):
         """(settings, n_p, n_e, StatsKey) for every cell of every table."""
@@ -118,8 +116,8 @@ def table_frames(config: TableConfig, store=None) -> list[tuple[ServiceSettings,
             for n_e in config.n_evaders:
                 v = values.get(settings.key(n_p, n_e).digest())
                 if v is not None:
-                    mean.loc[n_p, n_e] = v["mean_capture_mean"]
-                    frac.loc[n_p, n_e] = v["expected_frac_captured_tau"]
+                    mean.loc[n_p, n_e] = v.mean_capture.mean
+                    frac.loc[n_p, n_e] = v.frac_captured_tau
         for df in (mean, frac):
             df.index.name, df.columns.name = "n_pursuers", "n_evaders"
         out.append((settings, mean, frac))
@@ -128,25 +126,11 @@ def table_frames(config: TableConfig, store=None) -> list[tuple[ServiceSettings,
 
 
 def plot_heatmaps(settings: ServiceSettings, mean: pd.DataFrame, frac: pd.DataFrame, path: Path) -> Path:
-    import matplotlib
+    from farm.plots import draw_heatmap, new_figure, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6))
-    for ax, df, title, cmap in [
-        (axes[0], mean, "mean capture time (s)", "viridis"),
-        (axes[1], frac, f"fraction captured within tau = {settings.game.tau:g} s", "magma"),
-    ]:
-        im = ax.imshow(df.to_numpy(dtype=float), origin="lower", aspect="auto", cmap=cmap)
-        ax.set_xticks(range(len(df.columns)), df.columns)
-        ax.set_yticks(range(len(df.index)), df.index)
-        ax.set_xlabel("evaders n_e")
-        ax.set_ylabel("pursuers n_p")
-        ax.set_title(title)
-        fig.colorbar(im, ax=ax)
+    fig, axes = new_figure(1, 2, figsize=(11, 4.6))
+    draw_heatmap(fig, axes[0, 0], mean, "mean capture time (s)", "viridis")
+    draw_heatmap(fig, axes[0, 1], frac, f"fraction captured within tau = {settings.game.tau:g} s", "magma")
     fig.suptitle(f"{settings.game.pursuer_policy} vs {settings.game.evader_policy} ({settings.games} games per case)")
     fig.tight_layout()
-    from farm.plots import save_figure
-
     return save_figure(fig, path)

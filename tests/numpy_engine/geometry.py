@@ -24,11 +24,10 @@ not depend on how many other cells or how much padding share its batch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from workers.arena import Arena
+from workers.geometry import Cells  # the same container as the compiled engine's
 
 __all__ = ["Cells", "voronoi_cells", "NEIGHBOUR_EDGE_MIN"]
 
@@ -36,56 +35,6 @@ NEIGHBOUR_EDGE_MIN = 1e-9
 _COINCIDENT = 1e-12
 _CLIP_TOL = 1e-12
 PAD = -(1 << 40)  # label of padding slots
-
-
-@dataclass
-class Cells:
-    """Convex cells of C sites, vertices counter-clockwise, padded to M.
-
-    site: (C, 2) float64 generator position; x, y: (C, M) float64 vertex
-    coordinates (kept apart: contiguous arrays make the clipping fast);
-    count: (C,) int64 number of valid vertices, the padding slots holding copies
-    of vertex 0 (so vertex i+1 of slot count-1 is vertex 0 without a modulo, and
-    padding edges have zero length); labels: (C, M) int64, label of edge i (from
-    vertex i to vertex i+1): the agent index on its other side, -1 - e for edge
-    e of the arena, PAD in the padding.
-    """
-
-    site: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    count: np.ndarray
-    labels: np.ndarray
-
-    @property
-    def vertices(self) -> np.ndarray:
-        """(C, M, 2) float64."""
-        return np.stack([self.x, self.y], axis=-1)
-
-    @property
-    def valid(self) -> np.ndarray:
-        """(C, M) bool: vertex/edge slot i is in use."""
-        return np.arange(self.x.shape[1]) < self.count[:, None]
-
-    def edges(self) -> tuple[np.ndarray, np.ndarray]:
-        """Edge lengths (C, M) float64 (0 in the padding) and midpoints (C, M, 2) float64."""
-        x, y = self.x, self.y
-        xn, yn = _take_next(x), _take_next(y)
-        length = np.where(self.valid, np.hypot(xn - x, yn - y), 0.0)
-        return length, np.stack([0.5 * (x + xn), 0.5 * (y + yn)], axis=-1)
-
-    def area_centroid(self) -> tuple[np.ndarray, np.ndarray]:
-        """Area (C,) float64 and centroid (C, 2) float64 (shoelace about the site)."""
-        rx = self.x - self.site[:, 0, None]
-        ry = self.y - self.site[:, 1, None]
-        rxn, ryn = _take_next(rx), _take_next(ry)
-        cross = np.where(self.valid, rx * ryn - rxn * ry, 0.0)
-        area2 = np.cumsum(cross, axis=1)[:, -1]
-        cx = np.cumsum(cross * (rx + rxn), axis=1)[:, -1]
-        cy = np.cumsum(cross * (ry + ryn), axis=1)[:, -1]
-        safe = np.where(area2 > 0, area2, 1.0)
-        centroid = self.site + np.stack([cx, cy], axis=1) / (3.0 * safe[:, None])
-        return 0.5 * area2, centroid
 
 
 def _take_next(a: np.ndarray) -> np.ndarray:

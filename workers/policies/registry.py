@@ -51,15 +51,16 @@ def evader_velocity(kind, i, s):
     return area_max.area_max(i, s)
 
 
-def _lookup(table: dict[str, Policy], name, field: str) -> Policy:
+def lookup(table: dict, name, field: str):
+    """table[name]; InputError naming `field` and the choices when name is not a key."""
     if not isinstance(name, str) or name not in table:
         raise InputError(f"{field}: unknown policy {name!r} (choose from {', '.join(sorted(table))})")
     return table[name]
 
 
 def get_pursuer_policy(name: str) -> Policy:
-    return _lookup(PURSUER_POLICIES, name, "pursuer_policy")
+    return lookup(PURSUER_POLICIES, name, "pursuer_policy")
 
 
 def get_evader_policy(name: str) -> Policy:
-    return _lookup(EVADER_POLICIES, name, "evader_policy")
+    return lookup(EVADER_POLICIES, name, "evader_policy")

@@ -38,7 +38,8 @@ class StepContext:
     bool (live evaders); target: (2,) float64 goal of `target` evaders;
     distance: optional precomputed `distance`; hint: optional (A, n_e, H) int64
     labels of each evader's cell at the last step (warm start, see geometry).
-    After the cells are built, cell_labels (A, n_e, M) int64 holds this step's.
+    cell_labels: None until a policy builds the cells, then (A, n_e, M) int64 this step's
+    labels (the engine's warm start for the next step).
     """
 
     def __init__(
@@ -48,6 +49,7 @@ class StepContext:
         if distance is not None:
             self.distance = distance
         self.hint = hint
+        self.cell_labels: np.ndarray | None = None
         self.pursuers = pursuers
         self.evaders = evaders
         self.alive = alive

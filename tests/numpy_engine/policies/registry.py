@@ -6,7 +6,7 @@ from typing import Callable
 
 import numpy as np
 
-from workers.errors import InputError
+from workers.policies.registry import lookup
 
 PolicyFn = Callable[["StepContext"], np.ndarray]  # noqa: F821
 
@@ -30,15 +30,14 @@ def evader_policy(name: str):
     return register
 
 
-def _lookup(table: dict[str, PolicyFn], name, field: str) -> PolicyFn:
-    if not isinstance(name, str) or name not in table:
-        raise InputError(f"{field}: unknown policy {name!r} (choose from {', '.join(sorted(table))})")
-    return table[name]
+def get_policy(side: str, name: str) -> PolicyFn:
+    """side 'pursuer' or 'evader'."""
+    return lookup(PURSUER_POLICIES if side == "pursuer" else EVADER_POLICIES, name, f"{side}_policy")
 
 
 def get_pursuer_policy(name: str) -> PolicyFn:
-    return _lookup(PURSUER_POLICIES, name, "pursuer_policy")
+    return get_policy("pursuer", name)
 
 
 def get_evader_policy(name: str) -> PolicyFn:
-    return _lookup(EVADER_POLICIES, name, "evader_policy")
+    return get_policy("evader", name)

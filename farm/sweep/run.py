@@ -6,10 +6,14 @@ Layout of a sweep's folder:
     shards/p00003-s00012.parquet     one file per shard: per-game statistics
     summary.parquet, summary.csv     one row per point
 
-Game g of a point draws its start from default_rng([seed, h, g]), h a number
-taken from the point's case key: the numbers do not depend on the number of
-workers, on shard boundaries, on interruptions, or on where the point stands in
-the config.
+Game g of a point is game g of its case with the sweep's seed, default_rng([seed, g])
+(docs/model.md section 6), as in run_case and the capture-time service: the numbers do
+not depend on the number of workers, on shard boundaries, on interruptions, or on where
+the point stands in the config.
+
+A worker or node that dies mid-shard is Ray's to handle: the shard task is retried
+(up to MAX_RETRIES times; Ray's `ray_tasks{IsRetry!="0"}` metric shows the retries).
+A shard's own exception fails the sweep at once: it would fail the same way again.
 """
 
 from __future__ import annotations
@@ -28,17 +32,14 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from workers import ENGINE_VERSION, Case, results_statistics, run_games, summarize_case
+from workers import ENGINE_VERSION, SEEDING, Case, CaptureStats, results_statistics, run_games
 
 from farm import metrics
-from farm.config import ConfigError, Point, SweepConfig
+from farm.errors import ConfigError, SweepError
 from farm.output import atomic_write_bytes, write_table
+from farm.sweep.config import Point, SweepConfig
 
-MAX_ATTEMPTS = 4
-
-
-class SweepError(RuntimeError):
-    """A sweep that cannot go on (one line)."""
+MAX_RETRIES = 3
 
 
 @dataclass(frozen=True)
@@ -57,14 +58,9 @@ class Shard:
         return self.stop - self.start
 
 
-def case_seed(case: Case, seed: int) -> tuple[int, int]:
-    """Seed words of a sweep point's games: the sweep's seed and the case's key."""
-    return seed, int(case.key()[:12], 16)
-
-
 def simulate_shard(case: Case, seed: int, shard: Shard) -> tuple[pd.DataFrame, int]:
     """Play one shard's games; returns its per-game rows and the game-steps simulated."""
-    res = run_games(case, case_seed(case, seed), shard.start, shard.stop)
+    res = run_games(case, seed, shard.start, shard.stop)
     df = results_statistics(res, case.tau, first_game=shard.start)
     df.insert(0, "shard", np.int64(shard.number))
     df.insert(0, "point", np.int64(shard.point))
@@ -124,6 +120,7 @@ class SweepRun:
         doc = {
             "sweep_id": self.sweep_id,
             "engine_version": ENGINE_VERSION,
+            "seeding": SEEDING,
             "config": self.config.model_dump(mode="json"),
             "points": [
                 {"index": p.index, "changes": p.changes, "case": p.case.to_dict(), "case_key": p.case.key(),
@@ -156,38 +153,29 @@ class SweepRun:
         import ray
         from ray.exceptions import RayError, RayTaskError
 
-        task = ray.remote(num_cpus=1, max_retries=0)(_remote_shard)
+        task = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(_remote_shard)
         name = self.config.name
         recorder = metrics.DriverMetrics(name)
-        pending = deque((s, 1) for s in shards)
+        pending = deque(shards)
         in_flight: dict = {}
-        counts = {"done": 0, "failed": 0, "retried": 0, "nodes": {}}
+        counts = {"done": 0, "nodes": {}}
         recorder.pending(len(pending))
         while pending or in_flight:
             while pending and len(in_flight) < workers:
-                shard, attempt = pending.popleft()
-                ref = task.remote(self.points[shard.point].case, self.config.seed, shard, name)
-                in_flight[ref] = (shard, attempt)
+                shard = pending.popleft()
+                in_flight[task.remote(self.points[shard.point].case, self.config.seed, shard, name)] = shard
             ready, _ = ray.wait(list(in_flight), num_returns=1)
             for ref in ready:
-                shard, attempt = in_flight.pop(ref)
+                shard = in_flight.pop(ref)
                 try:
                     df, node = ray.get(ref)
                 except RayTaskError as e:  # the shard's own error: the same again on a retry
                     cause = e.cause if e.cause is not None else e
                     raise SweepError(f"shard {shard.file_name} failed: {type(cause).__name__}: "
                                      f"{str(cause).splitlines()[0] if str(cause) else ''}") from None
-                except RayError as e:  # a worker or node died: run the shard again
-                    counts["failed"] += 1
-                    recorder.failed()
-                    if attempt >= MAX_ATTEMPTS:
-                        raise SweepError(
-                            f"shard {shard.file_name} failed {attempt} times; last: {type(e).__name__}"
-                        ) from None
-                    counts["retried"] += 1
-                    recorder.retried()
-                    pending.appendleft((shard, attempt + 1))
-                    continue
+                except RayError as e:  # its worker or node died more often than Ray retries
+                    raise SweepError(f"shard {shard.file_name} failed {MAX_RETRIES + 1} times; "
+                                     f"last: {type(e).__name__}; rerun to resume") from None
                 self.store(shard, df)
                 counts["nodes"][node] = counts["nodes"].get(node, 0) + 1
                 counts["done"] += 1
@@ -224,7 +212,7 @@ class SweepRun:
             row = {"point": point.index}
             row.update({k: (json.dumps(v) if isinstance(v, (list, dict)) or v is None else v) for k, v in case.items()})
             row["case_key"] = point.case.key()
-            row.update(summarize_case(per))
+            row.update(CaptureStats.from_games(per).flat())
             rows.append(row)
         summary = pd.DataFrame(rows)
         write_table(summary, self.out / "summary", "parquet")
@@ -243,7 +231,7 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
     total_games = sum(s.games for s in run.all_shards())
     done_games = total_games - sum(s.games for s in todo)
     info = {"sweep_id": run.sweep_id, "shards": len(run.all_shards()), "skipped": len(run.all_shards()) - len(todo),
-            "done": 0, "failed": 0, "retried": 0, "workers": 0, "seconds": 0.0, "nodes": {}}
+            "done": 0, "workers": 0, "seconds": 0.0, "nodes": {}}
     t0 = time.perf_counter()
     if todo:
         from contextlib import nullcontext
@@ -273,27 +261,24 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
     return summary, info
 
 
-def format_summary(summary: pd.DataFrame, changed: list[str]) -> str:
+def summary_view(summary: pd.DataFrame, changed: list[str]) -> pd.DataFrame:
+    """The columns of a sweep's summary worth showing: the point, what varies, the time to
+    capture everybody and the fractions captured (and escaped, for games with an exit)."""
     cols = ["point", *changed, "n_games", "last_capture_mean", "last_capture_ci95_low", "last_capture_ci95_high",
             "last_capture_n_censored", "frac_captured_tau_mean", "p_all_captured_tau"]
     if "frac_escaped_mean" in summary and summary["frac_escaped_mean"].gt(0).any():  # games with an exit
         cols += ["frac_escaped_tau_mean", "mean_escape_mean"]
-    view = summary[[c for c in cols if c in summary.columns]].copy()
-    return view.to_string(index=False, float_format=lambda x: f"{x:.3f}")
+    return summary[[c for c in cols if c in summary.columns]].copy()
 
 
-def changed_fields(config: SweepConfig) -> list[str]:
-    names: list[str] = []
-    for block in (config.vary.grid or {}, config.vary.zip or {}, config.vary.random.ranges if config.vary.random else {}):
-        names += [n for n in block if n not in names]
-    return names
+def format_summary(summary: pd.DataFrame, changed: list[str]) -> str:
+    return summary_view(summary, changed).to_string(index=False, float_format=lambda x: f"{x:.3f}")
 
 
 def print_info(info: dict, file=sys.stderr) -> None:
     print(
         f"sweep {info['sweep_id']}: {info['shards']} shards, {info['skipped']} already stored, "
-        f"{info['done']} run on {info['workers']} worker(s), {info['failed']} failed and retried "
-        f"in {info['seconds']:.1f} s",
+        f"{info['done']} run on {info['workers']} worker(s) in {info['seconds']:.1f} s",
         file=file,
     )
 

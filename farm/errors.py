@@ -1,0 +1,38 @@
+"""The kinds of error `farm` reports in one line (`farm: error: ...`, exit 2).
+
+All are workers.SwarmFarmError, as is workers.InputError (bad input to the engine
+or a Case); the CLI catches that one base class.
+"""
+
+from workers.errors import InputError, SwarmFarmError
+
+__all__ = ["SwarmFarmError", "InputError", "ConfigError", "ClusterError", "SweepError", "StoreCorruptError",
+           "NotAStoreError", "ReportError", "CliError"]
+
+
+class ConfigError(SwarmFarmError, ValueError):
+    """A bad config file or field: names the file, the field and the problem."""
+
+
+class ClusterError(SwarmFarmError):
+    """No Ray cluster answers at the address given."""
+
+
+class SweepError(SwarmFarmError):
+    """A sweep that cannot go on."""
+
+
+class StoreCorruptError(SwarmFarmError):
+    """The capture-time store's file is damaged."""
+
+
+class NotAStoreError(SwarmFarmError):
+    """A sound SQLite file that is not a capture-time store."""
+
+
+class ReportError(SwarmFarmError, ValueError):
+    """A results folder the report cannot be made from."""
+
+
+class CliError(SwarmFarmError):
+    """A bad command line."""

@@ -1,0 +1,177 @@
+"""Typed sweep configs (YAML): unknown keys and bad values are rejected with one
+line naming the field. A sweep names workers.Case's fields and takes its defaults.
+
+    name: team-sizes
+    seed: 0
+    games_per_point: 50
+    shard_games: null          # games per Ray task; null: chosen from the team size
+    base:                      # the game every point starts from: workers.Case fields
+      n_pursuers: 3
+      n_evaders: 1
+      pursuer_policy: area_min
+      evader_policy: centroid
+      exit_point: null         # [x, y]: evaders escape there (model v2); null: no escapes
+    vary:                      # each block present is one axis of a cartesian product
+      grid: {n_pursuers: [1, 2, 3], evader_policy: [centroid, constant_area]}
+      zip: {capture_radius: [0.2, 0.3], dt: [0.01, 0.005]}     # lists in step
+      random: {n: 8, ranges: {capture_radius: [0.1, 0.5]}}     # n uniform draws
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+from typing import Any
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from workers import ENGINE_VERSION, GAME_FIELDS, SEEDING, Case
+
+from farm.config import (NUMERIC_FIELDS, ConfigError, Strict, case_from, check_game_names, default_shard_games,
+                         load_yaml_model)
+
+__all__ = ["SweepConfig", "Point", "load_sweep_config", "VARIABLE_FIELDS"]
+
+# What a sweep may vary: every game field but the arena and the initial-position law.
+VARIABLE_FIELDS = tuple(name for name in GAME_FIELDS if name not in ("arena", "law"))
+
+
+class RandomModel(Strict):
+    n: int = Field(ge=1, le=100_000)
+    ranges: dict[str, tuple[float, float]]
+
+    @field_validator("ranges")
+    @classmethod
+    def _ranges(cls, v):
+        for name, (lo, hi) in v.items():
+            if name not in NUMERIC_FIELDS:
+                raise ValueError(f"{name!r} cannot be drawn at random (numeric fields: "
+                                 f"{', '.join(sorted(NUMERIC_FIELDS))})")
+            if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+                raise ValueError(f"{name}: range must be [low, high] with low <= high")
+        return v
+
+
+class VaryModel(Strict):
+    grid: dict[str, list[Any]] | None = None
+    zip: dict[str, list[Any]] | None = None
+    random: RandomModel | None = None
+
+    @field_validator("grid", "zip")
+    @classmethod
+    def _known_fields(cls, v):
+        if v is None:
+            return v
+        for name, values in v.items():
+            if name not in VARIABLE_FIELDS:
+                raise ValueError(f"{name!r} cannot vary (choose from {', '.join(VARIABLE_FIELDS)})")
+            if len(values) == 0:
+                raise ValueError(f"{name}: needs at least one value")
+        return v
+
+    @model_validator(mode="after")
+    def _zip_lengths(self):
+        if self.zip:
+            lengths = {len(v) for v in self.zip.values()}
+            if len(lengths) > 1:
+                raise ValueError(f"zip: lists must have the same length, got {sorted(lengths)}")
+        names = [set(b) for b in (self.grid or {}, self.zip or {}, (self.random.ranges if self.random else {}))]
+        for a, b in itertools.combinations(names, 2):
+            if a & b:
+                raise ValueError(f"{sorted(a & b)[0]}: varies in two blocks")
+        return self
+
+    def names(self) -> list[str]:
+        """The fields that vary, in the order the blocks name them."""
+        return varied_names(self.model_dump())
+
+
+def varied_names(vary: dict) -> list[str]:
+    """The fields a sweep's `vary` mapping (as in sweep.json) varies, in the order its blocks name them."""
+    out: list[str] = []
+    random = vary.get("random") or {}
+    for block in (vary.get("grid") or {}, vary.get("zip") or {}, random.get("ranges") or {}):
+        out += [n for n in block if n not in out]
+    return out
+
+
+class SweepConfig(Strict):
+    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
+    seed: int = Field(0, ge=0)
+    games_per_point: int = Field(50, ge=1, le=10_000_000)
+    shard_games: int | None = Field(None, ge=1, le=100_000)
+    base: dict[str, Any] = {}
+    vary: VaryModel = VaryModel()
+
+    @field_validator("base")
+    @classmethod
+    def _game_names(cls, v):
+        check_game_names(v)
+        return v
+
+    def points(self) -> list["Point"]:
+        """The resolved points of the sweep, in a fixed order."""
+        axes: list[list[dict]] = []
+        v = self.vary
+        if v.grid:
+            names = list(v.grid)
+            axes.append([dict(zip(names, combo)) for combo in itertools.product(*v.grid.values())])
+        if v.zip:
+            names = list(v.zip)
+            axes.append([dict(zip(names, row)) for row in zip(*v.zip.values())])
+        if v.random:
+            rng = np.random.default_rng([self.seed, 0x5EED])
+            draws = []
+            for _ in range(v.random.n):
+                d = {}
+                for name, (lo, hi) in v.random.ranges.items():
+                    d[name] = (int(rng.integers(int(lo), int(hi) + 1)) if NUMERIC_FIELDS[name] is int
+                               else float(rng.uniform(lo, hi)))
+                draws.append(d)
+            axes.append(draws)
+        combos = [{}] if not axes else [dict(kv for part in parts for kv in part.items()) for parts in itertools.product(*axes)]
+        out = []
+        for index, changes in enumerate(combos):
+            try:
+                case = case_from({**self.base, **changes})
+            except ConfigError as e:
+                field = str(e).split(":", 1)[0].split(".", 1)[0]
+                where = ", ".join(f"{k}={v!r}" for k, v in changes.items())
+                prefix = f"vary: point {index} ({where})" if field in changes else "base"
+                raise ConfigError(f"{prefix}: {e}") from None
+            shard = self.shard_games or default_shard_games(case)
+            out.append(Point(index, changes, case, self.games_per_point, shard))
+        return out
+
+    def sweep_id(self) -> str:
+        """Hash of the resolved sweep: every point's case key (engine version inside), games,
+        shards, the seed and the seeding rule."""
+        blob = json.dumps(
+            {"seed": self.seed, "points": [p.identity() for p in self.points()], "engine": ENGINE_VERSION,
+             "seeding": SEEDING},
+            sort_keys=True,
+        )
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+class Point:
+    """One point of a sweep: its index, what it changes, its Case, and its shards."""
+
+    def __init__(self, index: int, changes: dict, case: Case, games: int, shard_games: int):
+        self.index, self.changes, self.case = index, changes, case
+        self.games, self.shard_games = games, shard_games
+
+    def shards(self) -> list[tuple[int, int, int]]:
+        """(shard number, first game, end game) of every shard of the point."""
+        return [(k, s, min(self.games, s + self.shard_games)) for k, s in enumerate(range(0, self.games, self.shard_games))]
+
+    def identity(self) -> dict:
+        return {"index": self.index, "case": self.case.key(), "games": self.games, "shard_games": self.shard_games}
+
+
+def load_sweep_config(path) -> SweepConfig:
+    """Read and validate a sweep YAML; raises ConfigError with one line."""
+    return load_yaml_model(path, SweepConfig, "sweep", check=SweepConfig.points)
