@@ -1,5 +1,6 @@
-"""swarm-farm's control plane: CLI, reports, and (later) the Ray farm, the
-capture-time service and the allocation trainer. Imports `workers`, never the reverse."""
+"""swarm-farm's control plane: config loading, the `farm` CLI, sweeps on Ray, the
+capture-time service, the allocation env and its TD3 trainer, figures and the report.
+Imports `workers`, never the reverse; importing it changes no process-wide setting."""
 
 from workers import ENGINE_VERSION
 

@@ -103,9 +103,9 @@ def _case(fields: dict):
         return case_from(fields)
     except ConfigError as e:
         field, _, problem = str(e).partition(": ")
-        name = field.split(".")[0]
+        name, _, sub = field.partition(".")
         if name in GAME_FLAGS or name in ("n_pursuers", "n_evaders"):
-            raise CliError(f"--{name.replace('_', '-')}{field[len(name):]}: {problem}") from None
+            raise CliError(f"--{name.replace('_', '-')}: {sub + ': ' if sub else ''}{problem}") from None
         raise
 
 
@@ -133,6 +133,8 @@ def cmd_game(a) -> int:
         raise CliError("positions: expected lists of [x, y] pairs") from None
     if p.ndim != 3 or e.ndim != 3 or p.shape[1] == 0 or e.shape[1] == 0:
         raise CliError("positions: expected non-empty lists of [x, y] pairs")
+    if a.positions or a.pursuers:  # the start is given: no initial-position law applies
+        settings = {**settings, "law": {"kind": "uniform"}}
     case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
     res = simulate_case(case, p, e, record=bool(a.plot))
     exit_point = case.exit_point
@@ -300,9 +302,13 @@ def cmd_eval(a) -> int:
         plot_behaviour_steps(steps, table, run_dir / "behaviour_steps.png")
         print(table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
         if a.fidelity == "games":
-            games_client = GameFidelityClient(settings, client)
-            gtable, _, _ = evaluate_policies(config.env, policies, games_client, a.episodes, a.seed)
-            diffs = pd.DataFrame(games_client.differences)
+            tables, differences = [], []
+            for name, policy in policies.items():  # each policy meets the same fresh games
+                games_client = GameFidelityClient(settings, client)
+                tables.append(evaluate_policies(config.env, {name: policy}, games_client, a.episodes, a.seed)[0])
+                differences += [{"policy": name, **d} for d in games_client.differences]
+            gtable = pd.concat(tables, ignore_index=True)
+            diffs = pd.DataFrame(differences)
             write_table(gtable, run_dir / "eval_table_games", "csv")
             write_table(diffs, run_dir / "fidelity_differences", "csv")
             print("\n--fidelity games (every engaged cell's game simulated each step):")

@@ -87,3 +87,20 @@ def test_training_leaves_the_thread_setting_as_it_was(tmp_path):
         torch.set_num_threads(before)
     assert metrics["timesteps"] == 40 and 0 < metrics["update_seconds"] < metrics["wall_seconds"]
     assert TD3.load(tmp_path / "run" / "model.zip", device="cpu").num_timesteps == 40
+
+
+def test_saved_config_round_trips_nulls(tmp_path):
+    """config.yaml keeps explicit nulls: a v2 env without an exit stays without one, and
+    `threads: null` stays torch's choice."""
+    import json
+
+    import yaml
+
+    from farm.alloc.train import TrainConfig, load_train_config
+
+    config = TrainConfig(name="nulls", env=AllocConfig(exit_point=None), threads=None)
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(json.loads(config.model_dump_json()), sort_keys=False))
+    again = load_train_config(path)
+    assert again == config and again.env.exit_point is None and again.threads is None
+    assert again.env.service_settings().key(2, 2).digest() == config.env.service_settings().key(2, 2).digest()

@@ -67,6 +67,8 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
     assert "return, games minus service:" in r.stdout
     diffs = pd.read_csv(run / "fidelity_differences.csv")
     assert len(diffs) > 0 and diffs["game_frac_tau"].between(0, 1).all()
+    # fresh games, numbered from the service's 3 games up, the same ones for every policy
+    assert (diffs.groupby(["policy", "n_pursuers", "n_evaders"])["game"].min() == 3).all()
     assert set(pd.read_csv(run / "eval_table_games.csv")["policy"]) == set(table["policy"])
 
     r = farm("report", run, "-o", tmp_path / "report.html")

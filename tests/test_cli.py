@@ -5,6 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -134,3 +135,15 @@ def test_unreachable_address_fails_at_once(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and f"address {address}: no Ray cluster answers there" in lines[0], r.stderr
     assert not list((tmp_path / "out").rglob("*.parquet"))
+
+
+def test_game_with_given_positions_in_any_arena(tmp_path):
+    """Given starts need no start boxes: a hexagon that does not hold the paper's boxes works."""
+    hexagon = tmp_path / "hexagon.json"
+    hexagon.write_text(json.dumps([[5 + 4 * np.cos(a), 5 + 4 * np.sin(a)] for a in np.arange(6) * np.pi / 3]))
+    r = farm("game", "--pursuers", "4,5;5,4", "--evaders", "6,6", "--arena", hexagon, "--evader-policy",
+             "constant_area")
+    assert r.returncode == 0, r.stderr
+    assert "2 pursuer(s) area_min vs 1 evader(s) constant_area" in r.stdout and " s" in r.stdout
+    r = farm("game", "--arena", hexagon)  # sampled starts do need the boxes inside the arena
+    assert r.returncode == 2 and "--law: pursuer_box" in r.stderr and "is not inside the arena" in r.stderr

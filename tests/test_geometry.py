@@ -76,13 +76,20 @@ def test_two_agents_analytic():
     np.testing.assert_allclose(mid[0, s], [5.0, 5.0])
 
 
-def test_coincident_and_boundary_agents_give_no_nan():
+def test_coincident_and_boundary_agents():
+    """Coincident agents ignore each other, so each pair gets one and the same cell, and one
+    agent of each pair with the others tiles the arena; agents on the boundary get cells too."""
     pts = np.array([[[0.0, 0.0], [0.0, 0.0], [10.0, 5.0], [5.0, 5.0], [5.0, 5.0], [0.0, 7.0]]])
     cells = all_cells(pts, None)
     area, centroid = cells.area_centroid()
     length, mid = cells.edges()
-    assert np.all(np.isfinite(area)) and np.all(np.isfinite(centroid))
     assert np.all(np.isfinite(length)) and np.all(area > 0)
+    assert area[0] == area[1] and area[3] == area[4]
+    np.testing.assert_array_equal(centroid[0], centroid[1])
+    np.testing.assert_array_equal(centroid[3], centroid[4])
+    assert area[[0, 2, 3, 5]].sum() == pytest.approx(100.0, abs=1e-9)
+    assert area[2] == pytest.approx(25.0)  # (10, 5) against (5, 5): the strip x >= 7.5
+    np.testing.assert_allclose(centroid[2], [8.75, 5.0])
 
 
 def test_batch_composition_does_not_change_a_cell(rng):

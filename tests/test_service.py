@@ -240,3 +240,28 @@ def test_actor_miss_restart_and_single_flight(ray_local, tmp_path):
         missing = {m for m in wanted if f"\n{m}{{" not in text and f"\n{m} " not in text}
         time.sleep(1)
     assert not missing, sorted(missing)
+
+
+def test_rows_of_an_older_engine_are_left_out_not_fatal(tmp_path):
+    """A store that also holds rows written by engine 1.x (no escape statistics in their
+    values; their keys name the old engine, so no current key reads them) loads: those rows
+    are left out and named, the current ones served."""
+    import json
+
+    from farm.service.store import _checksum
+
+    path = tmp_path / "s.sqlite"
+    good = CaptureTimeClient(FAST, local_store=path).get(2, 1)
+    old_value = {k: v for k, v in good.flat().items() if "escape" not in k}
+    old_key = json.dumps({"case": {**FAST.key(2, 1).case.to_dict(), "engine_version": "1.1.0"}, "games": 6,
+                          "seed": 0}, sort_keys=True)
+    value_json = json.dumps({**old_value, "expected_frac_captured_tau": 0.5, "estimate": False}, sort_keys=True)
+    db = sqlite3.connect(path)
+    db.execute("INSERT INTO stats VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+               ("old", "s", 2, 1, old_key, value_json, _checksum("old", old_key, value_json), 0.0))
+    db.commit()
+    db.close()
+    client = CaptureTimeClient(FAST, local_store=path)
+    assert client.local.store.older_rows == {"old"} and not client.local.store.corrupt_rows
+    assert same(client.get(2, 1), good) and client.local.stats()["computations"] == {}
+    assert len(StatsStore(path, read_only=True).table()) == 1

@@ -344,13 +344,29 @@ def _arena_arrays(arena: Arena):
             np.ascontiguousarray(arena.normals), np.ascontiguousarray(arena.offsets))
 
 
-def step_velocities(pursuers, evaders, alive, *, pursuer_policy="area_min", evader_policy="centroid",
-                    dt=0.01, target=(0.0, 5.0), arena=None, pursuer_speed=V_MAX, evader_speed=V_MAX):
-    """One step's controls for A game states (no validation; for tests and tools).
+def case_defaults(**given) -> list:
+    """The values given, each None replaced by workers.Case's default for that name (the one
+    place a game setting's default is defined)."""
+    from dataclasses import MISSING
+
+    from workers.montecarlo import Case  # montecarlo imports this module
+
+    fields = Case.__dataclass_fields__
+    return [fields[name].default if v is None and fields[name].default is not MISSING else v
+            for name, v in given.items()]
+
+
+def step_velocities(pursuers, evaders, alive, *, pursuer_policy=None, evader_policy=None, dt=None, target=None,
+                    arena=None, pursuer_speed=None, evader_speed=None):
+    """One step's controls for A game states (no validation; for tests and tools); a setting
+    left None is workers.Case's default.
 
     pursuers (A, n_p, 2), evaders (A, n_e, 2) float64, alive (A, n_e) bool ->
     (u_p (A, n_p, 2), u_e (A, n_e, 2)) float64, zero for evaders out of the game.
     """
+    pursuer_policy, evader_policy, dt, target, pursuer_speed, evader_speed = case_defaults(
+        pursuer_policy=pursuer_policy, evader_policy=evader_policy, dt=dt, target=target,
+        pursuer_speed=pursuer_speed, evader_speed=evader_speed)
     pp, ep = get_pursuer_policy(pursuer_policy), get_evader_policy(evader_policy)
     arena = make_arena(arena)
     return _step_velocities(
@@ -385,17 +401,17 @@ def simulate_games(
     pursuers,
     evaders,
     *,
-    pursuer_policy: str = "area_min",
-    evader_policy: str = "centroid",
-    capture_radius: float = 0.25,
-    dt: float = 0.01,
-    t_max: float = 60.0,
-    target=(0.0, 5.0),
+    pursuer_policy: str | None = None,
+    evader_policy: str | None = None,
+    capture_radius: float | None = None,
+    dt: float | None = None,
+    t_max: float | None = None,
+    target=None,
     arena=None,
     record: bool = False,
     exit_point=None,
-    pursuer_speed: float = V_MAX,
-    evader_speed: float = V_MAX,
+    pursuer_speed: float | None = None,
+    evader_speed: float | None = None,
 ) -> GameResults:
     """Play B independent games to the end.
 
@@ -403,8 +419,12 @@ def simulate_games(
     positions inside the arena; arena: None for the square [0, 10]^2, else the
     vertices (k, 2) of a convex polygon; exit_point: None (no escapes), or the
     point (x, y) an evader escapes through when within capture_radius of it;
-    pursuer_speed, evader_speed: each team's top speed. Returns GameResults.
+    pursuer_speed, evader_speed: each team's top speed. A setting left None is
+    workers.Case's default. Returns GameResults.
     """
+    pursuer_policy, evader_policy, capture_radius, dt, t_max, target, pursuer_speed, evader_speed = case_defaults(
+        pursuer_policy=pursuer_policy, evader_policy=evader_policy, capture_radius=capture_radius, dt=dt,
+        t_max=t_max, target=target, pursuer_speed=pursuer_speed, evader_speed=evader_speed)
     pp = get_pursuer_policy(pursuer_policy)
     ep = get_evader_policy(evader_policy)
     arena, p, e, r_c, dt, t_max, goal, n_steps = checked_games(pursuers, evaders, arena, capture_radius, dt, t_max,

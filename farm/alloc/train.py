@@ -212,14 +212,13 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
             raise ConfigError(f"--resume: {run_dir} holds no run to resume")
         before = load_train_config(saved)  # parsed: fields added since compare equal at their defaults
 
-        def comparable(c: TrainConfig) -> dict:  # the length of training may grow on resume
-            return c.model_copy(update={"td3": c.td3.model_copy(update={"n_timesteps": 0})}).model_dump()
+        def comparable(c: TrainConfig) -> dict:  # the length of training and the threads may change on resume
+            return c.model_copy(update={"td3": c.td3.model_copy(update={"n_timesteps": 0}), "threads": None}).model_dump()
 
         if comparable(before) != comparable(config):
             raise ConfigError(f"--resume: {run_dir} was trained with another config")
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(json.loads(config.model_dump_json(exclude_none=True)),
-                                                         sort_keys=False))
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(json.loads(config.model_dump_json()), sort_keys=False))
     threads_before = torch.get_num_threads()
     if config.threads is not None:
         torch.set_num_threads(config.threads)

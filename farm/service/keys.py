@@ -1,9 +1,9 @@
 """What the capture-time service is asked: the key of a case's statistics.
 
-A key holds everything that changes the numbers (docs/model.md section 4): team sizes,
-policies, arena, r_c, dt, t_max, tau, initial-position law, games per case, the
-seed and the engine's version (inside workers.Case), so stale results are never
-served after the engine changes.
+A key holds everything that changes the numbers (docs/model.md section 4): the
+workers.Case (team sizes, policies, arena, r_c, dt, t_max, tau, target, initial-position
+law, exit point, team speeds and the engine's version), games per case and the seed, so
+stale results are never served after the engine changes.
 """
 
 from __future__ import annotations

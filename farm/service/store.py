@@ -20,7 +20,7 @@ import threading
 import time
 from pathlib import Path
 
-from workers import CaptureStats
+from workers import CaptureStats, InputError
 
 from farm.errors import NotAStoreError, StoreCorruptError
 from farm.service.keys import StatsKey
@@ -67,6 +67,7 @@ class StatsStore:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.corrupt_rows: set[str] = set()
+        self.older_rows: set[str] = set()  # rows of an older engine's layout: never served (their keys differ)
         self._lock = threading.Lock()
         try:
             if read_only:
@@ -104,7 +105,13 @@ class StatsStore:
                           self.path, key)
             self.corrupt_rows.add(key)
             return None
-        return CaptureStats.from_flat(json.loads(value_json))
+        try:
+            return CaptureStats.from_flat(json.loads(value_json))
+        except (KeyError, InputError):  # a row of an older layout (engine 1.x: no escape statistics)
+            if key not in self.older_rows:
+                log.info("capture-time store %s: row %s is of an older engine's layout; left out", self.path, key)
+            self.older_rows.add(key)
+            return None
 
     def get(self, key: StatsKey) -> CaptureStats | None:
         digest = key.digest()

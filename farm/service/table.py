@@ -48,7 +48,7 @@ class TableConfig(Strict):
         return v
 
     def service_settings(self) -> ServiceSettings:
-        """The settings of the first policy pair (the settings' own pair when none is listed)."""
+        """The table's settings with the policies named in `settings` (or Case's defaults)."""
         game = {k: v for k, v in self.settings.items() if k not in SERVICE_FIELDS}
         own = {k: v for k, v in self.settings.items() if k in SERVICE_FIELDS}
         return ServiceSettings(case_from({"n_pursuers": 1, "n_evaders": 1, **game}), **own)
