@@ -187,7 +187,7 @@ def test_game_statistics_without_escapes_has_the_columns():
         game_statistics(np.zeros((2, 2)), tau=5.0, escape_times=np.zeros((2, 3)))
 
 
-def test_summarize_case_escape_statistics():
+def test_capture_stats_escape_statistics():
     nan = math.nan
     ct = np.array([[1.0, nan], [nan, nan], [2.0, 3.0], [nan, nan]])
     et = np.array([[nan, 2.0], [4.0, 8.0], [nan, nan], [nan, nan]])
