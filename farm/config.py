@@ -21,14 +21,15 @@ from workers.engine import estimated_game_seconds
 from farm.errors import ConfigError
 
 __all__ = ["Strict", "ConfigError", "case_from", "check_game_names", "first_line", "load_yaml_model",
-           "default_shard_games", "GAME_FIELDS", "SETTING_FIELDS", "NUMERIC_FIELDS", "DEFAULT_STORE"]
+           "default_shard_games", "GAME_FIELDS", "SETTING_FIELDS", "CASE_TYPES", "NUMERIC_FIELDS", "DEFAULT_STORE"]
 
 DEFAULT_STORE = "results/capture_times.sqlite"  # the capture-time store of the CLI's and configs' runs
 
 # A game's settings: every Case field but the team sizes (which a table's or env's cells set).
 SETTING_FIELDS = tuple(name for name in GAME_FIELDS if name not in ("n_pursuers", "n_evaders"))
-# Case's numeric fields, by type: int or float (what a sweep may draw at random).
-NUMERIC_FIELDS = {name: t for name, t in typing.get_type_hints(Case).items() if name in GAME_FIELDS and t in (int, float)}
+# The type of each of Case's fields; its numeric ones, int or float (what a sweep may draw at random).
+CASE_TYPES = typing.get_type_hints(Case)
+NUMERIC_FIELDS = {name: t for name, t in CASE_TYPES.items() if name in GAME_FIELDS and t in (int, float)}
 
 
 class Strict(BaseModel):

@@ -35,7 +35,7 @@ def test_imports_change_no_process_setting(tmp_path):
     assert not list(tmp_path.iterdir())  # nothing written to the working directory
 
 
-def test_figures_keep_the_users_umask(tmp_path):
+def test_written_files_keep_the_users_umask(tmp_path):
     """Files get mode 0666 less the caller's umask, as open() would give them."""
     from farm.output import atomic_write_bytes
 

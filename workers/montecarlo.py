@@ -324,10 +324,13 @@ class TimeSummary:
                    n_censored=int(len(times) - n))
 
 
-# CaptureStats' fractions and their names in the flat layout (sweep summaries, the store's rows).
-_FRACTIONS = {"frac_captured": "frac_captured_mean", "frac_captured_tau": "frac_captured_tau_mean",
-              "p_all_captured_tau": "p_all_captured_tau", "frac_escaped": "frac_escaped_mean",
-              "frac_escaped_tau": "frac_escaped_tau_mean"}
+# CaptureStats' fractions: the per-game column each averages, and its name in the flat layout
+# (sweep summaries, the store's rows).
+_FRACTIONS = {"frac_captured": ("frac_captured", "frac_captured_mean"),
+              "frac_captured_tau": ("frac_captured_tau", "frac_captured_tau_mean"),
+              "p_all_captured_tau": ("all_captured_tau", "p_all_captured_tau"),
+              "frac_escaped": ("frac_escaped", "frac_escaped_mean"),
+              "frac_escaped_tau": ("frac_escaped_tau", "frac_escaped_tau_mean")}
 # Keys the capture-time store wrote beside the statistics before CaptureStats (read, not written).
 _FORMER_KEYS = {"expected_frac_captured_tau", "estimate", "estimate_method", "key"}
 
@@ -361,10 +364,7 @@ class CaptureStats:
     @classmethod
     def from_games(cls, per_game: pd.DataFrame) -> "CaptureStats":
         """The statistics of game_statistics rows (one per game)."""
-        fractions = {name: float(per_game[column].mean()) for name, column in
-                     (("frac_captured", "frac_captured"), ("frac_captured_tau", "frac_captured_tau"),
-                      ("p_all_captured_tau", "all_captured_tau"), ("frac_escaped", "frac_escaped"),
-                      ("frac_escaped_tau", "frac_escaped_tau"))}
+        fractions = {name: float(per_game[column].mean()) for name, (column, _) in _FRACTIONS.items()}
         times = {m: TimeSummary.of(per_game[m].to_numpy(dtype=np.float64)) for m in TIME_METRICS}
         return cls(n_games=int(len(per_game)), **fractions, **times)
 
@@ -375,7 +375,7 @@ class CaptureStats:
         out: dict = {"n_games": self.n_games}
         for m in TIME_METRICS:
             out.update({f"{m}_{s}": v for s, v in asdict(getattr(self, m)).items()})
-        out.update({flat: getattr(self, name) for name, flat in _FRACTIONS.items()})
+        out.update({flat: getattr(self, name) for name, (_, flat) in _FRACTIONS.items()})
         return out
 
     @classmethod
@@ -385,12 +385,13 @@ class CaptureStats:
         if unknown:
             raise InputError(f"CaptureStats: unknown fields {', '.join(sorted(unknown))}")
         times = {m: TimeSummary(**{s: row[f"{m}_{s}"] for s in TIME_STATS}) for m in TIME_METRICS}
-        fractions = {name: row[flat] for name, flat in _FRACTIONS.items()}
+        fractions = {name: row[flat] for name, (_, flat) in _FRACTIONS.items()}
         return cls(n_games=int(row["n_games"]), **fractions, **times, estimate=estimate)
 
     @staticmethod
     def flat_names() -> tuple[str, ...]:
-        return ("n_games", *(f"{m}_{s}" for m in TIME_METRICS for s in TIME_STATS), *_FRACTIONS.values())
+        return ("n_games", *(f"{m}_{s}" for m in TIME_METRICS for s in TIME_STATS),
+                *(flat for _, flat in _FRACTIONS.values()))
 
 
 def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024, progress=None):

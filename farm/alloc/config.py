@@ -20,15 +20,14 @@ engagement's coupling is one clear error.
 
 from __future__ import annotations
 
-import typing
-from dataclasses import fields as dataclass_fields
 from typing import Literal
 
 from pydantic import Field, create_model, model_validator
 
 from workers import Case
+from workers.engine import case_defaults
 
-from farm.config import SETTING_FIELDS, Strict, case_from
+from farm.config import CASE_TYPES, SETTING_FIELDS, Strict, case_from
 from farm.service.keys import ServiceSettings
 
 CELL_SIDE = 10.0  # each cell is one PE arena, the square [0, 10]^2
@@ -64,8 +63,7 @@ class _AllocFields(Strict):
 
 
 # workers.Case's settings, each optional: None means the engagement's value, else Case's default.
-_CASE_TYPES = typing.get_type_hints(Case)
-_GAME_FIELDS = {name: (_CASE_TYPES[name] | None, None) for name in SETTING_FIELDS}
+_GAME_FIELDS = {name: (CASE_TYPES[name] | None, None) for name in SETTING_FIELDS}
 
 
 class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIELDS)):
@@ -89,8 +87,8 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
                 data[name] = value
         if engagement == "v2":  # step -> window -> games' length and the score's norm
             speed = data.get("evader_speed")
-            speed = speed if isinstance(speed, (int, float)) and not isinstance(speed, bool) and speed > 0 else \
-                _default("evader_speed")
+            if not (isinstance(speed, (int, float)) and not isinstance(speed, bool) and speed > 0):
+                speed = case_defaults(evader_speed=None)[0]  # a bad speed is Case's to report
             if data.get("step_seconds") is None:
                 data["step_seconds"] = CELL_SIDE / speed
             if data.get("tau") is None:
@@ -118,7 +116,7 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
     def game(self) -> Case:
         """The engagement games' Case (team sizes 1 v 1; each engaged cell sets its own)."""
         given = {name: getattr(self, name) for name in SETTING_FIELDS if getattr(self, name) is not None}
-        return case_from({"n_pursuers": 1, "n_evaders": 1, **{k: _plain(v) for k, v in given.items()}})
+        return case_from({"n_pursuers": 1, "n_evaders": 1, **given})
 
     def service_settings(self) -> ServiceSettings:
         """The capture-time service's settings of the engagements."""
@@ -127,14 +125,3 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
     def window_defaults(self) -> dict:
         """The engagement-dependent settings as resolved: step_seconds, tau, t_max, capture_time_norm."""
         return {k: getattr(self, k) for k in ("step_seconds", "tau", "t_max", "capture_time_norm")}
-
-
-def _default(name: str):
-    return next(f.default for f in dataclass_fields(Case) if f.name == name)
-
-
-def _plain(value):
-    """A pydantic-validated value back to plain data for case_from (dataclasses to dicts)."""
-    from dataclasses import asdict, is_dataclass
-
-    return asdict(value) if is_dataclass(value) else value

@@ -18,7 +18,9 @@ from workers import Case, InputError
 
 from farm.config import SETTING_FIELDS
 
-__all__ = ["ServiceSettings", "StatsKey"]
+__all__ = ["ServiceSettings", "StatsKey", "SERVICE_FIELDS"]
+
+SERVICE_FIELDS = ("games", "seed")  # a key's settings beyond its game's
 
 
 @dataclass(frozen=True)
@@ -46,7 +48,7 @@ class ServiceSettings:
 
     def with_(self, **changes) -> "ServiceSettings":
         """A copy with games, seed or any Case field changed."""
-        own = {k: changes.pop(k) for k in ("games", "seed") if k in changes}
+        own = {k: changes.pop(k) for k in SERVICE_FIELDS if k in changes}
         _known(changes)
         return replace(self, game=replace(self.game, **changes) if changes else self.game, **own)
 

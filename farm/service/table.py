@@ -21,9 +21,7 @@ import pandas as pd
 from pydantic import Field, field_validator
 
 from farm.config import DEFAULT_STORE, SETTING_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
-from farm.service.keys import ServiceSettings
-
-SERVICE_FIELDS = ("games", "seed")  # a table's settings beyond the game's: ServiceSettings'
+from farm.service.keys import SERVICE_FIELDS, ServiceSettings
 
 
 class PolicyPair(Strict):
