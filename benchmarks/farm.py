@@ -11,7 +11,6 @@ Targets: overhead <= 10 %, 2 workers >= 1.8x one. Usage: python benchmarks/farm.
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 import tempfile
 import time
@@ -24,6 +23,7 @@ import yaml  # noqa: E402
 
 from farm.sweep import SweepConfig  # noqa: E402
 from farm.sweep import SweepRun, run_sweep, simulate_shard  # noqa: E402
+from farm.runtime import ray_cluster  # noqa: E402
 
 
 def make_config(games: int, name: str = "bench") -> SweepConfig:
@@ -49,13 +49,9 @@ def main() -> None:
         simulate_shard(run.points[shard.point].case, config.seed, shard)
     t_direct = time.perf_counter() - t0
 
-    import ray
-
     t0 = time.perf_counter()
-    ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", logging_level=logging.ERROR,
-             log_to_driver=False)
-    t_start = time.perf_counter() - t0
-    with tempfile.TemporaryDirectory() as tmp:
+    with ray_cluster(num_cpus=2, dashboard=False), tempfile.TemporaryDirectory() as tmp:
+        t_start = time.perf_counter() - t0
         run_sweep(make_config(40, "warm-up"), Path(tmp) / "warm", workers=2, show_progress=False)
         times = {}
         for workers in (1, 2):
@@ -63,7 +59,6 @@ def main() -> None:
             _, info = run_sweep(config, Path(tmp) / f"w{workers}", workers=workers, show_progress=False)
             times[workers] = time.perf_counter() - t0
             assert info["done"] == len(shards)
-    ray.shutdown()
 
     print(f"{a.games} games of 5v1 area_min in {len(shards)} shards of {shards[0].games}; Ray start-up {t_start:.1f} s (not counted)")
     print(f"{'run':<22}{'wall s':>8}{'games/s':>10}{'vs in-process':>15}")

@@ -10,7 +10,6 @@ Usage: python benchmarks/service.py [--size 10] [--games 64]
 from __future__ import annotations
 
 import argparse
-import logging
 import statistics
 import sys
 import tempfile
@@ -21,6 +20,7 @@ from pathlib import Path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 from farm.service import CaptureTimeClient, ServiceSettings, get_service  # noqa: E402
+from farm.runtime import ray_cluster  # noqa: E402
 
 
 def main() -> None:
@@ -28,21 +28,15 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=10)
     ap.add_argument("--games", type=int, default=64)
     a = ap.parse_args()
-    import ray
-
-    ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", logging_level=logging.ERROR,
-             log_to_driver=False, namespace="swarm-farm")
     settings = ServiceSettings.of(games=a.games)
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, ray_cluster(num_cpus=2, dashboard=False) as ray:
         service = get_service(Path(tmp) / "bench.sqlite", name="bench-service")
         client = CaptureTimeClient(settings, service=service)
         pairs = [(p, e) for p in range(1, a.size + 1) for e in range(1, a.size + 1)]
         t0 = time.perf_counter()
-        pending = [service.get_many.remote([settings.key(*pr)]) for pr in pairs]
-        while pending:
-            _, pending = ray.wait(pending, num_returns=len(pending))
+        client.warm(pairs)
         t_fill = time.perf_counter() - t0
-        stats = ray.get(service.stats.remote())
+        stats = client.stats()
 
         client.get_many(pairs)  # warm the memo
         n = 200_000
@@ -58,7 +52,6 @@ def main() -> None:
             t0 = time.perf_counter()
             ray.get(service.get_many.remote(batch))
             rtts.append((time.perf_counter() - t0) * 1e3)
-    ray.shutdown()
     print(f"{'measure':<48}{'value':>12}{'target':>10}")
     print(f"{'client hit latency (memo)':<48}{hit_us:>10.2f}us{'<= 20us':>10}")
     print(f"{'actor round trip, batch of 9 cached keys (median)':<48}{statistics.median(rtts):>10.2f}ms{'<= 3ms':>10}")

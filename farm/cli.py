@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -30,11 +32,28 @@ GAME_FLAG_HELP = {
 }
 GAME_FLAGS = tuple(name for name in GAME_FIELDS if name not in ("n_pursuers", "n_evaders", "tau"))
 SPEED_FLAGS = ("pursuer_speed", "evader_speed")
+DEBUG_ENV = "SWARM_FARM_DEBUG"
 
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, no usage dump
         raise CliError(message if self.prog == "farm" else f"{self.prog.split()[-1]}: {message}")
+
+
+@contextmanager
+def flags(*names: str, **renamed: str):
+    """Re-raise a library error about a field the command has a flag for as that flag's error:
+    "out: ..." becomes "--out: ...". names: fields named as their flags; renamed: flag=field
+    where the library's field is named otherwise (workers="num_cpus")."""
+    fields = {**{n: n for n in names}, **{field: flag for flag, field in renamed.items()}}
+    try:
+        yield
+    except SwarmFarmError as e:
+        field, sep, problem = str(e).partition(": ")
+        name, _, sub = field.partition(".")  # law.kind: the --law flag's `kind`
+        if sep and name in fields:
+            raise CliError(f"--{fields[name].replace('_', '-')}: {sub + ': ' if sub else ''}{problem}") from None
+        raise
 
 
 def _floats(text: str, field: str, n: int | None = None) -> list[float]:
@@ -97,19 +116,12 @@ def _game_settings(a, names=GAME_FLAGS) -> dict:
 
 def _case(fields: dict):
     """case_from(fields), its error naming the flag when the field came from one."""
-    from farm.errors import ConfigError
-
-    try:
+    with flags(*GAME_FLAGS, "n_pursuers", "n_evaders"):
         return case_from(fields)
-    except ConfigError as e:
-        field, _, problem = str(e).partition(": ")
-        name, _, sub = field.partition(".")
-        if name in GAME_FLAGS or name in ("n_pursuers", "n_evaders"):
-            raise CliError(f"--{name.replace('_', '-')}: {sub + ': ' if sub else ''}{problem}") from None
-        raise
 
 
 def cmd_game(a) -> int:
+    """`farm game`: play one pursuit-evasion game, print its capture times, optionally plot it."""
     if a.plot and Path(a.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
         raise CliError(f"--plot: {a.plot!r} must end in .png, .pdf or .svg")
     settings = _game_settings(a)
@@ -169,6 +181,7 @@ def cmd_game(a) -> int:
 
 
 def cmd_pe_table(a) -> int:
+    """`farm pe-table`: the paper's Tables 1 and 2 (Monte Carlo), with figures."""
     from farm.pe_table import format_tables, speeds_text, write_pe_tables
 
     if a.games < 2:
@@ -196,16 +209,16 @@ def cmd_pe_table(a) -> int:
 
 
 def cmd_sweep(a) -> int:
+    """`farm sweep CONFIG`: run or resume a parametric Monte Carlo sweep; prints its summary."""
     from farm.sweep import format_summary, load_sweep_config, print_info, run_sweep
 
     if a.workers is not None and a.workers < 1:
         raise CliError(f"--workers: must be >= 1, got {a.workers}")
     config = load_sweep_config(a.config)
     out = Path(a.out) if a.out else Path("results") / "sweeps" / config.name
-    summary, info = run_sweep(
-        config, out, address=a.address, workers=a.workers, use_ray=not a.no_ray,
-        show_progress=not a.quiet, metrics_port=a.metrics_port,
-    )
+    with flags("out", "address", "metrics_port", workers="num_cpus"):
+        summary, info = run_sweep(config, out, address=a.address, workers=a.workers, use_ray=not a.no_ray,
+                                  show_progress=not a.quiet, metrics_port=a.metrics_port)
     print_info(info)
     print(f"{config.name}: {len(summary)} point(s), {int(summary['n_games'].sum())} games")
     print(format_summary(summary, config.vary.names()))
@@ -214,6 +227,7 @@ def cmd_sweep(a) -> int:
 
 
 def cmd_table(a) -> int:
+    """`farm table [show] CONFIG`: fill the capture-time store over a table's cells, or show it."""
     from farm.service.table import fill_table, load_table_config, plot_heatmaps, table_frames
 
     args = list(a.args)
@@ -226,10 +240,12 @@ def cmd_table(a) -> int:
     if a.workers is not None and a.workers < 1:
         raise CliError(f"--workers: must be >= 1, got {a.workers}")
     if not show:
-        info = fill_table(config, store=a.store, address=a.address, workers=a.workers, show_progress=not a.quiet)
+        with flags("store", "address", workers="num_cpus"):
+            info = fill_table(config, store=a.store, address=a.address, workers=a.workers,
+                              show_progress=not a.quiet)
         print(f"{config.name}: {info['cases']} cases, {info['computed']} computed, the rest from the store "
               f"({info['seconds']:.1f} s)")
-    out = Path(a.plot_dir or Path(a.store or config.store).parent / "tables")
+    out = Path(a.plot_dir or config.store_path(a.store).parent / "tables")
     for settings, mean, frac in table_frames(config, store=a.store):
         print(f"\n{settings.game.pursuer_policy} vs {settings.game.evader_policy}: mean capture time (s)")
         print(mean.to_string(float_format=lambda x: f"{x:.2f}", na_rep="-"))
@@ -241,6 +257,7 @@ def cmd_table(a) -> int:
 
 
 def cmd_report(a) -> int:
+    """`farm report RESULTS_DIR`: one self-contained HTML page of a results folder."""
     from farm.report import write_report
 
     path = write_report(a.results_dir, a.output)
@@ -249,6 +266,7 @@ def cmd_report(a) -> int:
 
 
 def cmd_train(a) -> int:
+    """`farm train CONFIG`: train the TD3 allocator into a run folder; prints its metrics."""
     from farm.alloc.train import load_train_config, train
 
     config = load_train_config(a.config)
@@ -263,12 +281,7 @@ def cmd_train(a) -> int:
             raise CliError(f"--threads: must be >= 1, got {a.threads}")
         config = config.model_copy(update={"threads": a.threads})
     out = Path(a.out or Path("results") / "runs" / config.name)
-    if config.service.mode == "ray":
-        from farm.runtime import ray_cluster
-
-        with ray_cluster(config.service.address):
-            metrics = train(config, out, resume=a.resume, show_progress=not a.quiet)
-    else:
+    with flags("out", "resume"):
         metrics = train(config, out, resume=a.resume, show_progress=not a.quiet)
     print(json.dumps(metrics, indent=2))
     print(f"run: {out}")
@@ -276,11 +289,12 @@ def cmd_train(a) -> int:
 
 
 def cmd_eval(a) -> int:
-    from farm.alloc.evaluate import (GameFidelityClient, baselines, evaluate_policies, load_policy,
+    """`farm eval RUN_DIR`: the trained policy and the baselines on the same seeded episodes."""
+    from farm.alloc.evaluate import (baselines, evaluate_fidelity, evaluate_policies, load_policy, mean_ci95,
                                      plot_behaviour_steps, steps_table)
-    from farm.alloc.train import load_train_config, make_client
+    from farm.alloc.train import load_train_config, store_of
     from farm.output import write_table
-    from farm.runtime import ray_cluster
+    from farm.service.lookup import open_client
 
     run_dir = Path(a.run_dir)
     if not (run_dir / "config.yaml").exists():
@@ -290,11 +304,8 @@ def cmd_eval(a) -> int:
         raise CliError(f"--episodes: must be >= 1, got {a.episodes}")
     policies = {"td3": load_policy(run_dir), **baselines(config.env.grid_size)}
     settings = config.env.service_settings()
-    use_ray = config.service.mode == "ray" or a.fidelity == "games"
-    from contextlib import nullcontext
-
-    with (ray_cluster(config.service.address) if use_ray else nullcontext()):
-        client = make_client(config, settings)
+    mode = "ray" if a.fidelity == "games" else config.service.mode  # the games are Ray tasks
+    with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
         table, per, steps = evaluate_policies(config.env, policies, client, a.episodes, a.seed, out=run_dir)
         write_table(table, run_dir / "eval_table", "csv")
         write_table(per, run_dir / "eval_episodes", "csv")
@@ -302,13 +313,7 @@ def cmd_eval(a) -> int:
         plot_behaviour_steps(steps, table, run_dir / "behaviour_steps.png")
         print(table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
         if a.fidelity == "games":
-            tables, differences = [], []
-            for name, policy in policies.items():  # each policy meets the same fresh games
-                games_client = GameFidelityClient(settings, client)
-                tables.append(evaluate_policies(config.env, {name: policy}, games_client, a.episodes, a.seed)[0])
-                differences += [{"policy": name, **d} for d in games_client.differences]
-            gtable = pd.concat(tables, ignore_index=True)
-            diffs = pd.DataFrame(differences)
+            gtable, diffs = evaluate_fidelity(config.env, policies, client, a.episodes, a.seed)
             write_table(gtable, run_dir / "eval_table_games", "csv")
             write_table(diffs, run_dir / "fidelity_differences", "csv")
             print("\n--fidelity games (every engaged cell's game simulated each step):")
@@ -317,8 +322,6 @@ def cmd_eval(a) -> int:
             print("return, games minus service: " + ", ".join(
                 f"{r.policy} {r.return_mean_games - r.return_mean_service:+.3f}" for r in merged.itertuples()))
             if len(diffs):
-                from farm.alloc.evaluate import mean_ci95
-
                 d = (diffs["game_frac_tau"] - diffs["service_frac_tau"]).to_numpy(dtype=float)
                 m, h = mean_ci95(d)
                 print(f"fraction captured within tau over {len(d)} engagements, game - service: "
@@ -331,6 +334,7 @@ def cmd_eval(a) -> int:
 
 
 def cmd_claims(a) -> int:
+    """`farm claims RUNS_DIR`: the paper's claims (a)-(c), measured on evaluated runs."""
     from farm.alloc.claims import claims
     from farm.output import write_table
 
@@ -348,7 +352,10 @@ def cmd_claims(a) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The `farm` argument parser, one subcommand per cmd_* function."""
     parser = _Parser(prog="farm", description="swarm-farm: swarm-to-swarm engagement planning and learning")
+    parser.add_argument("--debug", action="store_true",
+                        help=f"show the traceback of an error (also {DEBUG_ENV}=1)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     g = sub.add_parser("game", help="play one pursuit-evasion game and print capture times")
@@ -423,27 +430,43 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _ray_errors() -> tuple:
+    """Ray's exception base class, if Ray was imported (a command that used no Ray raised none)."""
+    exceptions = sys.modules.get("ray.exceptions")
+    return (exceptions.RayError,) if exceptions is not None else ()
+
+
 def main(argv=None) -> int:
+    """Run the `farm` command line; returns the exit status (2 for bad input, one line on stderr).
+    `farm --debug ...` or SWARM_FARM_DEBUG=1 lets errors through with their traceback."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    debug = os.environ.get(DEBUG_ENV, "") not in ("", "0") or "--debug" in argv
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)
-    except SwarmFarmError as e:
-        print(f"farm: error: {e}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
+        if debug:
+            raise
         print("farm: interrupted", file=sys.stderr)
         return 130
+    except SwarmFarmError as e:
+        if debug:
+            raise
+        print(f"farm: error: {e}", file=sys.stderr)
+        return 2
     except OSError as e:  # a file or folder the user named, or a cluster that does not answer
+        if debug:
+            raise
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         print(f"farm: error: {where}{e.strerror or str(e).splitlines()[0] or type(e).__name__}", file=sys.stderr)
         return 2
-    except Exception as e:
-        if type(e).__module__.startswith("ray"):  # a Ray failure: its cause, in one line
-            cause = getattr(e, "cause", None) or e
-            text = str(cause).strip().splitlines()
-            print(f"farm: error: Ray: {type(cause).__name__}: {text[-1] if text else ''}", file=sys.stderr)
-            return 2
-        raise
+    except _ray_errors() as e:  # a Ray failure: its cause, in one line
+        if debug:
+            raise
+        cause = getattr(e, "cause", None) or e
+        text = str(cause).strip().splitlines()
+        print(f"farm: error: Ray: {type(cause).__name__}: {text[-1] if text else ''}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -16,14 +16,11 @@ import yaml
 from pydantic import BaseModel, ConfigDict, TypeAdapter, ValidationError
 
 from workers import GAME_FIELDS, Case, InputError
-from workers.engine import estimated_game_seconds
 
 from farm.errors import ConfigError
 
 __all__ = ["Strict", "ConfigError", "case_from", "check_game_names", "first_line", "load_yaml_model",
-           "default_shard_games", "GAME_FIELDS", "SETTING_FIELDS", "CASE_TYPES", "NUMERIC_FIELDS", "DEFAULT_STORE"]
-
-DEFAULT_STORE = "results/capture_times.sqlite"  # the capture-time store of the CLI's and configs' runs
+           "GAME_FIELDS", "SETTING_FIELDS", "CASE_TYPES", "NUMERIC_FIELDS"]
 
 # A game's settings: every Case field but the team sizes (which a table's or env's cells set).
 SETTING_FIELDS = tuple(name for name in GAME_FIELDS if name not in ("n_pursuers", "n_evaders"))
@@ -96,15 +93,3 @@ def load_yaml_model(path: str | Path, model: type[BaseModel], what: str, check=N
         raise ConfigError(f"{path}: {first_line(e)}") from None
     except (TypeError, InputError, ConfigError) as e:
         raise ConfigError(f"{path}: {e}") from None
-
-
-SHARD_SECONDS = 0.5
-
-
-def default_shard_games(case: Case) -> int:
-    """Games per Ray task: about half a second of work on one core by the engine's cost
-    model, so that the cost of a task beyond its games (Ray's dispatch and the shard's atomic
-    Parquet write, 10-20 ms measured by benchmarks/farm.py) stays under 5%."""
-    seconds = estimated_game_seconds(case.n_pursuers, case.n_evaders, case.pursuer_policy, case.evader_policy,
-                                     case.t_max, case.dt, case.pursuer_speed, case.evader_speed)
-    return int(min(100_000, max(1, round(SHARD_SECONDS / seconds))))

@@ -46,7 +46,11 @@ def _worker_metrics():
 
 
 def record_shard(sweep: str, games: int, steps: int, seconds: float) -> None:
-    """Worker side: one shard simulated."""
+    """Count one simulated shard on the worker: games, game-steps and the steps' rate.
+
+    sweep: the sweep's tag; games and steps: simulated in the shard (steps summed over
+    its games); seconds: its wall time. Does nothing outside a Ray worker or driver.
+    """
     if not _ray_ready():
         return
     games_c, steps_c, rate = _worker_metrics()
@@ -58,8 +62,11 @@ def record_shard(sweep: str, games: int, steps: int, seconds: float) -> None:
 
 
 class DriverMetrics:
-    """Driver side: shards done and pending of one sweep (Ray's own `ray_tasks{IsRetry!="0"}`
-    counts the shard attempts it retried after a worker or node died)."""
+    """Driver side: shards done and pending of one sweep, tagged with the sweep's name.
+
+    Ray's own `ray_tasks{IsRetry!="0"}` counts the shard attempts it retried after a
+    worker or node died. Made inside a Ray driver (ray.init called).
+    """
 
     def __init__(self, sweep: str):
         from ray.util.metrics import Counter, Gauge
@@ -70,14 +77,19 @@ class DriverMetrics:
                               tag_keys=TAGS)
 
     def done(self) -> None:
+        """Count one shard stored."""
         self._done.inc(1, tags=self.tags)
 
     def pending(self, n: int) -> None:
+        """Set the number of shards queued or running."""
         self._pending.set(n, tags=self.tags)
 
 
 class ServiceMetrics:
-    """The capture-time service's hits, misses, computations, compute seconds, in-flight."""
+    """The capture-time service's counters: hits, misses, computations, compute seconds, in-flight.
+
+    Made inside the service's Ray actor; the names it exports are EXPORTED's.
+    """
 
     def __init__(self):
         from ray.util.metrics import Counter, Gauge
@@ -92,15 +104,19 @@ class ServiceMetrics:
         self._inflight = Gauge("swarm_farm_service_inflight", description=d["ray_swarm_farm_service_inflight"])
 
     def hit(self) -> None:
+        """Count one key answered from the cache."""
         self._hits.inc(1)
 
     def miss(self) -> None:
+        """Count one key not in the cache."""
         self._misses.inc(1)
 
     def computed(self, seconds: float) -> None:
+        """Count one case computed on the farm and the seconds it took (if any)."""
         self._computations.inc(1)
         if seconds > 0:
             self._seconds.inc(seconds)
 
     def inflight(self, n: int) -> None:
+        """Set the number of cases being computed now."""
         self._inflight.set(n)

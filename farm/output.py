@@ -24,14 +24,13 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-        dir_fd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dir_fd)  # the rename itself survives a crash
-        finally:
-            os.close(dir_fd)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    finally:
+        Path(tmp).unlink(missing_ok=True)  # left only when the rename did not happen
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)  # the rename itself survives a crash
+    finally:
+        os.close(dir_fd)
 
 
 def write_table(df: pd.DataFrame, stem: Path, fmt: str) -> Path:
@@ -44,8 +43,11 @@ def write_table(df: pd.DataFrame, stem: Path, fmt: str) -> Path:
     else:
         import io
 
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
         buf = io.BytesIO()
-        df.to_parquet(buf, index=False)
+        pq.write_table(pa.Table.from_pandas(df, preserve_index=False), buf)
         data = buf.getvalue()
     atomic_write_bytes(path, data)
     return path

@@ -36,8 +36,16 @@ def paper_case(base: Case, n_pursuers: int, pursuer_policy: str, evader_policy: 
 
 
 def pe_tables(n_games: int = 50, seed: int = 0, base: Case | None = None, progress=None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Run every paper case; returns (summary, per_game) DataFrames. The summary has
-    one row per case, its speeds (pursuer_speed, evader_speed) among the columns."""
+    """Run every paper case (PAPER_CASES) for n_games games each; returns (summary, per_game).
+
+    summary: one row per case, columns table, n_pursuers, pursuer_policy, evader_policy,
+    pursuer_speed, evader_speed, games, not_captured (games whose evader was not caught
+    by t_max), mean, std, ci95_low, ci95_high, min, max (of the capture time, s),
+    paper_mean (the paper's mean, s) and case_key. per_game: one row per game, columns
+    table and n_pursuers then
+    workers.game_statistics' columns. base: the settings every case shares (default
+    Case's: the paper's); progress: called with a line of text after each case.
+    """
     base = (base or Case(1, 1)).validate()
     rows, games = [], []
     for table, n_p, pp, ep, paper in PAPER_CASES:
@@ -65,8 +73,11 @@ def pe_tables(n_games: int = 50, seed: int = 0, base: Case | None = None, progre
 
 
 def format_tables(summary: pd.DataFrame) -> str:
-    """The tables as text: one block per table, the paper's figure beside ours (the paper's
-    games had equal speeds, 1 and 1)."""
+    """The tables as text: one block per table, the paper's figure beside ours.
+
+    summary: pe_tables' summary. Each block's header states the games per case and the
+    speeds (the paper's games had equal speeds, 1 and 1).
+    """
     lines = []
     for table, block in summary.groupby("table", sort=False):
         lines.append(table + f" (capture time, s; {int(block['games'].iloc[0])} games per case; "
@@ -85,16 +96,24 @@ def format_tables(summary: pd.DataFrame) -> str:
 
 
 def speeds_text(row) -> str:
-    """'pursuer speed 2, evader speed 1' (with '(the paper's)' when both are 1) from a
-    summary row or a Case."""
+    """The team speeds as text, e.g. 'pursuer speed 2, evader speed 1'.
+
+    row: a summary row (dict or Series with pursuer_speed and evader_speed) or a Case;
+    "(the paper's)" is added when both speeds are 1.
+    """
     p, e = (float(row[name] if isinstance(row, (dict, pd.Series)) else getattr(row, name)) for name in SPEEDS)
     return f"pursuer speed {p:g}, evader speed {e:g}" + (" (the paper's)" if p == e == 1.0 else "")
 
 
 def write_pe_tables(out: Path, n_games: int, seed: int, fmt: str, progress=None,
                     figures: bool = True, base: Case | None = None) -> tuple[list[Path], pd.DataFrame]:
-    """Run, print-ready summary and per-game files plus one figure per case; base: the
-    settings every case shares (default Case's: the paper's, equal speeds)."""
+    """Run the paper's cases and write their tables, plus one figure per case, into `out`.
+
+    Writes out/pe_tables.<fmt> (the summary) and out/pe_games.<fmt> (per game), fmt
+    "csv" or "parquet", and with figures=True fig_<pursuer>_vs_<evader>_<n>p.png of game
+    0 of each case. base: the settings every case shares (default Case's: the paper's,
+    equal speeds); progress: as pe_tables'. Returns (the paths written, the summary).
+    """
     from farm.plots import plot_game
 
     base = (base or Case(1, 1)).validate()

@@ -22,13 +22,19 @@ EVADER_COLOR = "tab:red"
 
 
 def new_figure(rows: int = 1, cols: int = 1, figsize=(6, 4)):
-    """(Figure, axes (rows, cols) array of Axes) drawn without pyplot."""
+    """A new Figure and its panels, made without pyplot (no backend, no global state).
+
+    Returns (Figure, axes): axes a (rows, cols) object array of Axes, 2-D even for one panel.
+    """
     fig = Figure(figsize=figsize)
     return fig, fig.subplots(rows, cols, squeeze=False)
 
 
 def save_figure(fig: Figure, path: str | Path, dpi: int = 100) -> Path:
-    """Write fig to path (folders made as needed); returns the path."""
+    """Write a figure to a file, its format from the suffix; returns the path.
+
+    The path's folders are made as needed; dpi: the resolution of raster formats.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
@@ -36,14 +42,18 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 100) -> Path:
 
 
 def figure_png(fig: Figure, dpi: int = 100) -> bytes:
-    """fig as PNG bytes."""
+    """A figure as PNG bytes (for pages that inline their images)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     return buf.getvalue()
 
 
 def draw_heatmap(fig: Figure, ax, grid: pd.DataFrame, title: str, cmap: str = "viridis") -> None:
-    """grid: n_pursuers rows x n_evaders columns of one statistic, drawn on ax with a colour bar."""
+    """Draw one statistic over team sizes as a heatmap on ax, with a colour bar on fig.
+
+    grid: a DataFrame indexed by n_pursuers (rows, drawn bottom up) with one column per
+    n_evaders, the statistic's values (NaN: blank); title: above the panel.
+    """
     im = ax.imshow(grid.to_numpy(dtype=float), origin="lower", aspect="auto", cmap=cmap)
     ax.set_xticks(range(len(grid.columns)), [str(c) for c in grid.columns])
     ax.set_yticks(range(len(grid.index)), [str(i) for i in grid.index])
@@ -54,13 +64,23 @@ def draw_heatmap(fig: Figure, ax, grid: pd.DataFrame, title: str, cmap: str = "v
 
 
 def default_frames(res: GameResults, game: int) -> list[int]:
-    """Three frames: the start, half-way and the game's end (the last capture)."""
+    """The frames plot_game draws by default: the start, half-way and the game's end.
+
+    The end is the step the game ended at (its last capture or escape, else t_max);
+    returns the sorted distinct step indices.
+    """
     end = int(res.steps[game])
     return sorted({0, end // 2, end})
 
 
 def draw_game(ax, res: GameResults, game: int, frame: int) -> None:
-    """One panel: cells at `frame` shaded, paths up to it, agents as markers."""
+    """Draw one panel of a recorded game at a frame (a step index) on ax.
+
+    The agents' Voronoi cells at `frame` shaded (pursuers blue, evaders red), paths up to
+    it, pursuers as triangles, live evaders as dots, captured ones as crosses, escaped
+    ones as stars, and the exit point's circle when the game has one. res: recorded with
+    record=True; game: its index in res.
+    """
     n_p = res.pursuer_paths.shape[2]
     cells, agents = res.cells_at(frame, game)
     for c, agent in enumerate(agents):
@@ -80,7 +100,7 @@ def draw_game(ax, res: GameResults, game: int, frame: int) -> None:
     ax.scatter(
         ep[-1, alive, 0], ep[-1, alive, 1], marker="o", s=30, color=EVADER_COLOR, zorder=3, label="evaders"
     )
-    escaped = np.zeros_like(alive) if res.escape_step is None else (res.escape_step[game] >= 0) & ~alive
+    escaped = (res.escape_step[game] >= 0) & ~alive
     caught = ~alive & ~escaped
     if caught.any():
         ax.scatter(ep[-1, caught, 0], ep[-1, caught, 1], marker="x", s=30, color=EVADER_COLOR, zorder=3,
@@ -100,7 +120,11 @@ def draw_game(ax, res: GameResults, game: int, frame: int) -> None:
 
 
 def plot_game(res: GameResults, path: str | Path, *, game: int = 0, frames=None, title: str | None = None) -> Path:
-    """Save a row of panels of one recorded game to `path` (PNG); returns the path."""
+    """Save a row of panels of one recorded game to `path` (PNG); returns the path.
+
+    frames: step indices to draw (default: default_frames); title: above the panels.
+    Raises ValueError for results simulated without record=True.
+    """
     if res.pursuer_paths is None:
         raise ValueError("plot_game needs results simulated with record=True")
     frames = default_frames(res, game) if frames is None else sorted(set(frames))

@@ -6,6 +6,13 @@ import sys
 
 
 class GameProgress:
+    """A progress bar on stderr (tqdm) of games done, their rate and the ETA; silent when disabled.
+
+    total: the games (or other units) to do; done: already done, e.g. stored by an
+    earlier run; enabled: False makes every method a no-op; desc, unit: the bar's label
+    and unit.
+    """
+
     def __init__(self, total: int, done: int = 0, *, enabled: bool = True, desc: str = "games", unit: str = "game"):
         self.bar = None
         if enabled:
@@ -15,9 +22,11 @@ class GameProgress:
                             smoothing=0.1, dynamic_ncols=True, mininterval=0.5)
 
     def update(self, n: int) -> None:
+        """Advance the bar by n units done."""
         if self.bar is not None:
             self.bar.update(n)
 
     def close(self) -> None:
+        """Close the bar (its last line stays on stderr)."""
         if self.bar is not None:
             self.bar.close()

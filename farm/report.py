@@ -13,6 +13,8 @@ import html
 import json
 import sqlite3
 import time
+import zipfile
+import zlib
 from pathlib import Path
 
 import pandas as pd
@@ -25,9 +27,18 @@ __all__ = ["ReportError", "build_report", "write_report"]
 
 
 def _read_table(path: Path) -> pd.DataFrame:
+    """A results table (.parquet, else CSV); ReportError when the file is damaged or unreadable.
+
+    What such a file raises: OSError (missing, a folder, unreadable, a Parquet file whose
+    metadata do not parse), ValueError (pandas' ParserError and EmptyDataError,
+    UnicodeDecodeError, pyarrow's ArrowInvalid for a file that is not Parquet or is cut
+    short) and pyarrow's other ArrowException (e.g. an encoding it does not implement).
+    """
+    import pyarrow
+
     try:
         return pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
-    except Exception as e:  # any reader failure means the file is damaged
+    except (OSError, ValueError, pyarrow.ArrowException) as e:
         raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
 
 
@@ -99,8 +110,7 @@ def _pe_section(root: Path) -> str | None:
         x = range(len(df))
         ax.bar([i - 0.2 for i in x], df["mean"], 0.4, yerr=[df["mean"] - df["ci95_low"], df["ci95_high"] - df["mean"]],
                label="this model (95% CI)", color="tab:blue")
-        ax.bar([i + 0.2 for i in x], df["paper"] if "paper" in df else df["paper_mean"], 0.4, label="paper",
-               color="tab:gray")
+        ax.bar([i + 0.2 for i in x], df["paper_mean"], 0.4, label="paper", color="tab:gray")
         ax.set_xticks(list(x), labels, fontsize=8)
         ax.set_ylabel("mean capture time (s)")
         ax.legend(fontsize=8)
@@ -233,6 +243,14 @@ def _training_section(root: Path) -> str | None:
     return "".join(map(_curve_html, sorted(root.rglob("evaluations.npz")))) or None
 
 
+# What a damaged or unreadable evaluations.npz raises on np.load and reading its arrays:
+# OSError (missing, a folder, unreadable), EOFError (empty), zipfile.BadZipFile (cut short,
+# a bad CRC), zlib.error (a damaged compressed member), ValueError (not an .npz: numpy
+# refuses it as pickled data; object arrays), LookupError (KeyError: no such array in the
+# archive; IndexError: a plain .npy array indexed by name).
+_NPZ_DAMAGE = (OSError, EOFError, zipfile.BadZipFile, zlib.error, ValueError, LookupError)
+
+
 def _curve_html(path: Path) -> str:
     """One run's training curve, with its metrics.json's numbers when present."""
     import numpy as np
@@ -242,7 +260,7 @@ def _curve_html(path: Path) -> str:
     try:
         data = np.load(path)
         steps, results = data["timesteps"], data["results"]
-    except Exception as e:
+    except _NPZ_DAMAGE as e:
         raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
     out = f"<p class=src>{html.escape(str(path))}</p>{_img(_fig_bytes(training_curve_figure(steps, results)), 'training curve')}"
     metrics = path.with_name("metrics.json")
@@ -314,7 +332,15 @@ window.addEventListener('load', function () {
 
 
 def build_report(results_dir: str | Path) -> str:
-    """The report's HTML for a results folder; raises ReportError on bad input."""
+    """The report's HTML page for a results folder, as a string; raises ReportError on bad input.
+
+    Finds under results_dir (at any depth) the PE tables (pe_tables.csv or .parquet),
+    sweep folders (sweep.json), capture-time stores (*.sqlite), training runs
+    (evaluations.npz), density maps, evaluation tables and game figures, and makes one
+    section of each kind; a kind without data says which command would produce it.
+    Raises ReportError when the folder does not exist, holds none of these, or holds a
+    damaged one.
+    """
     root = Path(results_dir)
     if not root.exists():
         raise ReportError(f"{root}: no such folder")
@@ -357,7 +383,11 @@ def build_report(results_dir: str | Path) -> str:
 
 
 def write_report(results_dir, out=None) -> Path:
-    """Build the report and write it atomically; returns its path."""
+    """Build the report of results_dir and write it atomically; returns its path.
+
+    out: the page's path (default results_dir/report.html). Bad input raises ReportError
+    and leaves no file.
+    """
     from farm.output import atomic_write_bytes
 
     page = build_report(results_dir)

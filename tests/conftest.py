@@ -1,4 +1,8 @@
+import os
 import socket
+
+# Every local Ray of the tests binds 127.0.0.1 (farm.runtime's module doc): Ray reads this when imported.
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 
 import yaml
 
@@ -29,15 +33,21 @@ def free_port() -> int:
 
 @pytest.fixture(scope="module")
 def ray_local():
-    """A real 2-CPU local Ray for one test module; yields its Prometheus metrics port."""
-    import ray
+    """A real 2-CPU local Ray for one test module (farm.runtime.ray_cluster, metrics reported
+    every 0.5 s through Ray's RAY_<setting> environment); yields its Prometheus metrics port."""
+    from farm.runtime import ray_cluster
 
     port = free_port()
-    ray.init(num_cpus=2, namespace="swarm-farm", include_dashboard=False, _node_ip_address="127.0.0.1",
-             _metrics_export_port=port, _system_config={"metrics_report_interval_ms": 500},
-             logging_level="ERROR", log_to_driver=False)
-    yield port
-    ray.shutdown()
+    before = os.environ.get("RAY_metrics_report_interval_ms")
+    os.environ["RAY_metrics_report_interval_ms"] = "500"
+    try:
+        with ray_cluster(num_cpus=2, metrics_port=port, dashboard=False):
+            yield port
+    finally:
+        if before is None:
+            os.environ.pop("RAY_metrics_report_interval_ms", None)
+        else:
+            os.environ["RAY_metrics_report_interval_ms"] = before
 
 
 def write_sweep(path, **changes):

@@ -104,3 +104,20 @@ def test_saved_config_round_trips_nulls(tmp_path):
     again = load_train_config(path)
     assert again == config and again.env.exit_point is None and again.threads is None
     assert again.env.service_settings().key(2, 2).digest() == config.env.service_settings().key(2, 2).digest()
+
+
+def test_the_training_curve_is_the_same_on_every_run(tmp_path):
+    """The periodic evaluation's episodes are seeded from the config's seed (SB3's EvalCallback
+    resets without one): two runs of one config write the same evaluations.npz."""
+    from farm.alloc.train import TrainConfig, train
+
+    config = TrainConfig(name="curve", env=AllocConfig(**SMALL), threads=1,
+                         td3={"n_timesteps": 60, "learning_starts": 20, "batch_size": 16,
+                              "policy_kwargs": {"net_arch": [32, 32]}},
+                         eval={"freq": 20, "episodes": 3}, checkpoint_freq=60,
+                         service={"mode": "local", "store": str(tmp_path / "s.sqlite")})
+    curves = []
+    for k in range(2):
+        train(config, tmp_path / f"run{k}", show_progress=False)
+        curves.append(np.load(tmp_path / f"run{k}" / "evaluations.npz")["results"])
+    np.testing.assert_array_equal(curves[0], curves[1])

@@ -23,6 +23,7 @@ BIN = Path(sys.executable).parent
 ENV = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "RAY_AUTH_MODE": "disabled",
        "PYTHONUNBUFFERED": "1"}
 ENV.pop("RAY_ADDRESS", None)
+ENV.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)  # real multi-node clusters: Ray's own binding (conftest)
 
 @pytest.fixture
 def config_path(tmp_path):

@@ -56,8 +56,8 @@ def test_env_without_a_client_uses_the_users_cache_store(tmp_path, monkeypatch, 
     with caplog.at_level(logging.INFO, logger="farm.alloc.env"):
         env = SwarmAllocationEnv(small)
     expected = tmp_path / "cache" / "swarm-farm" / "capture_times.sqlite"
-    assert env.client.local.store.path == expected and expected.exists()
+    assert env.client.backend.store.path == expected and expected.exists()
     assert f"capture-time store: {expected}" in caplog.text
     monkeypatch.setenv("SWARM_FARM_STORE", str(tmp_path / "mine.sqlite"))
-    assert SwarmAllocationEnv(small).client.local.store.path == tmp_path / "mine.sqlite"
+    assert SwarmAllocationEnv(small).client.backend.store.path == tmp_path / "mine.sqlite"
     assert not (tmp_path / "results").exists()

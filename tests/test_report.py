@@ -33,7 +33,7 @@ def results(tmp_path_factory):
     assert farm("sweep", sweep, "--out", root / "sweep", "--no-ray", "--quiet").returncode == 0
     client = CaptureTimeClient(ServiceSettings.of(games=3, t_max=15.0), local_store=root / "capture_times.sqlite")
     client.get_many([(1, 1), (2, 1), (1, 2), (2, 2)])
-    client.local.store.close()
+    client.backend.store.close()
     return root
 
 

@@ -13,7 +13,7 @@ from dataclasses import replace
 import pytest
 
 from farm.service import CaptureTimeClient, ServiceSettings, StatsStore, StoreCorruptError
-from farm.service.core import compute_in_process
+from farm.service.lookup import LocalBackend, compute_in_process
 from workers import CaptureStats, Case, InitialLaw, InputError, run_case
 
 FAST = ServiceSettings.of(games=6, t_max=20.0)
@@ -43,10 +43,10 @@ def test_miss_computes_stores_and_reloads(tmp_path):
     path = tmp_path / "s.sqlite"
     a = CaptureTimeClient(FAST, local_store=path)
     v = a.get(2, 1)
-    assert a.local.stats()["computations"] == {a.key(2, 1).digest(): 1}
+    assert a.stats()["computations"] == {a.key(2, 1).digest(): 1}
     assert a.get(2, 1) is v  # memo hit
     b = CaptureTimeClient(FAST, local_store=path)
-    assert same(b.get(2, 1), v) and b.local.stats()["computations"] == {}
+    assert same(b.get(2, 1), v) and b.stats()["computations"] == {}
 
 
 def test_keys_differing_in_any_parameter_never_collide():
@@ -78,7 +78,7 @@ def test_bad_team_sizes(tmp_path, args, message):
     client.get(1, 1)
     with pytest.raises(InputError, match=message):
         client.get(*args)
-    assert CaptureTimeClient(FAST, local_store=path).local.stats()["stored"] == 1
+    assert CaptureTimeClient(FAST, local_store=path).stats()["stored"] == 1
 
 
 def test_bad_settings(tmp_path):
@@ -130,10 +130,10 @@ def test_damaged_row_is_reported_and_never_served(tmp_path):
     db.commit()
     db.close()
     client = CaptureTimeClient(FAST, local_store=path)
-    assert client.local.stats()["corrupt_rows"]  # reported on load
+    assert client.stats()["corrupt_rows"]  # reported on load
     v = client.get(2, 2)  # recomputed, not the damaged row
     assert v.n_games == 6 and same(v, good)
-    assert client.local.stats()["computations"]
+    assert client.stats()["computations"]
 
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage"])
@@ -142,8 +142,8 @@ def test_damaged_store_file_is_detected(tmp_path, damage):
     client = CaptureTimeClient(FAST, local_store=path)
     for n in range(1, 4):
         client.get(n, 1)
-    client.local.store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-    client.local.store.close()
+    client.backend.store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    client.backend.store.close()
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2] if damage == "truncate" else data[:100] + b"\x00garbage" * 500)
     with pytest.raises(StoreCorruptError, match="the capture-time store is damaged"):
@@ -167,12 +167,10 @@ def test_estimate_from_neighbours_is_flagged(tmp_path):
 
 def test_estimates_reopened_store_and_other_settings(tmp_path):
     """A reopened store's cases serve estimates from memory; another setting's cases never do."""
-    from farm.service.local import LocalService
-
     path = tmp_path / "s.sqlite"
     CaptureTimeClient(FAST, local_store=path).get_many([(2, 1), (4, 1)])
     CaptureTimeClient(FAST.with_(tau=1.0), local_store=path).get_many([(3, 1)])
-    service = LocalService(path)
+    service = LocalBackend(path)
     assert sorted(n[:2] for n in service.index.neighbours(FAST.key(3, 1))) == [(2, 1), (4, 1)]
     est = service.get_many([FAST.key(3, 1)], True)[0]
     assert est.estimate and "(3,1)" not in est.estimate
@@ -193,7 +191,7 @@ def test_actor_miss_restart_and_single_flight(ray_local, tmp_path):
     client = CaptureTimeClient(FAST, service=service)
     v = client.get(2, 2)
     assert ray.get(service.stats.remote())["computations"] == {FAST.key(2, 2).digest(): 1}
-    assert same(v, compute_in_process(FAST.key(2, 2)))  # the farm computes what one process does
+    assert same(v, next(compute_in_process([FAST.key(2, 2)]))[1])  # the farm computes what one process does
 
     ray.kill(service, no_restart=True)
     time.sleep(0.5)
@@ -262,6 +260,6 @@ def test_rows_of_an_older_engine_are_left_out_not_fatal(tmp_path):
     db.commit()
     db.close()
     client = CaptureTimeClient(FAST, local_store=path)
-    assert client.local.store.older_rows == {"old"} and not client.local.store.corrupt_rows
-    assert same(client.get(2, 1), good) and client.local.stats()["computations"] == {}
+    assert client.backend.store.older_rows == {"old"} and not client.backend.store.corrupt_rows
+    assert same(client.get(2, 1), good) and client.stats()["computations"] == {}
     assert len(StatsStore(path, read_only=True).table()) == 1

@@ -168,7 +168,7 @@ def test_exit_point_and_speeds_can_be_set_and_varied(tmp_path):
 def test_default_shard_size_follows_the_engines_cost_model():
     """About half a second of work per shard by the engine's cost model: more games of
     cheap cases, fewer of dear ones (more agents, cells, slower pursuers, longer t_max)."""
-    from farm.config import SHARD_SECONDS, default_shard_games
+    from farm.shards import SHARD_SECONDS, games_per_shard as default_shard_games
     from workers import Case
     from workers.engine import estimated_game_seconds
 

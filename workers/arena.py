@@ -32,10 +32,12 @@ class Arena:
 
     @property
     def k(self) -> int:
+        """The number of vertices (and edges)."""
         return len(self.vertices)
 
     @property
     def area(self) -> float:
+        """The polygon's area (shoelace formula)."""
         v = self.vertices
         w = np.roll(v, -1, axis=0)
         return 0.5 * float(np.sum(v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]))

@@ -28,9 +28,15 @@ __all__ = ["kernel_cache", "kernel_cache_dir", "precompile"]
 _ROOT = Path(__file__).resolve().parent
 
 
+def _kernel_sources() -> list[Path]:
+    """Every file whose code is compiled into the kernels: the engine, the geometry, and the
+    policies with their registry (which generates the dispatch the engine inlines)."""
+    return sorted([_ROOT / "engine.py", _ROOT / "geometry.py", *(_ROOT / "policies").glob("*.py")])
+
+
 def _sources_digest() -> str:
     h = hashlib.sha256()
-    for path in sorted([_ROOT / "engine.py", _ROOT / "geometry.py", *(_ROOT / "policies").glob("*.py")]):
+    for path in _kernel_sources():
         h.update(str(path.relative_to(_ROOT)).encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
@@ -78,8 +84,10 @@ def precompile() -> float:
 
     import numpy as np
 
-    from workers import DEFAULT_ARENA, simulate_games, voronoi_cells
-    from workers.engine import step_velocities
+    # Here, not at the top: this module is imported before the kernels are defined (in kernel_cache()).
+    from workers.arena import DEFAULT_ARENA
+    from workers.engine import simulate_games, step_velocities
+    from workers.geometry import voronoi_cells
 
     t0 = time.perf_counter()
     p, e = np.array([[[4.0, 5.0]]]), np.array([[[8.0, 5.0]]])

@@ -19,20 +19,25 @@ the farm: one process per core, each playing its shard's games.
 from __future__ import annotations
 
 import math
+import types
 from collections import namedtuple
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from numba import njit
 
 from workers.arena import Arena, make_arena
+from workers.case import case_defaults
 from workers.errors import InputError, point, positive
 from workers.geometry import NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity, voronoi_cells
-from workers.policies import Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
+from workers.policies import Policy, Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
+from workers.policies.registry import dispatch, is_builtin
+from workers.version import ENGINE_VERSION
 
-__all__ = ["ENGINE_VERSION", "GameResults", "simulate_games", "step_velocities", "estimated_game_seconds", "V_MAX"]
+__all__ = ["ENGINE_VERSION", "GameResults", "simulate_games", "step_velocities", "checked_games",
+           "estimated_game_seconds", "case_defaults", "V_MAX"]
 
-ENGINE_VERSION = "2.0.0"
 V_MAX = 1.0
 MAX_STEPS = 10_000_000
 
@@ -71,6 +76,7 @@ class GameResults:
 
     @property
     def n_games(self) -> int:
+        """B, the number of games."""
         return self.capture_times.shape[0]
 
     def alive_at(self, frame: int) -> np.ndarray:
@@ -98,6 +104,7 @@ class GameResults:
 
 # ---------------------------------------------------------------- compiled core
 Work = namedtuple("Work", "xs ys cell_of start items px py pl wx wy wl s cand cd2")
+Work.__doc__ = """Scratch arrays for building the cells of one game (see geometry.build_grid, build_cell)."""
 
 
 @njit(cache=True)
@@ -303,6 +310,35 @@ def _step_velocities(P, E, alive, p_kind, e_kind, cells, target, dt, vp, ve, av)
     return up, ue
 
 
+def _uncached_copy(kernel, **names):
+    """A fresh compiled copy of `kernel` (same options, no disk cache) whose globals `names`
+    are replaced, e.g. the dispatch it inlines."""
+    f = kernel.py_func
+    copy = types.FunctionType(f.__code__, {**f.__globals__, **names}, f.__name__, f.__defaults__, f.__closure__)
+    copy.__qualname__ = f.__qualname__
+    return njit(**{k: v for k, v in kernel.targetoptions.items() if k != "nopython"})(copy)
+
+
+@lru_cache(maxsize=None)
+def _kernels_with(pursuer_dispatch, evader_dispatch):
+    """(_play, _step_velocities) compiled with these dispatches inlined, not cached on disk.
+
+    numba finds a cached kernel by its file, qualified name and argument types, never by
+    the functions it inlines: a cached copy would share (and overwrite) the built-in
+    kernels' entries, so a registry other than the built-in one gets copies compiled in
+    memory, once per process (Dispatcher.recompile would flush the shared cache)."""
+    controls = _uncached_copy(_controls, pursuer_velocity=pursuer_dispatch, evader_velocity=evader_dispatch)
+    return _uncached_copy(_play, _controls=controls), _uncached_copy(_step_velocities, _controls=controls)
+
+
+def _kernels(pp: Policy, ep: Policy):
+    """The compiled (_play, _step_velocities) for games of these policies: the cached kernels
+    for built-in policies, else copies compiled for the registry as it is now."""
+    if is_builtin(pp, "pursuer") and is_builtin(ep, "evader"):
+        return _play, _step_velocities
+    return _kernels_with(dispatch("pursuer"), dispatch("evader"))
+
+
 # ---------------------------------------------------------------- Python API
 def estimated_game_seconds(n_pursuers: int, n_evaders: int, pursuer_policy: str, evader_policy: str,
                            t_max: float, dt: float, pursuer_speed: float = V_MAX, evader_speed: float = V_MAX) -> float:
@@ -317,7 +353,6 @@ def estimated_game_seconds(n_pursuers: int, n_evaders: int, pursuer_policy: str,
     per_step = 0.2e-6 + cells * n_evaders * (0.6e-6 + 3e-9 * agents) + 2e-9 * n_pursuers * n_evaders + 20e-9 * agents
     steps = 700.0 * max(1.0, n_evaders / n_pursuers) * max(1.0, evader_speed / pursuer_speed) ** 2
     return min(t_max / dt, steps) * per_step
-
 
 
 def _positions(name: str, value, arena: Arena) -> np.ndarray:
@@ -344,32 +379,20 @@ def _arena_arrays(arena: Arena):
             np.ascontiguousarray(arena.normals), np.ascontiguousarray(arena.offsets))
 
 
-def case_defaults(**given) -> list:
-    """The values given, each None replaced by workers.Case's default for that name (the one
-    place a game setting's default is defined)."""
-    from dataclasses import MISSING
-
-    from workers.montecarlo import Case  # montecarlo imports this module
-
-    fields = Case.__dataclass_fields__
-    return [fields[name].default if v is None and fields[name].default is not MISSING else v
-            for name, v in given.items()]
-
-
 def step_velocities(pursuers, evaders, alive, *, pursuer_policy=None, evader_policy=None, dt=None, target=None,
                     arena=None, pursuer_speed=None, evader_speed=None):
-    """One step's controls for A game states (no validation; for tests and tools); a setting
-    left None is workers.Case's default.
+    """One step's controls for A game states (no validation; for tests and tools).
 
-    pursuers (A, n_p, 2), evaders (A, n_e, 2) float64, alive (A, n_e) bool ->
-    (u_p (A, n_p, 2), u_e (A, n_e, 2)) float64, zero for evaders out of the game.
+    pursuers: (A, n_p, 2) float64, evaders: (A, n_e, 2) float64, alive: (A, n_e) bool
+    evaders still in the game; a setting left None is workers.Case's default. Returns
+    u_p: (A, n_p, 2) and u_e: (A, n_e, 2) float64, zero for evaders out of the game.
     """
     pursuer_policy, evader_policy, dt, target, pursuer_speed, evader_speed = case_defaults(
         pursuer_policy=pursuer_policy, evader_policy=evader_policy, dt=dt, target=target,
         pursuer_speed=pursuer_speed, evader_speed=evader_speed)
     pp, ep = get_pursuer_policy(pursuer_policy), get_evader_policy(evader_policy)
     arena = make_arena(arena)
-    return _step_velocities(
+    return _kernels(pp, ep)[1](
         np.ascontiguousarray(pursuers, dtype=np.float64), np.ascontiguousarray(evaders, dtype=np.float64),
         np.ascontiguousarray(alive, dtype=np.bool_), pp.kind, ep.kind, pp.needs_cells or ep.needs_cells,
         np.asarray(target, dtype=np.float64), float(dt), float(pursuer_speed), float(evader_speed),
@@ -377,9 +400,11 @@ def step_velocities(pursuers, evaders, alive, *, pursuer_policy=None, evader_pol
 
 
 def checked_games(pursuers, evaders, arena, capture_radius, dt, t_max, target):
-    """The games' common arguments checked (one-line InputError naming the argument) and as
-    the engine uses them: (arena Arena, pursuers (B, n_p, 2), evaders (B, n_e, 2) float64,
-    r_c, dt, t_max float, target (2,) float64, n_steps int)."""
+    """The games' common arguments checked, as the engine uses them.
+
+    A bad one raises a one-line InputError naming it. Returns (arena Arena, pursuers
+    (B, n_p, 2), evaders (B, n_e, 2) float64, r_c, dt, t_max float, target (2,) float64,
+    n_steps int)."""
     arena = make_arena(arena)
     p = _positions("pursuers", pursuers, arena)
     e = _positions("evaders", evaders, arena)
@@ -420,7 +445,8 @@ def simulate_games(
     vertices (k, 2) of a convex polygon; exit_point: None (no escapes), or the
     point (x, y) an evader escapes through when within capture_radius of it;
     pursuer_speed, evader_speed: each team's top speed. A setting left None is
-    workers.Case's default. Returns GameResults.
+    workers.Case's default. Returns GameResults; a bad argument raises a one-line
+    InputError naming it.
     """
     pursuer_policy, evader_policy, capture_radius, dt, t_max, target, pursuer_speed, evader_speed = case_defaults(
         pursuer_policy=pursuer_policy, evader_policy=evader_policy, capture_radius=capture_radius, dt=dt,
@@ -438,10 +464,11 @@ def simulate_games(
     escape_step = np.empty((n_games, n_e), dtype=np.int64)
     steps = np.empty(n_games, dtype=np.int64)
     box, lo, hi, av, normals, offsets = _arena_arrays(arena)
+    play_games = _kernels(pp, ep)[0]
 
     def play(frames: int):
         rec_p, rec_e = np.empty((frames, n_games, n_p, 2)), np.empty((frames, n_games, n_e, 2))
-        _play(p, e, pp.kind, ep.kind, pp.needs_cells or ep.needs_cells, r_c, dt, n_steps, goal,
+        play_games(p, e, pp.kind, ep.kind, pp.needs_cells or ep.needs_cells, r_c, dt, n_steps, goal,
               exit_point is not None, exit_xy, vp, ve, box, lo, hi, av, normals, offsets, frames > 0,
               rec_p, rec_e, capture_step, escape_step, steps)
         return rec_p, rec_e

@@ -43,8 +43,10 @@ PAD = -(1 << 40)  # label of padding slots
 
 @njit(cache=True)
 def cell_capacity(n_agents, k):
-    """Vertex slots a cell may need: one per arena edge and agent, twice over for the
-    rare clip whose inside vertices do not form one run (within the tolerance)."""
+    """Vertex slots a cell may need among n_agents agents in an arena of k edges.
+
+    One per arena edge and agent, twice over for the rare clip whose inside vertices do
+    not form one run (within the tolerance)."""
     return 2 * (n_agents + k) + 8
 
 
@@ -94,9 +96,10 @@ def _radius2(px, py, m, sx, sy):
 
 @njit(cache=True, inline="always")
 def clip(px, py, pl, m, sx, sy, qx, qy, label, wx, wy, wl, s):
-    """Clip the polygon (px, py, pl)[:m] by the half-plane nearer to (sx, sy) than to
-    (qx, qy), in place; wx, wy, wl, s are scratch of the same capacity.
-    Returns (the new vertex count, whether anything was cut)."""
+    """Clip the polygon (px, py, pl)[:m] by the half-plane nearer to (sx, sy) than to (qx, qy).
+
+    In place; the new edge takes `label`; wx, wy, wl, s are scratch of the same
+    capacity. Returns (the new vertex count, whether anything was cut)."""
     nx, ny = qx - sx, qy - sy
     norm = math.hypot(nx, ny)
     nx, ny = nx / norm, ny / norm

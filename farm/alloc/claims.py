@@ -32,7 +32,14 @@ __all__ = ["plateau_minutes", "claims"]
 
 
 def plateau_minutes(run: Path) -> tuple[float, float, float] | None:
-    """(minutes to the plateau, its timestep, the run's training minutes), or None without data."""
+    """When a training run's evaluation return plateaued: claim (c)'s measure of one run.
+
+    The plateau is the first evaluation whose mean return comes within 5% (of the range
+    of the evaluations' mean returns) of the best. Reads run/evaluations.npz and
+    run/metrics.json; returns (minutes of training to the plateau, its timestep, the
+    run's training minutes), or None when either file is missing. The minutes scale the
+    run's wall time by the share of its timesteps.
+    """
     npz, metrics = run / "evaluations.npz", run / "metrics.json"
     if not npz.exists() or not metrics.exists():
         return None
@@ -56,7 +63,15 @@ def _fmt(m: float, h: float) -> str:
 
 
 def claims(runs_dir: Path, c0: str = "paper_3x3_c1_0", c15: str = "paper_3x3_c1_1.5", policy: str = "td3") -> list[dict]:
-    """The three claims as rows {claim, measured, verdict}."""
+    """Measure the paper's three claims on evaluated runs: rows {claim, measured, verdict}.
+
+    runs_dir: the folder of training runs; c0, c15: the names of the C_capture = 0 and
+    1.5 runs in it; policy: the evaluated policy whose measures count (eval_steps.csv's
+    `policy` column). Claims (a) and (b) need the runs' eval_steps.csv (columns policy,
+    episode, step, coverage, engaged_cells, defenders_per_engaged) and are left out
+    without it; (c) takes every run in runs_dir with its evaluations. Each row's values
+    are strings.
+    """
     out = []
     a, b = runs_dir / c0, runs_dir / c15
     sa, sb = _steps(a), _steps(b)

@@ -67,7 +67,13 @@ _GAME_FIELDS = {name: (CASE_TYPES[name] | None, None) for name in SETTING_FIELDS
 
 
 class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIELDS)):
-    """The MDP's fields (above) and the engagement games' Case settings (made from Case)."""
+    """The allocation MDP's settings: its own fields and the engagement games' Case settings.
+
+    The MDP's fields are _AllocFields' (above); the games' are every workers.Case setting
+    but the team sizes, each None by default, which means the engagement's value
+    (ENGAGEMENT_DEFAULTS, and under v2 the window tied to the step), else Case's default.
+    A bad or contradictory value raises pydantic's ValidationError naming the field.
+    """
 
     @model_validator(mode="before")
     @classmethod

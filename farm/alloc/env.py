@@ -1,27 +1,10 @@
 """The N x N grid allocation MDP (paper section 3, docs/model.md section 5) as a gymnasium env.
 
-State: defenders' density D (sums to 1) and intruders' density I (sums to the
-surviving fraction) over cells c = row * N + col. Observation [D, I], float32.
-Action: one number in [-1, 1] per feasible move (stay or one of the 8
-neighbours inside the grid), cell by cell in cell order, moves in row-major
-(d_row, d_col) order; each cell's slice maps to a probability row:
-  softmax:  p = softmax(beta * a)              (default, beta = 5)
-  shifted:  p = (a + 1) / sum(a + 1)           (uniform when all are -1)
-giving a column-stochastic T (column j: where cell j's defenders go; infeasible
-moves exactly 0), and D' = T D.
-A step (step_seconds of game time, under engagement v2 the time an intruder needs
-to cross a cell): defenders move; intruders drift vertically (optional) and
-advance one column left, the mass leaving the left edge breaching; then every
-cell holding both sides is engaged: n_p = round(D_c N_def) >= 1,
-n_e = max(1, round(I_c N_int)), and the capture-time service's expected fraction
-of intruders captured within the window tau removes that share of the cell's
-intruders (under v2 the games are pure pursuit against intruders heading for the
-exit, which they escape through; escaped intruders go on with the column's
-advance, never counted as eliminated). Reward:
-  R = -c_distribution * sum(I) + c_capture * sum_c I_c max(0, 1 - t_c / capture_time_norm)
-      - breach_penalty * (mass breached this step),
-t_c the mean capture time of the cell's game (t_max when nobody is caught);
-capture_time_norm is tau under v2. See farm.alloc.config for the two models.
+SwarmAllocationEnv is the env (registered as `farm/SwarmAllocation-v0`); its docstring
+describes the MDP: action and observation spaces, one step, the reward, the start and
+the end of an episode, and its arguments. moves and n_actions give the action layout
+of an N x N grid; snap and snap_many the lattice of team sizes (`team_sizes: lattice`).
+See farm.alloc.config for the settings and the two engagement models.
 """
 
 from __future__ import annotations
@@ -30,8 +13,10 @@ import logging
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.error import ResetNeeded
 
 from farm.alloc.config import AllocConfig
+from farm.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -39,8 +24,14 @@ LATTICE = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 
 
 def moves(n: int):
-    """Feasible moves of an n x n grid: src (A,), dst (A,) int64 cell indices and
-    start (n*n,) int64 offset of each cell's slice in the action vector."""
+    """The feasible moves of an n x n grid, in the action vector's order.
+
+    A cell may stay or move to any of its 8 neighbours inside the grid; cells come in
+    cell order (c = row * n + col), each cell's moves in row-major (d_row, d_col) order.
+    Returns (src, dst, start): src: (A,) int64 and dst: (A,) int64 the source and
+    destination cell of each move, A = n_actions(n); start: (n*n,) int64 the offset of
+    each cell's slice in the action vector.
+    """
     src, dst, start = [], [], []
     for r in range(n):
         for c in range(n):
@@ -55,6 +46,11 @@ def moves(n: int):
 
 
 def n_actions(n: int) -> int:
+    """The number of feasible moves A of an n x n grid (n >= 2): the action's length.
+
+    Corners have 4 moves, other edge cells 6, inner cells 9: A = 4*4 + 6*4(n-2) + 9(n-2)^2
+    (49 for n = 3).
+    """
     return 4 * 4 + 6 * 4 * (n - 2) + 9 * (n - 2) ** 2
 
 
@@ -63,28 +59,154 @@ _LATTICE_MIDS = np.sqrt(_LATTICE[:-1] * _LATTICE[1:])  # geometric midpoints: ne
 
 
 def snap_many(x: np.ndarray) -> np.ndarray:
-    """(k,) int team sizes -> (k,) int64: the nearest lattice size of each in log
-    scale (team_sizes: lattice); at a midpoint the smaller would win, but no
-    integer is one."""
+    """Snap team sizes to the nearest size of LATTICE in log scale (team_sizes: lattice).
+
+    x: (k,) int team sizes -> (k,) int64 lattice sizes. At a geometric midpoint of two
+    lattice sizes the smaller would win, but no integer is one.
+    """
     return _LATTICE[np.searchsorted(_LATTICE_MIDS, x)]
 
 
 def snap(x: int) -> int:
-    """snap_many for one team size."""
+    """Snap one team size to the nearest lattice size in log scale (snap_many for one)."""
     return int(snap_many(np.asarray([x]))[0])
 
 
 class SwarmAllocationEnv(gym.Env):
+    """The grid allocation MDP: place a defender swarm over an N x N grid against intruders.
+
+    ## Description
+
+    The paper's section 3 (docs/model.md section 5). An N x N grid (`grid_size`) of
+    cells c = row * N + col, each cell one pursuit-evasion arena. The defenders' density
+    D (sums to 1) and the intruders' density I (sums to the surviving fraction) live on
+    the cells. The intruders enter at the right-most column and advance one column left
+    per step; the allocator moves the defenders' mass between neighbouring cells. Every
+    cell holding both sides is engaged: its game, n_p = round(D_c n_defenders) >= 1
+    defenders against n_e = max(1, round(I_c n_intruders)) intruders, is answered by the
+    capture-time service (a CaptureTimeClient), and the service's expected fraction of
+    intruders captured within the window tau removes that share of the cell's intruders.
+
+    Under engagement v2 (the default) a step lasts `step_seconds` of game time, the time
+    an intruder needs to cross a cell, and the window is that step (tau = step_seconds).
+    A step, in this order:
+
+    1. the defenders move: D' = T D (T from the action, below);
+    2. the intruders drift vertically (`vertical_drift` d: each row sends a share d of
+       its mass to each neighbouring row), then advance one column left; the mass that
+       leaves the left edge has breached;
+    3. every cell with n_p >= 1 and I_c > `engage_min_mass` is engaged (`team_sizes:
+       lattice` snaps n_p and n_e with snap_many). Under v2 the games are by default pure
+       pursuit against intruders heading for the exit, through which they escape; escaped
+       intruders stay in the cell's mass and go on with the next advance, never
+       counted as eliminated. Defenders are never lost.
+
+    See farm.alloc.config for the settings and the two engagement models (v1, v2).
+
+    ## Action Space
+
+    A `Box(-1, 1, (A,), float32)`, A = n_actions(N) (49 for N = 3): one number per
+    feasible move (stay or one of the 8 neighbours inside the grid), cell by cell in cell
+    order, moves in row-major (d_row, d_col) order (moves(N) gives src, dst and start).
+    Values are clipped to [-1, 1]. Each cell's slice maps to a probability row
+    (`action_map`):
+
+    - `softmax` (default): p = softmax(beta a), beta = `softmax_beta` (5);
+    - `shifted`: p = (a + 1) / sum(a + 1), uniform when every entry is -1.
+
+    This gives a column-stochastic T: (N^2, N^2) float64, column j where cell j's
+    defenders go, infeasible moves exactly 0 (transition_matrix).
+
+    ## Observation Space
+
+    A `Box(0, 1, (2 N^2,), float32)`: [D, I] clipped to [0, 1], D at index c and I at
+    N^2 + c for cell c = row * N + col.
+
+    | Index          | Observation                        | Min | Max |
+    |----------------|------------------------------------|-----|-----|
+    | 0 .. N^2-1     | defenders' density D_c             | 0   | 1   |
+    | N^2 .. 2N^2-1  | intruders' density I_c             | 0   | 1   |
+
+    ## Rewards
+
+        R = -c_distribution * sum(I) + c_capture * S - breach_penalty * B
+
+    sum(I) is the intruder mass left after the step's engagements; B the mass breached
+    this step; the capture score S = sum over engaged cells of I_c max(0, 1 - t_c /
+    capture_time_norm), I_c the cell's mass before its engagement, t_c the mean capture
+    time of the cell's game (t_max when nobody is caught); capture_time_norm defaults to
+    tau under v2 (10 s under v1). Defaults: c_distribution 1, c_capture 0, breach_penalty 1.
+
+    ## Starting State
+
+    All defenders at the base, the left-centre cell (row N//2, col 0). The intruders
+    over the right-most column (col N-1), their row shares drawn from a flat Dirichlet
+    (total 1) with the env's generator, seeded by reset(seed=...). The episode's
+    counters (steps, breached, eliminated) start at 0.
+
+    ## Episode End
+
+    1. Termination: the intruder mass sum(I) falls below `epsilon` (1e-3).
+    2. Truncation: `max_steps` (12) steps taken without termination.
+
+    step() before the first reset() raises gymnasium.error.ResetNeeded.
+
+    ## Info
+
+    reset() and step() return a dict of floats and ints: breached_step and
+    eliminated_step (intruder mass breached and eliminated this step), breached and
+    eliminated (over the episode), engaged_cells and estimates (engaged cells this step,
+    and of them the ones answered by an interpolation, see `estimates` below),
+    intruder_mass (sum(I)), coverage (the share of the intruder mass, after its advance,
+    in engaged cells) and defenders_per_engaged (the mean n_p over engaged cells, 0.0
+    with none). reset() reports 0 for every per-step entry.
+
+    ## Arguments
+
+    ```python
+    >>> import gymnasium, farm.alloc
+    >>> env = gymnasium.make("farm/SwarmAllocation-v0", grid_size=3, n_defenders=100, n_intruders=50)
+    >>> obs, info = env.reset(seed=0)
+    >>> obs.shape, obs.dtype, env.action_space.shape
+    ((18,), dtype('float32'), (49,))
+
+    ```
+
+    - `config`: AllocConfig or None (default): the MDP's and the engagement games'
+      settings; None makes them from `**kwargs`.
+    - `client`: a CaptureTimeClient or None (default), which answers the engagements.
+      None: the env makes an in-process client (no Ray) over `store` and owns it.
+    - `store`: str, Path or None (default): the SQLite store of the env's own client;
+      None: farm.service.store.default_store_path(), logged at INFO. Unused with a client.
+    - `render_mode`: None (default) or "rgb_array": render() returns a (32 N, 32 N, 3)
+      uint8 image of the densities.
+    - `estimates`: bool, default False. True: answer a first visit of a team-size pair
+      with the service's interpolation of its computed neighbours while the exact value
+      is computed in the background (counted in info["estimates"]); False: wait for the
+      exact value.
+    - `**kwargs`: AllocConfig fields (e.g. grid_size: int, n_defenders: int,
+      c_capture: float), the settings when config is None; given with a config they
+      are a farm.errors.ConfigError.
+
+    close() closes the client (and its store) when the env made it, and leaves a client
+    it was given open for its owner.
+
+    Attributes: config: AllocConfig; client: CaptureTimeClient; n: int, the grid side N;
+    src, dst: (A,) int64 and start: (N^2,) int64 as moves(N) returns them; n_moves:
+    (N^2,) int64 the number of moves of each cell; base: int, the base cell's index;
+    D, I: (N^2,) float64 the densities; steps: int and breached, eliminated: float, the
+    episode's counters; engagements, estimated: int, the engaged cells answered by the
+    service over the env's lifetime and of them the interpolated ones.
+    """
+
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
 
     def __init__(self, config: AllocConfig | None = None, *, client=None, store: str | None = None,
                  render_mode: str | None = None, estimates: bool = False, **kwargs):
-        """config or keyword arguments (AllocConfig fields); client: a
-        CaptureTimeClient, else an in-process one over `store` (default: the user's store,
-        farm.service.store.default_store_path(), logged at INFO); estimates: answer a
-        first visit of a team-size pair with the service's interpolation of its computed
-        neighbours while the exact value is computed in the background (counted in
-        info["estimates"]); otherwise wait for the exact value."""
+        """Make the env; the class docstring's Arguments section describes each argument."""
+        if config is not None and kwargs:
+            raise ConfigError(f"SwarmAllocationEnv: give a config or AllocConfig keyword arguments, not both "
+                              f"(got a config and {', '.join(sorted(kwargs))})")
         self.estimates = estimates
         self.engagements = 0  # engaged cells answered by the service, over the env's lifetime
         self.estimated = 0  # of which by an interpolation (estimates=True)
@@ -97,6 +219,7 @@ class SwarmAllocationEnv(gym.Env):
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.src),), dtype=np.float32)
         self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
         self.render_mode = render_mode
+        self._owns_client = client is None  # close() closes a client the env made, never one it was given
         if client is None:
             from farm.service import CaptureTimeClient
             from farm.service.store import default_store_path
@@ -111,10 +234,16 @@ class SwarmAllocationEnv(gym.Env):
         self.I = np.zeros(n * n)
         self.steps = 0
         self.breached = 0.0
+        self.eliminated = 0.0
+        self._reset_done = False  # step() needs a reset() first
 
     # ----- the MDP ------------------------------------------------------------------
     def move_probabilities(self, action: np.ndarray) -> np.ndarray:
-        """action (A,) -> p (A,) float64, each cell's slice summing to 1."""
+        """Map an action to the probabilities of the feasible moves (the `action_map`).
+
+        action: (A,) float, clipped to [-1, 1] -> p: (A,) float64 in the same order, each
+        cell's slice summing to 1.
+        """
         a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64), -1.0), 1.0)
         if self.config.action_map == "softmax":
             z = self.config.softmax_beta * a
@@ -131,7 +260,12 @@ class SwarmAllocationEnv(gym.Env):
         return p
 
     def transition_matrix(self, action: np.ndarray) -> np.ndarray:
-        """(N^2, N^2) float64, column j: where cell j's defenders go."""
+        """The column-stochastic transition matrix of an action (for tests and plots).
+
+        action: (A,) float -> T: (N^2, N^2) float64, column j where cell j's defenders go
+        (infeasible moves exactly 0); step() applies the same map as D' = T D without
+        making T.
+        """
         T = np.zeros((self.n * self.n, self.n * self.n))
         T[self.dst, self.src] = self.move_probabilities(action)
         return T
@@ -182,6 +316,11 @@ class SwarmAllocationEnv(gym.Env):
                 float(np.mean(n_p)))
 
     def reset(self, *, seed=None, options=None):
+        """Start an episode (see Starting State); returns (observation, info).
+
+        seed: seeds the env's generator (the intruders' start); options: unused.
+        observation: (2 N^2,) float32 [D, I]; info: the step measures, all 0.
+        """
         super().reset(seed=seed)
         n = self.n
         self.D = np.zeros(n * n)
@@ -191,9 +330,18 @@ class SwarmAllocationEnv(gym.Env):
         self.steps = 0
         self.breached = 0.0
         self.eliminated = 0.0
+        self._reset_done = True
         return self._obs(), self._info(0.0, 0.0, 0, 0)
 
     def step(self, action):
+        """One step of the MDP (see Description); returns (obs, reward, terminated, truncated, info).
+
+        action: (A,) float in [-1, 1]; obs: (2 N^2,) float32 [D, I]; reward: float;
+        terminated, truncated: bool (see Episode End); info: see Info. Raises
+        gymnasium.error.ResetNeeded before the first reset().
+        """
+        if not self._reset_done:
+            raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         cfg = self.config
         p = self.move_probabilities(action)
         self.D = np.bincount(self.dst, weights=p * self.D[self.src], minlength=self.n * self.n)
@@ -210,19 +358,39 @@ class SwarmAllocationEnv(gym.Env):
         return self._obs(), float(reward), bool(terminated), bool(truncated), info
 
     def _obs(self) -> np.ndarray:
+        """The observation: (2 N^2,) float32 [D, I] clipped to [0, 1]."""
         return np.minimum(np.maximum(np.concatenate([self.D, self.I]), 0.0), 1.0).astype(np.float32)
 
     def _info(self, breach, eliminated, engaged, estimates, coverage=0.0, per_cell=0.0) -> dict:
-        """coverage: the share of the intruder mass (after its advance) in cells with defenders
-        (n_p >= 1), which are the engaged cells; defenders_per_engaged: mean n_p over them."""
+        """The info dict of reset() and step() (see the class docstring's Info).
+
+        coverage: the share of the intruder mass (after its advance) in cells with defenders
+        (n_p >= 1), which are the engaged cells; defenders_per_engaged: mean n_p over them.
+        """
         return {"breached_step": breach, "breached": self.breached, "eliminated_step": eliminated,
-                "eliminated": getattr(self, "eliminated", 0.0), "engaged_cells": engaged,
+                "eliminated": self.eliminated, "engaged_cells": engaged,
                 "estimates": estimates, "intruder_mass": float(self.I.sum()), "coverage": coverage,
                 "defenders_per_engaged": per_cell}
 
     def render(self):
+        """The densities as an image: (32 N, 32 N, 3) uint8 under render_mode "rgb_array", else None.
+
+        Defenders blue, intruders red (farm.alloc.plots.density_frame).
+        """
         if self.render_mode != "rgb_array":
             return None
         from farm.alloc.plots import density_frame
 
         return density_frame(self.D.reshape(self.n, self.n), self.I.reshape(self.n, self.n), self.steps)
+
+    def close(self):
+        """Release the env's resources: the client's store if the env made the client.
+
+        A client made by the env (none given) is closed, with its in-process service's
+        SQLite store; a client given to the env belongs to its owner and stays open.
+        Closing twice is allowed and does nothing more.
+        """
+        if self._owns_client:
+            self._owns_client = False
+            self.client.close()
+        super().close()

@@ -20,13 +20,17 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 import pandas as pd
 
+from workers import CaptureStats
+
 from farm.alloc.baselines import BASELINES
 from farm.alloc.env import SwarmAllocationEnv
 from farm.alloc.plots import plot_episode
+from farm.service.lookup import CaptureTimeClient, Lookup
 
 
 def mean_ci95(x: np.ndarray) -> tuple[float, float]:
@@ -141,59 +145,73 @@ def plot_behaviour_steps(steps: dict, table: pd.DataFrame, path: Path, trained: 
     return save_figure(fig, path)
 
 
-def play_game(case, seed: int, game: int):
-    """(per-game statistics row, capture times (n_e,)) of game `game` of a case with a seed."""
-    from workers import results_statistics, run_games
+class FreshGames(Lookup):
+    """The games-fidelity backend: the lookup's core without a store, each ask computed as
+    the case's next fresh game (see the module doc), a step's games in parallel as Ray
+    tasks; each answer is recorded beside the service's for the same cell (`differences`).
 
-    res = run_games(case, seed, game, game + 1)
-    return results_statistics(res, case.tau, first_game=game), res.capture_times[0]
-
-
-class GameFidelityClient:
-    """Stands in for the service client: each engaged cell's game is simulated at each
-    step (the case's next fresh game, see the module doc; a step's games in parallel on
-    Ray), while the service's answer for the same cell is kept for comparison.
-
-    first_game: the number of a case's first fresh game (default: the service's games).
+    service_client: the CaptureTimeClient of the service being checked; first_game: the
+    number of a case's first fresh game (default: the service's games per case).
     """
 
-    def __init__(self, settings, service_client, first_game: int | None = None):
-        import ray
+    repeatable = False  # every ask is another game
 
-        self.settings = settings
+    def __init__(self, service_client, first_game: int | None = None):
         self.service = service_client
-        self.first_game = settings.games if first_game is None else first_game
+        self.first_game = service_client.settings.games if first_game is None else first_game
         self.played: dict[str, int] = {}  # case key -> games played so far
         self.differences: list[dict] = []
-        self._play = ray.remote(num_cpus=1)(play_game)
+        super().__init__(None, self._play)
 
-    def get_many(self, pairs, estimate=False):
+    def _play(self, keys: list) -> Iterator[tuple[int, CaptureStats]]:
         import ray
 
-        from workers import CaptureStats
+        from farm.runtime import bounded
+        from farm.tasks import _remote_shard
 
-        keys = [self.settings.key(*p) for p in pairs]
         numbers = []
-        for k in keys:
-            digest = k.digest()
+        for key in keys:
+            digest = key.digest()
             numbers.append(self.first_game + self.played.get(digest, 0))
             self.played[digest] = self.played.get(digest, 0) + 1
-        games = ray.get([self._play.remote(k.case, k.seed, g) for k, g in zip(keys, numbers)])  # a step's cells at once
-        expected = self.service.get_many(pairs)
-        out = []
-        for pair, g, (row, capture_times), v in zip(pairs, numbers, games, expected):
-            stats = CaptureStats.from_games(row)
-            out.append(stats)
+        rows: dict[int, pd.DataFrame] = {}
+        jobs = list(range(len(keys)))
+
+        def submit(k):
+            return _remote_shard.remote(keys[k].case, keys[k].seed, numbers[k], numbers[k] + 1, True)
+
+        for k, ref in bounded(submit, jobs, max(1, len(jobs))):  # a step's cells at once
+            rows[k] = ray.get(ref)[0]
+        expected = self.service.get_many([key.sizes for key in keys])
+        for k, (key, g, v) in enumerate(zip(keys, numbers, expected)):
+            stats = CaptureStats.from_games(rows[k])
             self.differences.append({
-                "n_pursuers": pair[0], "n_evaders": pair[1], "game": g,
+                "n_pursuers": key.sizes[0], "n_evaders": key.sizes[1], "game": g,
                 "game_frac_tau": stats.frac_captured_tau, "service_frac_tau": v.frac_captured_tau,
                 "game_mean_capture": stats.mean_capture.mean, "service_mean_capture": v.mean_capture.mean,
-                "capture_times": capture_times.tolist(),
+                "capture_times": rows[k]["capture_times"].iloc[0].tolist(),
             })
-        return out
+            yield k, stats
+
+    def warm(self, keys, progress=None) -> None:
+        """Nothing to fill: every ask is a fresh game."""
+
+
+def evaluate_fidelity(config, policies: dict, client, episodes: int, seed: int) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """`farm eval --fidelity games`: every policy on the same seeded episodes with each engaged
+    cell's game simulated (each policy meets the same fresh games); returns (the evaluation
+    table, one row per engagement: the game's and the service's outcomes)."""
+    tables, differences = [], []
+    for name, policy in policies.items():
+        games = FreshGames(client)
+        games_client = CaptureTimeClient(client.settings, backend=games)
+        tables.append(evaluate_policies(config, {name: policy}, games_client, episodes, seed)[0])
+        differences += [{"policy": name, **d} for d in games.differences]
+    return pd.concat(tables, ignore_index=True), pd.DataFrame(differences)
 
 
 def load_policy(run_dir: Path):
+    """The trained TD3 policy of a run folder (its model.zip), on the CPU."""
     from stable_baselines3 import TD3
 
     path = run_dir / "model.zip"
@@ -205,4 +223,5 @@ def load_policy(run_dir: Path):
 
 
 def baselines(grid_size: int) -> dict:
+    """Every baseline policy for an N x N grid, by name."""
     return {name: cls(grid_size) for name, cls in BASELINES.items()}

@@ -19,14 +19,22 @@ def _rgb(D: np.ndarray, I: np.ndarray) -> np.ndarray:
 
 
 def density_frame(D: np.ndarray, I: np.ndarray, step: int) -> np.ndarray:
-    """One (H, W, 3) uint8 frame for env.render()."""
+    """One image of the densities for env.render(): defenders blue, intruders red.
+
+    D, I: (N, N) float64 densities -> (32 N, 32 N, 3) uint8, each cell a 32 x 32 block.
+    step: the env's step count, accepted for the caller and not drawn.
+    """
     img = _rgb(D, I)
     scale = 32
     return (np.kron(img, np.ones((scale, scale, 1))) * 255).astype(np.uint8)
 
 
 def plot_episode(frames: list[tuple[np.ndarray, np.ndarray]], path: str | Path, title: str = "") -> Path:
-    """frames: (D, I) pairs (N, N) per step; one panel per step with the masses written in."""
+    """Save an episode's density maps to `path` (PNG): one panel per step, the masses written in.
+
+    frames: one (D, I) pair per step, each (N, N) float64; title: above the panels when
+    given. Returns the path.
+    """
     from farm.plots import new_figure
 
     k = len(frames)
@@ -54,8 +62,12 @@ def plot_episode(frames: list[tuple[np.ndarray, np.ndarray]], path: str | Path, 
 
 
 def training_curve_figure(steps, results, title: str = ""):
-    """Evaluation return (mean and spread over episodes) against environment steps:
-    steps (K,) int, results (K, episodes) float -> a matplotlib Figure."""
+    """The training curve: evaluation return (mean and spread over episodes) against environment steps.
+
+    steps: (K,) int64 timesteps of the evaluations, results: (K, episodes) float64
+    their returns (stable-baselines3's evaluations.npz) -> a matplotlib Figure (the
+    mean, shaded one standard deviation either side).
+    """
     from farm.plots import new_figure
 
     mean, std = results.mean(axis=1), results.std(axis=1)
@@ -73,6 +85,7 @@ def training_curve_figure(steps, results, title: str = ""):
 
 
 def plot_training_curve(steps, results, path: Path, title: str) -> Path:
+    """Save training_curve_figure(steps, results, title) to `path` (PNG); returns the path."""
     from farm.plots import save_figure
 
     return save_figure(training_curve_figure(steps, results, title), path)

@@ -41,10 +41,15 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.env import SwarmAllocationEnv
-from farm.config import DEFAULT_STORE, ConfigError, Strict, load_yaml_model
+from farm.config import ConfigError, Strict, load_yaml_model
+
+
+EVAL_SEED_OFFSET = 1_000_000  # the periodic evaluation's episodes: seeded apart from training's
 
 
 class TD3Params(Strict):
+    """stable-baselines3 TD3's hyperparameters, RL-Zoo style."""
+
     n_timesteps: int = Field(30_000, ge=1)
     policy: Literal["MlpPolicy"] = "MlpPolicy"
     learning_rate: float = Field(1e-3, gt=0)
@@ -62,13 +67,17 @@ class TD3Params(Strict):
 
 
 class EvalParams(Strict):
+    """The periodic evaluation during training (SB3's EvalCallback)."""
+
     freq: int = Field(2000, ge=1)
     episodes: int = Field(10, ge=1)
 
 
 class ServiceParams(Strict):
+    """Where training's capture-time statistics come from (farm.service.lookup.open_client)."""
+
     mode: Literal["ray", "local"] = "ray"
-    store: str = DEFAULT_STORE
+    store: str | None = None  # None: farm.service.store.default_store_path()
     address: str | None = None
     warm_lattice: bool = True
     # During training (its steps and its periodic evaluations), a first visit's outcome comes
@@ -78,6 +87,8 @@ class ServiceParams(Strict):
 
 
 class TrainConfig(Strict):
+    """A `farm train` config (see the module doc)."""
+
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
     seed: int = Field(0, ge=0)
     env: AllocConfig = AllocConfig()
@@ -90,50 +101,36 @@ class TrainConfig(Strict):
 
 
 def load_train_config(path) -> TrainConfig:
+    """Read and validate a training YAML; raises ConfigError with one line."""
     return load_yaml_model(path, TrainConfig, "training")
 
 
 def lattice_pairs(env: AllocConfig) -> list[tuple[int, int]]:
+    """The team-size pairs of the lattice up to the env's team sizes (team_sizes: lattice)."""
     from farm.alloc.env import LATTICE, snap
 
     top_p, top_e = snap(env.n_defenders), snap(env.n_intruders)
     return [(p, e) for p in LATTICE if p <= top_p for e in LATTICE if e <= top_e]
 
 
-def make_client(config: TrainConfig, settings):
-    """The capture-time client the envs share: through the Ray service (misses on
-    the farm) or in-process."""
-    from farm.service import CaptureTimeClient
+def store_of(config: TrainConfig) -> Path:
+    """The capture-time store a run uses: its config's, else the default store."""
+    from farm.service.store import default_store_path
 
-    if config.service.mode == "local":
-        return CaptureTimeClient(settings, local_store=config.service.store)
-    from farm.service import get_service
-
-    return CaptureTimeClient(settings, service=get_service(config.service.store))
+    return Path(config.service.store or default_store_path())
 
 
 def warm(client, config: TrainConfig, progress: bool = True) -> int:
-    """Fill the store and the client's memo over the team-size lattice, with a progress bar;
-    on Ray the cases are computed in parallel on the farm."""
+    """Fill the store and the client's memo over the team-size lattice, with a progress bar
+    (on Ray the cases are computed in parallel on the farm); returns the cases asked."""
     from farm.progress import GameProgress
 
     if config.env.team_sizes != "lattice" or not config.service.warm_lattice:
         return 0
     pairs = lattice_pairs(config.env)
     bar = GameProgress(len(pairs), enabled=progress, desc="capture-time lattice", unit="case")
-    if client.service is not None:
-        import ray
-
-        pending = [client.service.get_many.remote([client.key(*p)]) for p in pairs]
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            bar.update(len(ready))
-    else:
-        for p in pairs:
-            client.get_many([p])
-            bar.update(1)
+    client.warm(pairs, progress=bar.update)
     bar.close()
-    client.get_many(pairs)
     return len(pairs)
 
 
@@ -188,6 +185,7 @@ class StepProgress(BaseCallback):
 
 
 def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
+    """(path, steps) of a run folder's last checkpoint, or None."""
     found = []
     for p in (run_dir / "checkpoints").glob("rl_model_*_steps.zip"):
         m = re.match(r"rl_model_(\d+)_steps\.zip", p.name)
@@ -200,23 +198,25 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
 
 
 def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True) -> dict:
-    """Train (or resume) into run_dir; returns the metrics written to metrics.json."""
+    """Train (or resume) into run_dir, with the capture-time client of config.service
+    (farm.service.lookup.open_client: a local Ray or the cluster named, or in process);
+    returns the metrics written to metrics.json."""
     import torch
 
     run_dir = Path(run_dir)
     if run_dir.exists() and (run_dir / "config.yaml").exists() and not resume:
-        raise ConfigError(f"--out: {run_dir} already holds a run; use --resume or another folder")
+        raise ConfigError(f"out: {run_dir} already holds a run; resume it or choose another folder")
     if resume:
         saved = run_dir / "config.yaml"
         if not saved.exists():
-            raise ConfigError(f"--resume: {run_dir} holds no run to resume")
+            raise ConfigError(f"resume: {run_dir} holds no run to resume")
         before = load_train_config(saved)  # parsed: fields added since compare equal at their defaults
 
         def comparable(c: TrainConfig) -> dict:  # the length of training and the threads may change on resume
             return c.model_copy(update={"td3": c.td3.model_copy(update={"n_timesteps": 0}), "threads": None}).model_dump()
 
         if comparable(before) != comparable(config):
-            raise ConfigError(f"--resume: {run_dir} was trained with another config")
+            raise ConfigError(f"resume: {run_dir} was trained with another config")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(json.loads(config.model_dump_json()), sort_keys=False))
     threads_before = torch.get_num_threads()
@@ -229,11 +229,21 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
 
 
 def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool) -> dict:
-    client = make_client(config, config.env.service_settings())
+    from farm.service.lookup import open_client
+
+    with open_client(config.env.service_settings(), mode=config.service.mode, store=store_of(config),
+                     address=config.service.address) as client:
+        return _learn(config, run_dir, resume, show_progress, client)
+
+
+def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client) -> dict:
     warm(client, config, progress=show_progress)
     train_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
     env = DummyVecEnv([lambda: Monitor(train_env)])
     eval_env = Monitor(SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates))
+    # EvalCallback resets without a seed, which would leave the curve's episodes to OS entropy:
+    # seeding once here makes evaluations.npz the same on every run of the same config.
+    eval_env.reset(seed=config.seed + EVAL_SEED_OFFSET)
     p = config.td3
     n_act = env.action_space.shape[0]
     noise = NormalActionNoise(np.zeros(n_act), p.noise_std * np.ones(n_act)) if p.noise_type == "normal" else None

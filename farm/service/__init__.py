@@ -1,19 +1,21 @@
 """The capture-time service: "how fast do n_p pursuers catch n_e evaders?"
 
-A named Ray actor holds a cache over a persistent SQLite store and computes
-misses on the farm; CaptureTimeClient puts a memo in front of it.
+The whole lookup reads in farm/service/lookup.py: a CaptureTimeClient (the only thing
+callers touch) in front of one core (memo, store, estimate, compute) that runs in this
+process or as a named Ray actor (farm/service/actor.py) over a persistent SQLite store.
 """
 
-from farm.service.client import CaptureTimeClient
-from farm.service.keys import ServiceSettings, StatsKey
 from farm.errors import StoreCorruptError
+from farm.service.keys import ServiceSettings, StatsKey
+from farm.service.lookup import CaptureTimeClient, open_client
 from farm.service.store import StatsStore
 
-__all__ = ["CaptureTimeClient", "ServiceSettings", "StatsKey", "StatsStore", "StoreCorruptError", "get_service"]
+__all__ = ["CaptureTimeClient", "open_client", "ServiceSettings", "StatsKey", "StatsStore", "StoreCorruptError",
+           "get_service"]
 
 
 def get_service(*args, **kwargs):
-    """The named service actor (found or created); see farm.service.actor.get_service."""
+    """The named service actor (found or created); see farm.service.actor.get_service (imports Ray)."""
     from farm.service.actor import get_service as _get
 
     return _get(*args, **kwargs)

@@ -39,6 +39,7 @@ class ServiceSettings:
         return cls().with_(**fields)
 
     def key(self, n_pursuers: int, n_evaders: int) -> "StatsKey":
+        """The StatsKey of one team-size pair under these settings; InputError (one line) for bad games, seed or sizes."""
         if isinstance(self.games, bool) or not isinstance(self.games, int) or self.games < 2:
             raise InputError(f"games: must be a whole number >= 2, got {self.games!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
@@ -70,9 +71,11 @@ class StatsKey:
 
     @property
     def sizes(self) -> tuple[int, int]:
+        """(n_pursuers, n_evaders) of the key's case."""
         return self.case.n_pursuers, self.case.n_evaders
 
     def to_dict(self) -> dict:
+        """The key as plain JSON values: {"case": Case.to_dict(), "games", "seed"}."""
         return {"case": self.case.to_dict(), "games": self.games, "seed": self.seed}
 
     @cached_property
@@ -80,9 +83,11 @@ class StatsKey:
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
 
     def digest(self) -> str:
+        """SHA-256 (hex) of the key's JSON: its row id in the store."""
         return self._digest
 
     def settings_digest(self) -> str:
+        """16 hex digits identifying everything of the key but the team sizes (its neighbours for estimates share it)."""
         d = self.to_dict()
         d["case"] = {k: v for k, v in d["case"].items() if k not in ("n_pursuers", "n_evaders")}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]

@@ -96,6 +96,7 @@ class StatsStore:
             ) from None
 
     def close(self) -> None:
+        """Close the connection (the file stays as it is)."""
         self.db.close()
 
     def _row_value(self, key, key_json, value_json, checksum) -> CaptureStats | None:
@@ -114,6 +115,7 @@ class StatsStore:
             return None
 
     def get(self, key: StatsKey) -> CaptureStats | None:
+        """The stored value of a key, None when it has no sound row."""
         digest = key.digest()
         with self._lock:
             row = self.db.execute("SELECT key, key_json, value_json, checksum FROM stats WHERE key = ?",
@@ -121,6 +123,7 @@ class StatsStore:
         return None if row is None else self._row_value(*row)
 
     def put(self, key: StatsKey, value: CaptureStats) -> None:
+        """Store a computed (never an estimated) value, in one atomic commit."""
         if value.estimate is not None:
             raise ValueError("StatsStore.put: an estimate is never stored")
         digest = key.digest()

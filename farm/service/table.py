@@ -2,7 +2,7 @@
 `farm table show CONFIG`: print the tables and plot heatmaps.
 
     name: small
-    store: results/capture_times.sqlite
+    store: results/capture_times.sqlite                       # default: farm.service.store.default_store_path()
     settings: {games: 64, seed: 0, tau: 5.0, t_max: 60}      # games, seed, workers.Case fields
     n_pursuers: [1, 2, 3, 4]
     n_evaders: [1, 2, 3]
@@ -20,18 +20,23 @@ import numpy as np
 import pandas as pd
 from pydantic import Field, field_validator
 
-from farm.config import DEFAULT_STORE, SETTING_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
+from farm.config import SETTING_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
 from farm.service.keys import SERVICE_FIELDS, ServiceSettings
+from farm.service.store import default_store_path
 
 
 class PolicyPair(Strict):
+    """One table's policies."""
+
     pursuer_policy: str
     evader_policy: str
 
 
 class TableConfig(Strict):
+    """A `farm table` config: the store, the settings, the team sizes and the policy pairs."""
+
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
-    store: str = DEFAULT_STORE
+    store: str | None = None  # None: default_store_path()
     settings: dict[str, Any] = {}  # games, seed and workers.Case fields but the team sizes
     n_pursuers: list[int] = Field(min_length=1)
     n_evaders: list[int] = Field(min_length=1)
@@ -51,7 +56,12 @@ class TableConfig(Strict):
         own = {k: v for k, v in self.settings.items() if k in SERVICE_FIELDS}
         return ServiceSettings(case_from({"n_pursuers": 1, "n_evaders": 1, **game}), **own)
 
+    def store_path(self, store=None) -> Path:
+        """The store: `store` if given (the CLI's --store), else the config's, else the default."""
+        return Path(store or self.store or default_store_path())
+
     def settings_list(self) -> list[ServiceSettings]:
+        """One ServiceSettings per policy pair (the settings alone without pairs)."""
         base = self.service_settings()
         if not self.policies:
             return [base]
@@ -68,40 +78,34 @@ class TableConfig(Strict):
 
 
 def load_table_config(path) -> TableConfig:
+    """Read and validate a table YAML; raises ConfigError with one line."""
     return load_yaml_model(path, TableConfig, "table", check=TableConfig.keys)
 
 
 def fill_table(config: TableConfig, *, store=None, address=None, workers=None, show_progress=True) -> dict:
-    """Ask the service for every cell (misses computed on the farm); returns counts."""
+    """Have the service compute every cell of every table (misses on the farm, in parallel);
+    returns counts: cases, computed (the rest came from the store) and seconds."""
     from farm.progress import GameProgress
-    from farm.runtime import ray_cluster
-    from farm.service.actor import get_service
+    from farm.service.lookup import open_client
 
-    keys = config.keys()
+    settings = config.settings_list()
+    pairs = [(n_p, n_e) for n_p in config.n_pursuers for n_e in config.n_evaders]
     t0 = time.perf_counter()
-    with ray_cluster(address, num_cpus=workers) as ray:
-        wanted = Path(store or config.store).resolve()
-        service = get_service(wanted)
-        before = ray.get(service.stats.remote())
-        if Path(before["store"]) != wanted:
-            raise ConfigError(f"--store: this cluster's capture-time service uses {before['store']}, not {wanted}")
-        bar = GameProgress(len(keys), enabled=show_progress, desc="cases", unit="case")
-        pending = [service.get_many.remote([k]) for *_, k in keys]
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            ray.get(ready)
-            bar.update(len(ready))
+    with open_client(settings[0], store=config.store_path(store), address=address, num_cpus=workers) as client:
+        before = len(client.stats()["computations"])
+        bar = GameProgress(len(settings) * len(pairs), enabled=show_progress, desc="cases", unit="case")
+        for s in settings:
+            client.with_settings(s).warm(pairs, progress=bar.update)
         bar.close()
-        after = ray.get(service.stats.remote())
-    computed = len(after["computations"]) - len(before["computations"])
-    return {"cases": len(keys), "computed": computed, "seconds": time.perf_counter() - t0}
+        computed = len(client.stats()["computations"]) - before
+    return {"cases": len(settings) * len(pairs), "computed": computed, "seconds": time.perf_counter() - t0}
 
 
 def table_frames(config: TableConfig, store=None) -> list[tuple[ServiceSettings, pd.DataFrame, pd.DataFrame]]:
     """Per policy pair: mean capture time and fraction within tau, n_p rows x n_e columns."""
     from farm.service.store import StatsStore
 
-    path = Path(store or config.store)
+    path = config.store_path(store)
     if not path.exists():
         raise ConfigError(f"{path}: no capture-time store yet; run `farm table CONFIG` first")
     db = StatsStore(path)
@@ -124,6 +128,7 @@ def table_frames(config: TableConfig, store=None) -> list[tuple[ServiceSettings,
 
 
 def plot_heatmaps(settings: ServiceSettings, mean: pd.DataFrame, frac: pd.DataFrame, path: Path) -> Path:
+    """The two tables of a policy pair (table_frames) as heatmaps side by side, written to path."""
     from farm.plots import draw_heatmap, new_figure, save_figure
 
     fig, axes = new_figure(1, 2, figsize=(11, 4.6))

@@ -30,8 +30,8 @@ from pydantic import Field, field_validator, model_validator
 
 from workers import ENGINE_VERSION, GAME_FIELDS, SEEDING, Case
 
-from farm.config import (NUMERIC_FIELDS, ConfigError, Strict, case_from, check_game_names, default_shard_games,
-                         load_yaml_model)
+from farm.config import NUMERIC_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
+from farm.shards import MAX_SHARD_GAMES, games_per_shard, shard_ranges
 
 __all__ = ["SweepConfig", "Point", "load_sweep_config", "VARIABLE_FIELDS"]
 
@@ -40,6 +40,7 @@ VARIABLE_FIELDS = tuple(name for name in GAME_FIELDS if name not in ("arena", "l
 
 
 class RandomModel(Strict):
+    """`vary.random`: n seeded draws, each field uniform in its [low, high] range (whole numbers for int fields)."""
     n: int = Field(ge=1, le=100_000)
     ranges: dict[str, tuple[float, float]]
 
@@ -56,6 +57,7 @@ class RandomModel(Strict):
 
 
 class VaryModel(Strict):
+    """`vary`: what changes between points, `grid` (cartesian product), `zip` (lists in step) and `random`; their product."""
     grid: dict[str, list[Any]] | None = None
     zip: dict[str, list[Any]] | None = None
     random: RandomModel | None = None
@@ -99,10 +101,11 @@ def varied_names(vary: dict) -> list[str]:
 
 
 class SweepConfig(Strict):
+    """A sweep config (see the module doc): name, seed, games per point, shard size, the base game and what varies."""
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
     seed: int = Field(0, ge=0)
     games_per_point: int = Field(50, ge=1, le=10_000_000)
-    shard_games: int | None = Field(None, ge=1, le=100_000)
+    shard_games: int | None = Field(None, ge=1, le=MAX_SHARD_GAMES)
     base: dict[str, Any] = {}
     vary: VaryModel = VaryModel()
 
@@ -142,7 +145,7 @@ class SweepConfig(Strict):
                 where = ", ".join(f"{k}={v!r}" for k, v in changes.items())
                 prefix = f"vary: point {index} ({where})" if field in changes else "base"
                 raise ConfigError(f"{prefix}: {e}") from None
-            shard = self.shard_games or default_shard_games(case)
+            shard = self.shard_games or games_per_shard(case)
             out.append(Point(index, changes, case, self.games_per_point, shard))
         return out
 
@@ -166,9 +169,10 @@ class Point:
 
     def shards(self) -> list[tuple[int, int, int]]:
         """(shard number, first game, end game) of every shard of the point."""
-        return [(k, s, min(self.games, s + self.shard_games)) for k, s in enumerate(range(0, self.games, self.shard_games))]
+        return [(k, a, b) for k, (a, b) in enumerate(shard_ranges(self.games, self.shard_games))]
 
     def identity(self) -> dict:
+        """What of the point goes into the sweep's id: index, case key, games and games per shard."""
         return {"index": self.index, "case": self.case.key(), "games": self.games, "shard_games": self.shard_games}
 
 

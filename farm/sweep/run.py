@@ -11,19 +11,17 @@ Game g of a point is game g of its case with the sweep's seed, default_rng([seed
 not depend on the number of workers, on shard boundaries, on interruptions, or on where
 the point stands in the config.
 
-A worker or node that dies mid-shard is Ray's to handle: the shard task is retried
-(up to MAX_RETRIES times; Ray's `ray_tasks{IsRetry!="0"}` metric shows the retries).
-A shard's own exception fails the sweep at once: it would fail the same way again.
+A worker or node that dies mid-shard is Ray's to handle: the shard task (farm.tasks) is
+retried, and Ray's `ray_tasks{IsRetry!="0"}` metric shows the retries. A shard's own
+exception fails the sweep at once: it would fail the same way again.
 """
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import sys
 import time
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,18 +30,18 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from workers import ENGINE_VERSION, SEEDING, Case, CaptureStats, results_statistics, run_games
+from workers import ENGINE_VERSION, SEEDING, Case, CaptureStats
 
 from farm import metrics
 from farm.errors import ConfigError, SweepError
 from farm.output import atomic_write_bytes, write_table
+from farm.shards import play_shard, write_shard
 from farm.sweep.config import Point, SweepConfig
-
-MAX_RETRIES = 3
 
 
 @dataclass(frozen=True)
 class Shard:
+    """One shard of a sweep: games start..stop-1 of point `point`, its `number`-th."""
     point: int
     number: int
     start: int
@@ -51,40 +49,25 @@ class Shard:
 
     @property
     def file_name(self) -> str:
+        """Its Parquet file's name in the sweep's shards/ folder."""
         return f"p{self.point:05d}-s{self.number:05d}.parquet"
 
     @property
     def games(self) -> int:
+        """How many games it plays."""
         return self.stop - self.start
 
 
-def simulate_shard(case: Case, seed: int, shard: Shard) -> tuple[pd.DataFrame, int]:
-    """Play one shard's games; returns its per-game rows and the game-steps simulated."""
-    res = run_games(case, seed, shard.start, shard.stop)
-    df = results_statistics(res, case.tau, first_game=shard.start)
+def simulate_shard(case: Case, seed, shard: Shard) -> pd.DataFrame:
+    """One shard's rows as its file keeps them: point, shard, then farm.shards.play_shard's
+    per-game columns with detail (steps, capture and escape times)."""
+    return _label(play_shard(case, seed, shard.start, shard.stop, detail=True), shard)
+
+
+def _label(df: pd.DataFrame, shard: Shard) -> pd.DataFrame:
     df.insert(0, "shard", np.int64(shard.number))
     df.insert(0, "point", np.int64(shard.point))
-    df["steps"] = res.steps
-    df["capture_times"] = list(res.capture_times)
-    df["escape_times"] = list(res.escape_times)
-    return df, int(res.steps.sum())
-
-
-def _remote_shard(case: Case, seed: int, shard: Shard, sweep_name: str):
-    """Body of the Ray task: simulate, record worker-side metrics; returns the rows
-    and the id of the node that ran it."""
-    import ray
-
-    t0 = time.perf_counter()
-    df, steps = simulate_shard(case, seed, shard)
-    metrics.record_shard(sweep_name, shard.games, steps, time.perf_counter() - t0)
-    return df, ray.get_runtime_context().get_node_id()
-
-
-def table_bytes(df: pd.DataFrame) -> bytes:
-    buf = io.BytesIO()
-    pq.write_table(pa.Table.from_pandas(df, preserve_index=False), buf)
-    return buf.getvalue()
+    return df
 
 
 class SweepRun:
@@ -102,18 +85,18 @@ class SweepRun:
         """Create or reopen the folder; refuse one that holds another sweep."""
         manifest = self.out / "sweep.json"
         if self.out.exists() and not self.out.is_dir():
-            raise ConfigError(f"--out: {self.out} exists and is not a folder")
+            raise ConfigError(f"out: {self.out} exists and is not a folder")
         if manifest.exists():
             try:
                 other = json.loads(manifest.read_text()).get("sweep_id")
             except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-                raise ConfigError(f"--out: {manifest} is unreadable; choose another folder") from None
+                raise ConfigError(f"out: {manifest} is unreadable; choose another folder") from None
             if other != self.sweep_id:
                 raise ConfigError(
-                    f"--out: {self.out} holds sweep {other}, not this config's {self.sweep_id}; choose another folder"
+                    f"out: {self.out} holds sweep {other}, not this config's {self.sweep_id}; choose another folder"
                 )
         elif self.out.exists() and any(self.out.iterdir()):
-            raise ConfigError(f"--out: {self.out} is not empty and holds no sweep; choose another folder")
+            raise ConfigError(f"out: {self.out} is not empty and holds no sweep; choose another folder")
         self.shard_dir.mkdir(parents=True, exist_ok=True)
         for stale in self.shard_dir.glob(".*.tmp"):
             stale.unlink(missing_ok=True)
@@ -132,19 +115,22 @@ class SweepRun:
             atomic_write_bytes(manifest, json.dumps(doc, indent=2).encode())
 
     def all_shards(self) -> list[Shard]:
+        """Every shard of every point, in order."""
         return [Shard(p.index, k, a, b) for p in self.points for k, a, b in p.shards()]
 
     def missing_shards(self) -> list[Shard]:
+        """The shards whose file is not written yet (what a resumed run plays)."""
         return [s for s in self.all_shards() if not (self.shard_dir / s.file_name).exists()]
 
     def store(self, shard: Shard, df: pd.DataFrame) -> None:
-        atomic_write_bytes(self.shard_dir / shard.file_name, table_bytes(df))
+        """Write a shard's rows to its file, atomically."""
+        write_shard(df, self.shard_dir / shard.file_name)
 
     # ----- running ----------------------------------------------------------------
     def run_in_process(self, shards: list[Shard], progress=None) -> None:
+        """Play shards one after another in this process; progress(games) after each."""
         for shard in shards:
-            df, _ = simulate_shard(self.points[shard.point].case, self.config.seed, shard)
-            self.store(shard, df)
+            self.store(shard, simulate_shard(self.points[shard.point].case, self.config.seed, shard))
             if progress:
                 progress(shard.games)
 
@@ -153,36 +139,37 @@ class SweepRun:
         import ray
         from ray.exceptions import RayError, RayTaskError
 
-        task = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(_remote_shard)
+        from farm.runtime import bounded
+        from farm.tasks import MAX_RETRIES, _remote_shard
+
         name = self.config.name
         recorder = metrics.DriverMetrics(name)
-        pending = deque(shards)
-        in_flight: dict = {}
         counts = {"done": 0, "nodes": {}}
-        recorder.pending(len(pending))
-        while pending or in_flight:
-            while pending and len(in_flight) < workers:
-                shard = pending.popleft()
-                in_flight[task.remote(self.points[shard.point].case, self.config.seed, shard, name)] = shard
-            ready, _ = ray.wait(list(in_flight), num_returns=1)
-            for ref in ready:
-                shard = in_flight.pop(ref)
-                try:
-                    df, node = ray.get(ref)
-                except RayTaskError as e:  # the shard's own error: the same again on a retry
-                    cause = e.cause if e.cause is not None else e
-                    raise SweepError(f"shard {shard.file_name} failed: {type(cause).__name__}: "
-                                     f"{str(cause).splitlines()[0] if str(cause) else ''}") from None
-                except RayError as e:  # its worker or node died more often than Ray retries
-                    raise SweepError(f"shard {shard.file_name} failed {MAX_RETRIES + 1} times; "
-                                     f"last: {type(e).__name__}; rerun to resume") from None
-                self.store(shard, df)
-                counts["nodes"][node] = counts["nodes"].get(node, 0) + 1
-                counts["done"] += 1
-                recorder.done()
-                if progress:
-                    progress(shard.games)
-            recorder.pending(len(pending) + len(in_flight))
+        left = len(shards)
+        recorder.pending(left)
+
+        def submit(shard: Shard):
+            case = self.points[shard.point].case
+            return _remote_shard.remote(case, self.config.seed, shard.start, shard.stop, True, name)
+
+        for shard, ref in bounded(submit, shards, workers):
+            try:
+                df, node = ray.get(ref)
+            except RayTaskError as e:  # the shard's own error: the same again on a retry
+                cause = e.cause if e.cause is not None else e
+                raise SweepError(f"shard {shard.file_name} failed: {type(cause).__name__}: "
+                                 f"{str(cause).splitlines()[0] if str(cause) else ''}") from None
+            except RayError as e:  # its worker or node died more often than Ray retries
+                raise SweepError(f"shard {shard.file_name} failed {MAX_RETRIES + 1} times; "
+                                 f"last: {type(e).__name__}; rerun to resume") from None
+            self.store(shard, _label(df, shard))
+            counts["nodes"][node] = counts["nodes"].get(node, 0) + 1
+            counts["done"] += 1
+            recorder.done()
+            left -= 1
+            recorder.pending(left)
+            if progress:
+                progress(shard.games)
         return counts
 
     def log_run(self, info: dict) -> None:
@@ -193,6 +180,7 @@ class SweepRun:
 
     # ----- results ----------------------------------------------------------------
     def read_games(self) -> pd.DataFrame:
+        """Every shard's rows, sorted by point and game; SweepError naming an unreadable shard file."""
         frames = []
         for shard in self.all_shards():
             path = self.shard_dir / shard.file_name
@@ -204,6 +192,7 @@ class SweepRun:
         return df.sort_values(["point", "game"], kind="stable").reset_index(drop=True)
 
     def summarize(self) -> pd.DataFrame:
+        """One row per point (its case and CaptureStats.flat()), written to summary.parquet and summary.csv."""
         games = self.read_games()
         rows = []
         for point in self.points:
@@ -236,15 +225,17 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
     if todo:
         from contextlib import nullcontext
 
-        from farm.runtime import ray_cluster
+        from farm.runtime import connected, ray_cluster
 
-        cluster = ray_cluster(address, num_cpus=workers, metrics_port=metrics_port) if use_ray else nullcontext()
+        joined = bool(address or os.environ.get("RAY_ADDRESS"))
+        starts_ray = use_ray and not joined and not connected()  # only then is `workers` its CPU count
+        cluster = (ray_cluster(address, num_cpus=workers if starts_ray else None, metrics_port=metrics_port) if use_ray
+                   else nullcontext())
         with cluster as ray:  # connected (or refused in one line) before the progress bar shows
             bar = GameProgress(total_games, done_games, enabled=show_progress)
             try:
                 if use_ray:
                     cpus = int(ray.cluster_resources().get("CPU", 1))
-                    joined = address or os.environ.get("RAY_ADDRESS")
                     n = max(1, min(workers or cpus, cpus) if not joined else (workers or cpus))
                     info["workers"] = n
                     info.update(run.run_on_ray(todo, n, progress=bar.update))
@@ -272,10 +263,12 @@ def summary_view(summary: pd.DataFrame, changed: list[str]) -> pd.DataFrame:
 
 
 def format_summary(summary: pd.DataFrame, changed: list[str]) -> str:
+    """summary_view as a text table."""
     return summary_view(summary, changed).to_string(index=False, float_format=lambda x: f"{x:.3f}")
 
 
 def print_info(info: dict, file=sys.stderr) -> None:
+    """One line on what a run did: shards, already stored, run, workers, seconds."""
     print(
         f"sweep {info['sweep_id']}: {info['shards']} shards, {info['skipped']} already stored, "
         f"{info['done']} run on {info['workers']} worker(s) in {info['seconds']:.1f} s",

@@ -1,7 +1,8 @@
 """Policy registry: every policy is a small compiled function of (agent, Step), one file each.
 
 A policy returns its agent's velocity (ux, uy), of speed at most its team's
-(Step.vp for pursuers, Step.ve for evaders).
+(Step.vp for pursuers, Step.ve for evaders). workers.policies.registry lists them,
+numbers them and makes the compiled dispatch; its docstring says how to add one.
 """
 
 from workers.policies.context import Step, unit_velocity
@@ -13,6 +14,8 @@ from workers.policies.registry import (
     get_evader_policy,
     get_pursuer_policy,
     pursuer_velocity,
+    register_policy,
+    unregister_policy,
 )
 
 __all__ = [
@@ -23,6 +26,8 @@ __all__ = [
     "EVADER_POLICIES",
     "get_pursuer_policy",
     "get_evader_policy",
+    "register_policy",
+    "unregister_policy",
     "pursuer_velocity",
     "evader_velocity",
 ]

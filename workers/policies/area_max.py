@@ -17,6 +17,7 @@ NEEDS_CELLS = True
 
 @njit(cache=True, inline="always")
 def area_max(i, s):
+    """Evader i's velocity up its cell's area gradient (the module doc), or to its centroid."""
     if s.nb_start[i + 1] == s.nb_start[i]:
         return centroid(i, s)
     ex, ey = s.E[i, 0], s.E[i, 1]

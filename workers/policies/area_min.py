@@ -14,6 +14,7 @@ NEEDS_CELLS = True
 
 @njit(cache=True, inline="always")
 def area_min(j, s):
+    """Pursuer j's velocity to the midpoint of the edge shared with its nearest neighbouring evader."""
     if s.pn_i[j] < 0:
         return pure_pursuit(j, s)
     return unit_velocity(s.pn_mid[j, 0], s.pn_mid[j, 1], s.P[j, 0], s.P[j, 1], s.vp)

@@ -15,6 +15,7 @@ NEEDS_CELLS = True
 
 @njit(cache=True, inline="always")
 def constant_area(i, s):
+    """Evader i's velocity to the edge midpoint shared with its nearest neighbouring pursuer."""
     best, best_j, chosen = np.inf, -1, -1
     for t in range(s.nb_start[i], s.nb_start[i + 1]):
         j = s.nb_j[t]

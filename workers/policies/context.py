@@ -36,6 +36,8 @@ Step = namedtuple(
         "pn_mid",  # (n_p, 2) float64 midpoint of the edge the pursuer shares with it
     ],
 )
+Step.__doc__ = """What a policy sees of one game at one step (fields commented above; the cell fields
+area, cen, nb_*, pn_* are filled only for games whose policies declare NEEDS_CELLS)."""
 
 
 @njit(cache=True, inline="always")

@@ -9,6 +9,7 @@ NEEDS_CELLS = False
 
 @njit(cache=True, inline="always")
 def pure_pursuit(j, s):
+    """Pursuer j's velocity to the nearest live evader (ties: the lowest index)."""
     best, chosen = s.d2[j, 0], 0
     for i in range(1, s.d2.shape[1]):
         if s.d2[j, i] < best:

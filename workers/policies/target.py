@@ -14,6 +14,7 @@ ARRIVED = 1e-9
 
 @njit(cache=True, inline="always")
 def target(i, s):
+    """Evader i's velocity to the target point, landing on it on the last step."""
     hx, hy = s.target[0] - s.E[i, 0], s.target[1] - s.E[i, 1]
     dist = math.hypot(hx, hy)
     if dist <= ARRIVED:

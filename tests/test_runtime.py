@@ -1,0 +1,128 @@
+"""One runtime: every start or join of Ray through farm.runtime, conflicts refused in one
+line, the service bound to its store, one bounded-submit helper, --debug tracebacks."""
+
+import os
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from farm.errors import ClusterError, ConfigError
+from farm.runtime import bounded, ray_cluster
+
+
+def test_asking_the_running_ray_for_what_it_does_not_have_is_one_line(ray_local):
+    import ray
+
+    with ray_cluster(num_cpus=2, metrics_port=ray_local) as r:  # what it has: no error
+        assert r is ray
+    gcs = ray.get_runtime_context().gcs_address
+    with ray_cluster(address=gcs):
+        pass
+    for kwargs, field in (({"num_cpus": 3}, "num_cpus: 3"), ({"metrics_port": ray_local + 1}, "metrics_port"),
+                          ({"address": "127.0.0.1:1"}, "address 127.0.0.1:1")):
+        with pytest.raises(ClusterError) as e:
+            with ray_cluster(**kwargs):
+                pass
+        assert str(e.value).startswith(field) and "\n" not in str(e.value)
+    assert ray.is_initialized()  # a refusal leaves the running Ray alone
+
+
+def test_get_service_refuses_an_actor_that_serves_another_store(ray_local, tmp_path):
+    from farm.service import get_service
+
+    a = get_service(tmp_path / "a.sqlite", name="svc-store-check")
+    assert get_service(tmp_path / "a.sqlite", name="svc-store-check")._actor_id == a._actor_id
+    with pytest.raises(ConfigError) as e:
+        get_service(tmp_path / "b.sqlite", name="svc-store-check")
+    msg = str(e.value)
+    assert msg.startswith("store:") and "a.sqlite" in msg and "b.sqlite" in msg and "\n" not in msg
+
+
+def test_bounded_keeps_at_most_the_limit_in_flight_also_across_threads(ray_local):
+    import ray
+
+    @ray.remote(num_cpus=0)
+    class Gauge:
+        def __init__(self):
+            self.now, self.top = 0, 0
+
+        def enter(self):
+            self.now += 1
+            self.top = max(self.top, self.now)
+
+        def leave(self):
+            self.now -= 1
+
+        def peak(self):
+            return self.top
+
+    gauge = Gauge.remote()
+
+    @ray.remote(num_cpus=0)
+    def work(x):
+        import time
+
+        ray.get(gauge.enter.remote())
+        time.sleep(0.05)
+        ray.get(gauge.leave.remote())
+        return x * x
+
+    got = {item: ray.get(ref) for item, ref in bounded(lambda x: work.remote(x), range(12), 3)}
+    assert got == {x: x * x for x in range(12)} and ray.get(gauge.peak.remote()) <= 3
+
+    gauge = Gauge.remote()
+    slots = threading.BoundedSemaphore(2)
+    results = []
+
+    def run(offset):
+        results.extend(ray.get(ref) for _, ref in bounded(lambda x: work.remote(x), range(offset, offset + 6), 2,
+                                                          slots=slots))
+
+    threads = [threading.Thread(target=run, args=(k * 10,)) for k in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=120)
+    assert sorted(results) == sorted(x * x for k in range(3) for x in range(k * 10, k * 10 + 6))
+    assert ray.get(gauge.peak.remote()) <= 2
+
+
+def _farm(*args, env=None):
+    return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=300, env={**os.environ, **(env or {})})
+
+
+def test_debug_shows_the_traceback_else_one_line(tmp_path):
+    bad = tmp_path / "nope.yaml"
+    plain = _farm("sweep", bad)
+    assert plain.returncode == 2 and plain.stderr.strip().count("\n") == 0 and "Traceback" not in plain.stderr
+    for r in (_farm("--debug", "sweep", bad), _farm("sweep", bad, env={"SWARM_FARM_DEBUG": "1"})):
+        assert r.returncode != 0 and "Traceback" in r.stderr and "ConfigError" in r.stderr
+
+
+def test_library_errors_name_fields_and_the_cli_names_flags(tmp_path):
+    from farm.sweep import load_sweep_config
+    from farm.sweep.run import SweepRun
+
+    config = tmp_path / "s.yaml"
+    config.write_text("name: s\ngames_per_point: 4\nbase: {n_pursuers: 1, n_evaders: 1, t_max: 2}\n")
+    taken = tmp_path / "file"
+    taken.write_text("x")
+    with pytest.raises(ConfigError, match=r"^out: "):
+        SweepRun(load_sweep_config(config), taken).prepare()
+    r = _farm("sweep", config, "--out", taken, "--no-ray")
+    assert r.returncode == 2 and r.stderr.startswith("farm: error: --out: ")
+
+
+def test_the_local_ray_is_on_loopback_and_starts_quietly(ray_local, tmp_path):
+    import ray
+
+    assert {n["NodeManagerAddress"] for n in ray.nodes() if n["Alive"]} == {"127.0.0.1"}
+    assert ray.get_runtime_context().gcs_address.startswith("127.0.0.1:")
+    config = tmp_path / "s.yaml"
+    config.write_text("name: quiet\ngames_per_point: 4\nshard_games: 2\nbase: {n_pursuers: 1, n_evaders: 1, t_max: 2}\n")
+    r = _farm("sweep", config, "--out", tmp_path / "out", "--quiet", "--workers", 1)
+    assert r.returncode == 0, r.stderr
+    assert "WARNING" not in r.stderr and "Token authentication" not in r.stderr, r.stderr

@@ -1,0 +1,149 @@
+"""The game model: a game's parameters (Case), how its initial positions are drawn
+(InitialLaw), and the one place every setting's default is defined.
+
+`Case` is the one definition of a game's parameters, with their defaults,
+normalisation and validation; configs, the service's keys and the CLI are built
+from it, and the engine's own defaults are Case's (`case_defaults`)
+(docs/model.md sections 1-4).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import MISSING, asdict, dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from workers.arena import make_arena
+from workers.errors import InputError, point, positive
+from workers.policies import get_evader_policy, get_pursuer_policy
+from workers.version import ENGINE_VERSION
+
+__all__ = ["InitialLaw", "PAPER_LAW", "Case", "GAME_FIELDS", "case_defaults"]
+
+Box = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max
+# Field names by kind, for normalisation and validation (Case's numbers).
+_POSITIVE_FIELDS = ("capture_radius", "dt", "t_max", "tau", "pursuer_speed", "evader_speed")
+_POINT_FIELDS = ("target", "exit_point")
+
+
+@dataclass(frozen=True)
+class InitialLaw:
+    """How initial positions are drawn, independently and uniformly.
+
+    kind "boxes": pursuers in pursuer_box, evaders in evader_box (each
+    (x_min, x_max, y_min, y_max)); kind "uniform": everyone uniform in the arena.
+    """
+
+    __pydantic_config__ = {"extra": "forbid"}  # read from configs by pydantic: unknown names are errors
+
+    kind: Literal["boxes", "uniform"] = "boxes"
+    pursuer_box: Box = (3.0, 5.0, 0.0, 10.0)
+    evader_box: Box = (7.0, 9.0, 0.0, 10.0)
+
+
+PAPER_LAW = InitialLaw()
+
+
+@dataclass(frozen=True)
+class Case:
+    """A game's parameters: everything that changes a Monte Carlo case's numbers.
+
+    docs/model.md section 4; the engine's version is included. Build with Case(n_p, n_e,
+    **settings) from code, or with farm.config.case_from(mapping) from config values.
+    Numbers are normalised on construction (60 and 60.0 give the same Case and key);
+    `validate` checks them."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # read from configs by pydantic: unknown names are errors
+
+    n_pursuers: int
+    n_evaders: int
+    pursuer_policy: str = "area_min"
+    evader_policy: str = "centroid"
+    capture_radius: float = 0.25
+    dt: float = 0.01
+    t_max: float = 60.0
+    tau: float = 5.0
+    target: tuple[float, float] = (0.0, 5.0)
+    arena: tuple[tuple[float, float], ...] | None = None
+    law: InitialLaw = field(default_factory=InitialLaw)
+    exit_point: tuple[float, float] | None = None  # None: no escapes (the paper's games)
+    pursuer_speed: float = 1.0
+    evader_speed: float = 1.0
+    engine_version: str = ENGINE_VERSION
+
+    def __post_init__(self):
+        # One spelling per value, so that 60 and 60.0 give the same key.
+        def num(v):
+            return float(v) if isinstance(v, (int, float, np.number)) and not isinstance(v, bool) else v
+
+        for name in _POSITIVE_FIELDS:
+            object.__setattr__(self, name, num(getattr(self, name)))
+        for name in ("n_pursuers", "n_evaders"):
+            v = getattr(self, name)
+            if isinstance(v, np.integer):
+                object.__setattr__(self, name, int(v))
+        for name in _POINT_FIELDS:
+            v = getattr(self, name)
+            if isinstance(v, (tuple, list, np.ndarray)):
+                object.__setattr__(self, name, tuple(num(x) for x in v))
+        if isinstance(self.arena, (tuple, list)):
+            object.__setattr__(self, "arena", tuple(tuple(num(x) for x in v) for v in self.arena))
+        if isinstance(self.law, InitialLaw):
+            object.__setattr__(self, "law", InitialLaw(self.law.kind, tuple(num(x) for x in self.law.pursuer_box),
+                                                       tuple(num(x) for x in self.law.evader_box)))
+
+    def validate(self) -> "Case":
+        """The Case itself when every setting is valid, else an InputError naming the first bad one.
+
+        Checks the team sizes, the policies' names, that the numbers are positive and the
+        points finite, the arena, and that the law's boxes lie inside the arena."""
+        for name in ("n_pursuers", "n_evaders"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                raise InputError(f"{name}: must be a whole number >= 1, got {v!r}")
+        get_pursuer_policy(self.pursuer_policy)
+        get_evader_policy(self.evader_policy)
+        for name in _POSITIVE_FIELDS:
+            positive(name, getattr(self, name))
+        for name in _POINT_FIELDS:
+            if name != "exit_point" or self.exit_point is not None:
+                point(name, getattr(self, name))
+        arena = make_arena(self.arena)
+        if self.law.kind == "boxes":
+            for name in ("pursuer_box", "evader_box"):
+                box = getattr(self.law, name)
+                if len(box) != 4 or box[0] > box[1] or box[2] > box[3]:
+                    raise InputError(f"law.{name}: must be (x_min, x_max, y_min, y_max), got {box!r}")
+                corners = np.array([[box[0], box[2]], [box[1], box[2]], [box[1], box[3]], [box[0], box[3]]])
+                if not arena.contains(corners).all():
+                    raise InputError(f"law.{name}: {box!r} is not inside the arena")
+        elif self.law.kind != "uniform":
+            raise InputError(f"law.kind: must be 'boxes' or 'uniform', got {self.law.kind!r}")
+        return self
+
+    def to_dict(self) -> dict:
+        """Every field as plain JSON values (tuples become lists, the law a dict)."""
+        return json.loads(json.dumps(asdict(self)))
+
+    def key(self) -> str:
+        """A stable hash of every parameter, the engine's version included."""
+        blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+# The game settings a config may name (the engine's version is not a setting).
+GAME_FIELDS = tuple(name for name in Case.__dataclass_fields__ if name != "engine_version")
+
+
+def case_defaults(**given) -> list:
+    """The values given, each None replaced by Case's default for that name.
+
+    Case is the one place a game setting's default is defined. Names are Case's fields;
+    a value that is not None, and a field without a default, is returned as given, in the
+    order given."""
+    fields = Case.__dataclass_fields__
+    return [fields[name].default if v is None and fields[name].default is not MISSING else v
+            for name, v in given.items()]
