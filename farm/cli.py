@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 import time
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -56,9 +58,21 @@ def flags(*names: str, **renamed: str):
         raise
 
 
+def _contradictions(a, pairs) -> None:
+    """CliError naming both flags when two flags that contradict each other (or one that the
+    other makes ignored) are both given; a flag counts as given when it is not None."""
+    for first, second in pairs:
+        if getattr(a, first) is not None and getattr(a, second) is not None:
+            raise CliError(f"--{first.replace('_', '-')} and --{second.replace('_', '-')}: give one or the other "
+                           f"(with --{first.replace('_', '-')}, --{second.replace('_', '-')} would be ignored)")
+
+
 def _floats(text: str, field: str, n: int | None = None) -> list[float]:
+    entries = text.replace(";", ",").split(",")
+    if text.strip() and any(not x.strip() for x in entries):
+        raise CliError(f"{field}: an empty entry in {text!r}")
     try:
-        values = [float(x) for x in text.replace(";", ",").split(",") if x.strip()]
+        values = [float(x) for x in entries if x.strip()]
     except ValueError:
         raise CliError(f"{field}: expected comma-separated numbers, got {text!r}") from None
     if n is not None and len(values) != n:
@@ -125,6 +139,12 @@ def cmd_game(a) -> int:
     if a.plot and Path(a.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
         raise CliError(f"--plot: {a.plot!r} must end in .png, .pdf or .svg")
     settings = _game_settings(a)
+    _contradictions(a, [("positions", "pursuers"), ("positions", "evaders"), ("positions", "n_pursuers"),
+                        ("positions", "n_evaders"), ("positions", "seed"), ("positions", "law"),
+                        ("pursuers", "n_pursuers"), ("evaders", "n_evaders"), ("pursuers", "seed"),
+                        ("evaders", "seed"), ("pursuers", "law"), ("evaders", "law")])
+    if a.plot_times is not None and not a.plot:
+        raise CliError("--plot-times: is for the figure of --plot, which is not given")
     if a.positions:
         data = _load_json(a.positions, "--positions")
         if not isinstance(data, dict) or not {"pursuers", "evaders"} <= set(data):
@@ -135,8 +155,10 @@ def cmd_game(a) -> int:
             raise CliError("--pursuers and --evaders go together")
         pursuers, evaders = _points(a.pursuers, "--pursuers"), _points(a.evaders, "--evaders")
     else:
-        case = _case({"n_pursuers": a.n_pursuers, "n_evaders": a.n_evaders, **settings})
-        p, e = sample_initial_positions(case, a.seed, 0, 1)
+        n_p = 3 if a.n_pursuers is None else a.n_pursuers
+        n_e = 1 if a.n_evaders is None else a.n_evaders
+        case = _case({"n_pursuers": n_p, "n_evaders": n_e, **settings})
+        p, e = sample_initial_positions(case, 0 if a.seed is None else a.seed, 0, 1)
         pursuers, evaders = p[0], e[0]
     try:
         p = np.array(pursuers, dtype=np.float64)[None]
@@ -184,9 +206,13 @@ def cmd_pe_table(a) -> int:
     """`farm pe-table`: the paper's Tables 1 and 2 (Monte Carlo), with figures."""
     from farm.pe_table import format_tables, speeds_text, write_pe_tables
 
+    from farm.pe_table import pe_size
+    from farm.sizes import check_size
+
     if a.games < 2:
         raise CliError(f"--games: need at least 2 games per case for a CI, got {a.games}")
     base = _case({"n_pursuers": 1, "n_evaders": 1, **_game_settings(a, SPEED_FLAGS)})
+    check_size(pe_size(a.games, base), yes=a.yes, cpus=1)
     paper_speeds = base.pursuer_speed == base.evader_speed == 1.0
     out = a.out or ("results/pe-table" if paper_speeds
                     else f"results/pe-table-speeds-{base.pursuer_speed:g}-{base.evader_speed:g}")
@@ -214,11 +240,19 @@ def cmd_sweep(a) -> int:
 
     if a.workers is not None and a.workers < 1:
         raise CliError(f"--workers: must be >= 1, got {a.workers}")
+    no_ray = True if a.no_ray else None
+    _contradictions(argparse.Namespace(no_ray=no_ray, address=a.address, workers=a.workers,
+                                       metrics_port=a.metrics_port),
+                    [("no_ray", "address"), ("no_ray", "workers"), ("no_ray", "metrics_port"),
+                     ("address", "metrics_port")])
+    if a.metrics_port is not None and os.environ.get("RAY_ADDRESS"):
+        raise CliError("--metrics-port: is for a local Ray, but RAY_ADDRESS names a cluster to join")
     config = load_sweep_config(a.config)
     out = Path(a.out) if a.out else Path("results") / "sweeps" / config.name
-    with flags("out", "address", "metrics_port", workers="num_cpus"):
+    with flags("out", "address", "metrics_port", "rebuild", workers="num_cpus"):
         summary, info = run_sweep(config, out, address=a.address, workers=a.workers, use_ray=not a.no_ray,
-                                  show_progress=not a.quiet, metrics_port=a.metrics_port)
+                                  show_progress=not a.quiet, metrics_port=a.metrics_port, yes=a.yes,
+                                  rebuild=a.rebuild)
     print_info(info)
     print(f"{config.name}: {len(summary)} point(s), {int(summary['n_games'].sum())} games")
     print(format_summary(summary, config.vary.names()))
@@ -236,11 +270,19 @@ def cmd_table(a) -> int:
         args = args[1:]
     if len(args) != 1:
         raise CliError("table: usage: farm table CONFIG | farm table show CONFIG")
+    if show:
+        for flag in ("address", "workers", "yes"):
+            if getattr(a, flag) not in (None, False):
+                raise CliError(f"--{flag}: `farm table show` only reads the store; --{flag} is for `farm table`")
+    _contradictions(a, [("address", "workers")])
     config = load_table_config(args[0])
     if a.workers is not None and a.workers < 1:
         raise CliError(f"--workers: must be >= 1, got {a.workers}")
     if not show:
+        from farm.sizes import check_size
+
         with flags("store", "address", workers="num_cpus"):
+            check_size(config.size(), yes=a.yes, cpus=a.workers or 2)
             info = fill_table(config, store=a.store, address=a.address, workers=a.workers,
                               show_progress=not a.quiet)
         print(f"{config.name}: {info['cases']} cases, {info['computed']} computed, the rest from the store "
@@ -363,9 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--positions", help="JSON file {\"pursuers\": [[x, y], ...], \"evaders\": [[x, y], ...]}")
     src.add_argument("--pursuers", help="pursuer positions 'x,y;x,y;...'")
     src.add_argument("--evaders", help="evader positions 'x,y;x,y;...'")
-    src.add_argument("--n-pursuers", type=int, default=3)
-    src.add_argument("--n-evaders", type=int, default=1)
-    src.add_argument("--seed", type=int, default=0)
+    src.add_argument("--n-pursuers", type=int, help="sampled start: pursuers (default 3)")
+    src.add_argument("--n-evaders", type=int, help="sampled start: evaders (default 1)")
+    src.add_argument("--seed", type=int, help="sampled start: the game's seed (default 0)")
     _add_game_options(g)
     g.add_argument("--plot", help="write a PNG of the trajectories and Voronoi cells here")
     g.add_argument("--plot-times", help="times in s of the panels, e.g. '0,1,2' (default: start, middle, end)")
@@ -378,6 +420,7 @@ def build_parser() -> argparse.ArgumentParser:
                                  "results/pe-table-speeds-P-E)")
     t.add_argument("--format", choices=["csv", "parquet"], default="csv")
     t.add_argument("--no-figures", action="store_true")
+    t.add_argument("--yes", action="store_true", help="run over the size limits (farm/sizes.py) anyway")
     _add_game_options(t, SPEED_FLAGS)
     t.set_defaults(func=cmd_pe_table)
 
@@ -389,6 +432,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--metrics-port", type=int, help="local Ray only: Prometheus export port")
     s.add_argument("--no-ray", action="store_true", help="run the shards in this process, without Ray")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--yes", action="store_true", help="run a sweep over the size limits (farm/sizes.py) anyway")
+    s.add_argument("--rebuild", action="store_true",
+                   help="write a damaged or missing OUT/sweep.json again from CONFIG (its shards' sweep id is checked)")
     s.set_defaults(func=cmd_sweep)
 
     tb = sub.add_parser("table", help="fill the capture-time store (farm table CONFIG) or show it (farm table show CONFIG)")
@@ -398,6 +444,7 @@ def build_parser() -> argparse.ArgumentParser:
     tb.add_argument("--workers", type=int, help="local Ray only: CPUs")
     tb.add_argument("--plot-dir", help="where heatmaps go (default: next to the store, tables/)")
     tb.add_argument("--quiet", action="store_true")
+    tb.add_argument("--yes", action="store_true", help="fill a table over the size limits (farm/sizes.py) anyway")
     tb.set_defaults(func=cmd_table)
 
     r = sub.add_parser("report", help="one self-contained HTML page of everything in a results folder")
@@ -436,14 +483,42 @@ def _ray_errors() -> tuple:
     return (exceptions.RayError,) if exceptions is not None else ()
 
 
+_NEGATIVE = re.compile(r"^-\.?\d")
+
+
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """`--target -1,5` as `--target=-1,5`: argparse takes a value that starts with '-' for a
+    flag unless it is a plain number, so coordinates like -1,5 would need the '='."""
+    out: list[str] = []
+    for token in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and _NEGATIVE.match(token):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(str(token))
+    return out
+
+
+_WARNED: set[str] = set()
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Show a warning as one line `farm: warning: ...`, each text once per command."""
+    if str(message) not in _WARNED:
+        _WARNED.add(str(message))
+        print(f"farm: warning: {message}", file=sys.stderr)
+
+
 def main(argv=None) -> int:
     """Run the `farm` command line; returns the exit status (2 for bad input, one line on stderr).
     `farm --debug ...` or SWARM_FARM_DEBUG=1 lets errors through with their traceback."""
-    argv = sys.argv[1:] if argv is None else list(argv)
+    argv = _join_negative_values(sys.argv[1:] if argv is None else [str(x) for x in argv])
     debug = os.environ.get(DEBUG_ENV, "") not in ("", "0") or "--debug" in argv
     try:
-        args = build_parser().parse_args(argv)
-        return args.func(args)
+        with warnings.catch_warnings():
+            if not debug:
+                warnings.showwarning = _one_line_warning  # restored when the block ends
+            args = build_parser().parse_args(argv)
+            return args.func(args)
     except KeyboardInterrupt:
         if debug:
             raise

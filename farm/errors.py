@@ -7,7 +7,7 @@ or a Case); the CLI catches that one base class.
 from workers.errors import InputError, SwarmFarmError
 
 __all__ = ["SwarmFarmError", "InputError", "ConfigError", "ClusterError", "SweepError", "StoreCorruptError",
-           "NotAStoreError", "ReportError", "CliError"]
+           "NotAStoreError", "ReportError", "CliError", "ActionError", "TrainingDiverged", "ModelError"]
 
 
 class ConfigError(SwarmFarmError, ValueError):
@@ -36,3 +36,16 @@ class ReportError(SwarmFarmError, ValueError):
 
 class CliError(SwarmFarmError):
     """A bad command line."""
+
+
+class ActionError(InputError):
+    """An action the allocation env refuses: not of the action space's shape, not numbers,
+    or not finite (a workers.InputError, so a ValueError)."""
+
+
+class TrainingDiverged(SwarmFarmError):
+    """A training run whose losses, parameters or actions became non-finite: names the step."""
+
+
+class ModelError(SwarmFarmError):
+    """A run folder's model.zip that stable-baselines3 cannot load, or whose parameters are not finite."""

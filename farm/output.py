@@ -33,8 +33,9 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         os.close(dir_fd)
 
 
-def write_table(df: pd.DataFrame, stem: Path, fmt: str) -> Path:
-    """Write df to stem.csv or stem.parquet atomically; returns the path."""
+def write_table(df: pd.DataFrame, stem: Path, fmt: str, metadata: dict[str, str] | None = None) -> Path:
+    """Write df to stem.csv or stem.parquet atomically; returns the path. metadata: key-value
+    pairs kept in a Parquet file's schema (pyarrow.parquet.read_schema(path).metadata)."""
     if fmt not in FORMATS:
         raise ValueError(f"format: must be one of {', '.join(FORMATS)}, got {fmt!r}")
     path = Path(f"{stem}.{fmt}")
@@ -46,8 +47,12 @@ def write_table(df: pd.DataFrame, stem: Path, fmt: str) -> Path:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
+        table = pa.Table.from_pandas(df, preserve_index=False)
+        if metadata:
+            table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                                   **{k.encode(): v.encode() for k, v in metadata.items()}})
         buf = io.BytesIO()
-        pq.write_table(pa.Table.from_pandas(df, preserve_index=False), buf)
+        pq.write_table(table, buf)
         data = buf.getvalue()
     atomic_write_bytes(path, data)
     return path

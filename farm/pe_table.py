@@ -35,6 +35,16 @@ def paper_case(base: Case, n_pursuers: int, pursuer_policy: str, evader_policy: 
                    evader_policy=evader_policy)
 
 
+def pe_size(n_games: int, base: Case | None = None):
+    """The PE tables' size (farm.sizes.JobSize): PAPER_CASES, n_games games each."""
+    from farm.sizes import GAME_ROW_BYTES, JobSize, game_seconds
+
+    base = base or Case(1, 1)
+    seconds = sum(game_seconds(paper_case(base, n_p, pp, ep)) for _, n_p, pp, ep, _ in PAPER_CASES)
+    cases = len(PAPER_CASES)
+    return JobSize("pe-table", cases, "case", cases * n_games, seconds * n_games, cases * n_games * GAME_ROW_BYTES)
+
+
 def pe_tables(n_games: int = 50, seed: int = 0, base: Case | None = None, progress=None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Run every paper case (PAPER_CASES) for n_games games each; returns (summary, per_game).
 

@@ -263,6 +263,9 @@ def _curve_html(path: Path) -> str:
     except _NPZ_DAMAGE as e:
         raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
     out = f"<p class=src>{html.escape(str(path))}</p>{_img(_fig_bytes(training_curve_figure(steps, results)), 'training curve')}"
+    diverged = path.with_name("DIVERGED")
+    if diverged.exists():
+        out += f"<p><b>Not a result:</b> {html.escape(diverged.read_text(errors='replace').strip())}</p>"
     metrics = path.with_name("metrics.json")
     m = _read_json(metrics) if metrics.exists() else None
     if isinstance(m, dict):

@@ -53,11 +53,14 @@ def _host_port(address: str) -> tuple[str | None, int | None]:
 
 
 def check_reachable(address: str, timeout: float = 5.0) -> None:
-    """Fail at once, in one line, when nothing answers at a host:port address (Ray
-    itself retries for minutes); "auto" and addresses without a port are left to Ray."""
+    """Fail at once, in one line, when an address is not host:port, ray://host:port or "auto",
+    or when nothing answers there (Ray itself retries for minutes); "auto" is left to Ray."""
+    if address == "auto":
+        return
     host, port = _host_port(address)
     if not host or port is None:
-        return
+        raise ClusterError(f"address {address}: expected host:port (e.g. 127.0.0.1:6379), ray://host:port "
+                           "or auto")
     try:
         socket.create_connection((host, port), timeout=timeout).close()
     except OSError as e:

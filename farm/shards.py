@@ -19,7 +19,8 @@ from workers.engine import estimated_game_seconds
 
 from farm.output import write_table
 
-__all__ = ["SHARD_SECONDS", "MAX_SHARD_GAMES", "games_per_shard", "shard_ranges", "play_shard", "write_shard"]
+__all__ = ["SHARD_SECONDS", "MAX_SHARD_GAMES", "SWEEP_ID_KEY", "games_per_shard", "shard_ranges", "play_shard",
+           "write_shard", "warn_coarse_steps"]
 
 SHARD_SECONDS = 0.5
 MAX_SHARD_GAMES = 100_000
@@ -32,6 +33,18 @@ def games_per_shard(case: Case) -> int:
     seconds = estimated_game_seconds(case.n_pursuers, case.n_evaders, case.pursuer_policy, case.evader_policy,
                                      case.t_max, case.dt, case.pursuer_speed, case.evader_speed)
     return int(min(MAX_SHARD_GAMES, max(1, round(SHARD_SECONDS / seconds))))
+
+
+def warn_coarse_steps(cases) -> None:
+    """One CoarseStepWarning for the coarsest of cases whose agents move more than the capture
+    radius a step, said by the driver (the games' own warnings stay in the Ray workers)."""
+    from workers.engine import coarse_step_ratio, warn_coarse_step
+
+    cases = list(cases)
+    if cases:
+        worst = max(cases, key=lambda c: coarse_step_ratio(max(c.pursuer_speed, c.evader_speed), c.dt,
+                                                           c.capture_radius))
+        warn_coarse_step(max(worst.pursuer_speed, worst.evader_speed), worst.dt, worst.capture_radius, stacklevel=2)
 
 
 def shard_ranges(games: int, per_shard: int) -> list[tuple[int, int]]:
@@ -54,6 +67,11 @@ def play_shard(case: Case, seed, start: int, stop: int, *, detail: bool = False)
     return df
 
 
-def write_shard(df: pd.DataFrame, path: Path) -> Path:
-    """Write a shard's rows to path (a .parquet file) atomically; returns path."""
-    return write_table(df, Path(path).with_suffix(""), "parquet")
+SWEEP_ID_KEY = "swarm_farm.sweep_id"  # a sweep's shard files carry its id in their Parquet metadata
+
+
+def write_shard(df: pd.DataFrame, path: Path, sweep_id: str | None = None) -> Path:
+    """Write a shard's rows to path (a .parquet file) atomically, with the id of the sweep it
+    belongs to in the file's metadata (SWEEP_ID_KEY); returns path."""
+    return write_table(df, Path(path).with_suffix(""), "parquet",
+                       metadata={SWEEP_ID_KEY: sweep_id} if sweep_id else None)

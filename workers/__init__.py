@@ -14,7 +14,7 @@ per-case statistics), montecarlo (seeded initial positions, run_case).
 
 from workers.arena import DEFAULT_ARENA, Arena, make_arena
 from workers.compiled import kernel_cache
-from workers.errors import InputError, SwarmFarmError
+from workers.errors import CoarseStepWarning, InputError, SwarmFarmError
 from workers.version import ENGINE_VERSION
 
 with kernel_cache():  # every compiled kernel is defined in these modules
@@ -32,6 +32,7 @@ __all__ = [
     "ENGINE_VERSION",
     "InputError",
     "SwarmFarmError",
+    "CoarseStepWarning",
     "Arena",
     "DEFAULT_ARENA",
     "make_arena",

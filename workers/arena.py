@@ -2,15 +2,23 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from workers.errors import InputError
+from workers.errors import InputError, all_numbers, not_a_number_hint
 
 __all__ = ["Arena", "DEFAULT_ARENA", "make_arena"]
 
 _INSIDE_TOL = 1e-9
+# An arena whose area is below this fraction of its bounding box's diagonal squared is
+# refused as degenerate. The ratio does not depend on the arena's scale or units (a
+# rectangle L x w gives about w / L), and 1e-9 refuses only slivers thinner than a
+# billionth of their length: no game fits in one (agents are 1e-9 apart from its other
+# side, the containment tolerance _INSIDE_TOL for a 1-unit arena), and three almost
+# collinear vertices, whose round-off decides the normals, are among them.
+_MIN_AREA_RATIO = 1e-9
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,25 +105,34 @@ def make_arena(vertices=None) -> Arena:
     """Validate a convex polygon and return an Arena (None gives the square [0, 10]^2).
 
     vertices: (k, 2) array-like, k >= 3, in either orientation; collinear vertices
-    are rejected, as are repeated ones and non-convex or self-intersecting polygons.
+    are rejected, as are repeated ones, non-convex or self-intersecting polygons and
+    near-degenerate ones (area below 1e-9 x the bounding box's diagonal squared); every
+    coordinate must be a number (not a bool). A bad polygon raises InputError naming arena.
     """
     if vertices is None:
         return DEFAULT_ARENA
     if isinstance(vertices, Arena):
         return vertices
     try:
+        if not all_numbers(vertices):
+            raise TypeError
         v = np.array(vertices, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError("arena: vertices must be numbers of shape (k, 2)") from None
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"arena: vertices must be numbers of shape (k, 2){not_a_number_hint(vertices)}") from None
     if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
         raise InputError(f"arena: vertices must have shape (k, 2) with k >= 3, got {v.shape}")
     if not np.all(np.isfinite(v)):
         raise InputError("arena: vertices must be finite")
     w = np.roll(v, -1, axis=0)
-    signed_area = 0.5 * float(np.sum(v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]))
+    with np.errstate(over="ignore", invalid="ignore"):
+        signed_area = 0.5 * float(np.sum(v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]))
+        diagonal2 = float(np.sum((v.max(axis=0) - v.min(axis=0)) ** 2))
+    if not (math.isfinite(signed_area) and math.isfinite(diagonal2)):
+        raise InputError("arena: vertices are too large (the polygon's area overflows a float)")
     scale = float(np.max(np.abs(v))) or 1.0
-    if abs(signed_area) <= 1e-12 * scale**2:
-        raise InputError("arena: polygon is degenerate (zero area)")
+    if not abs(signed_area) > _MIN_AREA_RATIO * diagonal2:
+        raise InputError(f"arena: polygon is degenerate (area {abs(signed_area):.3g} is below "
+                         f"{_MIN_AREA_RATIO:g} x its bounding box's diagonal squared, {diagonal2:.3g})")
     if signed_area < 0:
         v = v[::-1].copy()
     e = np.roll(v, -1, axis=0) - v

@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 
 from workers.arena import make_arena
-from workers.errors import InputError, point, positive
+from workers.errors import InputError, all_numbers, exact, is_number, not_a_number_hint, point, positive, shown
 from workers.policies import get_evader_policy, get_pursuer_policy
 from workers.version import ENGINE_VERSION
 
@@ -27,6 +27,7 @@ Box = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max
 # Field names by kind, for normalisation and validation (Case's numbers).
 _POSITIVE_FIELDS = ("capture_radius", "dt", "t_max", "tau", "pursuer_speed", "evader_speed")
 _POINT_FIELDS = ("target", "exit_point")
+MAX_TEAM = 1_000_000  # agents a team: far above any game played (the allocation env's cells: 100 000)
 
 
 @dataclass(frozen=True)
@@ -75,9 +76,17 @@ class Case:
     engine_version: str = ENGINE_VERSION
 
     def __post_init__(self):
-        # One spelling per value, so that 60 and 60.0 give the same key.
+        # One spelling per value, so that 60 and 60.0 give the same key. Only numbers and
+        # sequences of them are respelled; anything else (a bool, a string, a ragged list)
+        # is kept as given for `validate` to name: constructing never raises.
         def num(v):
-            return float(v) if isinstance(v, (int, float, np.number)) and not isinstance(v, bool) else v
+            try:
+                return float(v) if is_number(v) else v
+            except OverflowError:  # an int beyond float's range: validate says so
+                return v
+
+        def nums(v):
+            return tuple(num(x) for x in v) if _is_sequence(v) else v
 
         for name in _POSITIVE_FIELDS:
             object.__setattr__(self, name, num(getattr(self, name)))
@@ -86,24 +95,28 @@ class Case:
             if isinstance(v, np.integer):
                 object.__setattr__(self, name, int(v))
         for name in _POINT_FIELDS:
-            v = getattr(self, name)
-            if isinstance(v, (tuple, list, np.ndarray)):
-                object.__setattr__(self, name, tuple(num(x) for x in v))
-        if isinstance(self.arena, (tuple, list)):
-            object.__setattr__(self, "arena", tuple(tuple(num(x) for x in v) for v in self.arena))
+            object.__setattr__(self, name, nums(getattr(self, name)))
+        if _is_sequence(self.arena):
+            object.__setattr__(self, "arena", tuple(nums(v) for v in self.arena))
         if isinstance(self.law, InitialLaw):
-            object.__setattr__(self, "law", InitialLaw(self.law.kind, tuple(num(x) for x in self.law.pursuer_box),
-                                                       tuple(num(x) for x in self.law.evader_box)))
+            object.__setattr__(self, "law", InitialLaw(self.law.kind, nums(self.law.pursuer_box),
+                                                       nums(self.law.evader_box)))
 
     def validate(self) -> "Case":
         """The Case itself when every setting is valid, else an InputError naming the first bad one.
 
-        Checks the team sizes, the policies' names, that the numbers are positive and the
-        points finite, the arena, and that the law's boxes lie inside the arena."""
+        Checks the team sizes (whole numbers, not bools, at most MAX_TEAM), the policies'
+        names, that the numbers are positive and finite and the points finite (numbers, never
+        bools, nested ones too), the arena, that the exit point is in the arena, and the law's
+        boxes: four finite numbers, inside the arena when the law draws from them. Every path
+        from a Case to a game (run_case, run_games, simulate_case, sample_initial_positions)
+        calls it first, so no game is built from a Case it refuses."""
         for name in ("n_pursuers", "n_evaders"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise InputError(f"{name}: must be a whole number >= 1, got {v!r}")
+                raise InputError(f"{name}: must be a whole number >= 1, got {shown(v)}")
+            if v > MAX_TEAM:
+                raise InputError(f"{name}: {shown(v)} agents is more than the engine's limit of {MAX_TEAM}")
         get_pursuer_policy(self.pursuer_policy)
         get_evader_policy(self.evader_policy)
         for name in _POSITIVE_FIELDS:
@@ -112,16 +125,20 @@ class Case:
             if name != "exit_point" or self.exit_point is not None:
                 point(name, getattr(self, name))
         arena = make_arena(self.arena)
-        if self.law.kind == "boxes":
-            for name in ("pursuer_box", "evader_box"):
-                box = getattr(self.law, name)
-                if len(box) != 4 or box[0] > box[1] or box[2] > box[3]:
-                    raise InputError(f"law.{name}: must be (x_min, x_max, y_min, y_max), got {box!r}")
-                corners = np.array([[box[0], box[2]], [box[1], box[2]], [box[1], box[3]], [box[0], box[3]]])
-                if not arena.contains(corners).all():
-                    raise InputError(f"law.{name}: {box!r} is not inside the arena")
-        elif self.law.kind != "uniform":
-            raise InputError(f"law.kind: must be 'boxes' or 'uniform', got {self.law.kind!r}")
+        if self.exit_point is not None:
+            check_exit_point(point("exit_point", self.exit_point), arena)
+        if not isinstance(self.law, InitialLaw):
+            raise InputError(f"law: expected a workers.InitialLaw, got {type(self.law).__name__}")
+        if not isinstance(self.law.kind, str) or self.law.kind not in ("boxes", "uniform"):
+            raise InputError(f"law.kind: must be 'boxes' or 'uniform', got {shown(self.law.kind)}")
+        for name in ("pursuer_box", "evader_box"):
+            box = getattr(self.law, name)
+            if not _is_box(box):
+                raise InputError(f"law.{name}: must be (x_min, x_max, y_min, y_max), finite numbers, "
+                                 f"got {shown(box)}{not_a_number_hint(box)}")
+            corners = np.array([[box[0], box[2]], [box[1], box[2]], [box[1], box[3]], [box[0], box[3]]])
+            if self.law.kind == "boxes" and not arena.contains(corners).all():
+                raise InputError(f"law.{name}: {shown(box)} is not inside the arena")
         return self
 
     def to_dict(self) -> dict:
@@ -132,6 +149,29 @@ class Case:
         """A stable hash of every parameter, the engine's version included."""
         blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _is_sequence(v) -> bool:
+    """True for a tuple, list or array of at least one dimension (what Case respells)."""
+    return isinstance(v, (tuple, list)) or (isinstance(v, np.ndarray) and v.ndim >= 1)
+
+
+def _is_box(box) -> bool:
+    """True for (x_min, x_max, y_min, y_max): four finite numbers (no bools), min <= max."""
+    if not (_is_sequence(box) and len(box) == 4 and all_numbers(box)):
+        return False
+    try:
+        b = np.array(box, dtype=np.float64)
+    except (ValueError, OverflowError):  # ragged, or an int beyond float's range
+        return False
+    return b.shape == (4,) and bool(np.all(np.isfinite(b))) and b[0] <= b[1] and b[2] <= b[3]
+
+
+def check_exit_point(exit_xy: np.ndarray, arena) -> None:
+    """InputError unless the exit point (2,) float64 is in the arena (or on its boundary):
+    no evader could reach one outside. The message prints the coordinates exactly."""
+    if not arena.contains(exit_xy):
+        raise InputError(f"exit_point: ({exact(exit_xy[0])}, {exact(exit_xy[1])}) is outside the arena")
 
 
 # The game settings a config may name (the engine's version is not a setting).

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import types
+import warnings
 from collections import namedtuple
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -28,15 +29,15 @@ import numpy as np
 from numba import njit
 
 from workers.arena import Arena, make_arena
-from workers.case import case_defaults
-from workers.errors import InputError, point, positive
+from workers.case import case_defaults, check_exit_point
+from workers.errors import CoarseStepWarning, InputError, all_numbers, exact, not_a_number_hint, point, positive
 from workers.geometry import NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity, voronoi_cells
 from workers.policies import Policy, Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
 from workers.policies.registry import dispatch, is_builtin
 from workers.version import ENGINE_VERSION
 
 __all__ = ["ENGINE_VERSION", "GameResults", "simulate_games", "step_velocities", "checked_games",
-           "estimated_game_seconds", "case_defaults", "V_MAX"]
+           "estimated_game_seconds", "case_defaults", "V_MAX", "coarse_step_ratio", "warn_coarse_step"]
 
 V_MAX = 1.0
 MAX_STEPS = 10_000_000
@@ -357,9 +358,11 @@ def estimated_game_seconds(n_pursuers: int, n_evaders: int, pursuer_policy: str,
 
 def _positions(name: str, value, arena: Arena) -> np.ndarray:
     try:
+        if not all_numbers(value):  # numpy would read True as 1.0 and "1" as 1.0
+            raise TypeError
         a = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: positions must be numbers of shape (B, n, 2)") from None
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{name}: positions must be numbers of shape (B, n, 2){not_a_number_hint(value)}") from None
     if a.ndim != 3 or a.shape[2] != 2:
         raise InputError(f"{name}: positions must have shape (B, n, 2), got {a.shape}")
     if a.shape[1] == 0:
@@ -369,7 +372,9 @@ def _positions(name: str, value, arena: Arena) -> np.ndarray:
     outside = ~arena.contains(a)
     if outside.any():
         b, i = np.argwhere(outside)[0]
-        raise InputError(f"{name}: agent {i} of game {b} at ({a[b, i, 0]:g}, {a[b, i, 1]:g}) is outside the arena")
+        # Exact coordinates: rounded ones (10.0000001 as 10) may print a point inside the arena.
+        raise InputError(f"{name}: agent {i} of game {b} at ({exact(a[b, i, 0])}, {exact(a[b, i, 1])}) "
+                         "is outside the arena")
     return a
 
 
@@ -377,6 +382,24 @@ def _arena_arrays(arena: Arena):
     lo, hi = arena.vertices.min(axis=0), arena.vertices.max(axis=0)
     return (arena.is_axis_box, np.ascontiguousarray(lo), np.ascontiguousarray(hi), np.ascontiguousarray(arena.vertices),
             np.ascontiguousarray(arena.normals), np.ascontiguousarray(arena.offsets))
+
+
+def coarse_step_ratio(speed: float, dt: float, capture_radius: float) -> float:
+    """How many capture radii an agent of top speed `speed` moves in one step of dt."""
+    return speed * dt / capture_radius
+
+
+def warn_coarse_step(speed: float, dt: float, capture_radius: float, stacklevel: int = 1) -> None:
+    """A CoarseStepWarning when an agent moves more than the capture radius in one step
+    (speed x dt > capture_radius): a pursuer may then pass an evader between two steps, so
+    captures come late or never (at dt 5 a 5v1 game lasts 40 s instead of 7.4 s). The
+    paper's setting (speeds 1, dt 0.01, capture radius 0.25) moves 0.04 radii a step.
+    stacklevel 1 attributes the warning to the line calling this function, 2 to its caller's."""
+    ratio = coarse_step_ratio(speed, dt, capture_radius)
+    if ratio > 1.0:
+        warnings.warn(f"dt: agents move up to {ratio:.3g} capture radii per step (speed {speed:g} x dt {dt:g} / "
+                      f"capture_radius {capture_radius:g}); captures may come late or be missed",
+                      CoarseStepWarning, stacklevel=stacklevel + 1)
 
 
 def step_velocities(pursuers, evaders, alive, *, pursuer_policy=None, evader_policy=None, dt=None, target=None,
@@ -414,11 +437,12 @@ def checked_games(pursuers, evaders, arena, capture_radius, dt, t_max, target):
     dt = positive("dt", dt)
     t_max = positive("t_max", t_max)
     goal = point("target", target)
-    n_steps = math.floor(t_max / dt + 1e-9)
-    if n_steps < 1:
+    steps = t_max / dt + 1e-9  # inf when t_max / dt overflows
+    if steps < 1:
         raise InputError(f"t_max: {t_max} is shorter than one step dt={dt}")
-    if n_steps > MAX_STEPS:
-        raise InputError(f"t_max/dt: {n_steps} steps is more than the engine's limit of {MAX_STEPS}")
+    if not steps < MAX_STEPS + 1:
+        raise InputError(f"t_max/dt: {steps:.4g} steps is more than the engine's limit of {MAX_STEPS}")
+    n_steps = math.floor(steps)
     return arena, p, e, r_c, dt, t_max, goal, n_steps
 
 
@@ -446,7 +470,9 @@ def simulate_games(
     point (x, y) an evader escapes through when within capture_radius of it;
     pursuer_speed, evader_speed: each team's top speed. A setting left None is
     workers.Case's default. Returns GameResults; a bad argument raises a one-line
-    InputError naming it.
+    InputError naming it (numbers must be finite and never bools; the exit point must be in
+    the arena). A step in which an agent may move more than capture_radius
+    (max(pursuer_speed, evader_speed) * dt > capture_radius) gives one CoarseStepWarning.
     """
     pursuer_policy, evader_policy, capture_radius, dt, t_max, target, pursuer_speed, evader_speed = case_defaults(
         pursuer_policy=pursuer_policy, evader_policy=evader_policy, capture_radius=capture_radius, dt=dt,
@@ -458,6 +484,9 @@ def simulate_games(
     vp = positive("pursuer_speed", pursuer_speed)
     ve = positive("evader_speed", evader_speed)
     exit_xy = np.zeros(2) if exit_point is None else point("exit_point", exit_point)
+    if exit_point is not None:
+        check_exit_point(exit_xy, arena)
+    warn_coarse_step(max(vp, ve), dt, r_c, stacklevel=2)
 
     n_games, n_p, n_e = p.shape[0], p.shape[1], e.shape[1]
     capture_step = np.empty((n_games, n_e), dtype=np.int64)

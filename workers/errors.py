@@ -4,15 +4,21 @@ Every error a user can cause (a bad argument, config, flag, file or cluster addr
 is a SwarmFarmError whose message is one line naming the field and the problem; the
 `farm` command prints that line and nothing else. `farm` defines its own kinds
 (ConfigError, SweepError, ...) as subclasses.
+
+A number here is a real number: an int or a float (numpy's too), never a bool, a string,
+None or a complex; settings must also be finite. Input that is valid but likely to give
+misleading numbers (a coarse time step) is a CoarseStepWarning, not an error.
 """
 
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
 
-__all__ = ["SwarmFarmError", "InputError", "positive", "point"]
+__all__ = ["SwarmFarmError", "InputError", "CoarseStepWarning", "positive", "point", "is_number", "all_numbers",
+           "not_a_number_hint", "shown", "exact"]
 
 
 class SwarmFarmError(Exception):
@@ -23,23 +29,75 @@ class InputError(SwarmFarmError, ValueError):
     """Bad input to the engine or the Monte Carlo layer: names the argument and the problem."""
 
 
+class CoarseStepWarning(UserWarning):
+    """A time step so long that an agent moves more than the capture radius in one step:
+    captures may come late or be missed (the game's numbers are the coarse model's)."""
+
+
+def is_number(value) -> bool:
+    """True for a real number (int, float, Fraction, numpy's integers and floats), False for
+    a bool (numpy's too), a string, None, a complex or anything else."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def all_numbers(value) -> bool:
+    """True when value is a number, or a (nested) list, tuple or array holding numbers only
+    (no bool, string, None or complex anywhere; numpy would silently turn True into 1.0)."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind in "iuf":
+            return True
+        return value.dtype.kind == "O" and all(all_numbers(x) for x in value.flat)
+    if isinstance(value, (list, tuple)):
+        return all(all_numbers(x) for x in value)
+    return is_number(value)
+
+
+def shown(value, limit: int = 80) -> str:
+    """repr(value) for a one-line message: whitespace runs (an array's line breaks) become
+    one space, and a repr longer than `limit` characters is cut with "..."."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def exact(x: float) -> str:
+    """x for a message, exactly: short (:g) when that reads back as x, else its repr (10.0000001,
+    not 10, which would show a point just outside the arena as inside)."""
+    text = f"{float(x):g}"
+    return text if float(text) == float(x) else repr(float(x))
+
+
+def not_a_number_hint(value) -> str:
+    """" (a bool is not a number)" when value holds a bool anywhere, else "": for messages."""
+    def has_bool(v):
+        if isinstance(v, (bool, np.bool_)):
+            return True
+        if isinstance(v, np.ndarray):
+            return v.dtype.kind == "b" or (v.dtype.kind == "O" and any(has_bool(x) for x in v.flat))
+        return isinstance(v, (list, tuple)) and any(has_bool(x) for x in v)
+
+    return " (a bool is not a number)" if has_bool(value) else ""
+
+
 def positive(name: str, value) -> float:
     """value as a float; InputError unless it is a positive finite number (not a bool)."""
     try:
-        x = math.nan if isinstance(value, (bool, np.bool_, str)) else float(value)
-    except (TypeError, ValueError):
+        x = float(value) if is_number(value) else math.nan
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float's range
         x = math.nan
     if not math.isfinite(x) or x <= 0:
-        raise InputError(f"{name}: must be positive and finite, got {value!r}")
+        raise InputError(f"{name}: must be positive and finite, got {shown(value)}{not_a_number_hint(value)}")
     return x
 
 
 def point(name: str, value) -> np.ndarray:
-    """value as a (2,) float64 array; InputError unless it is a finite point (x, y)."""
+    """value as a (2,) float64 array; InputError unless it is a finite point (x, y) of numbers."""
     try:
+        if not all_numbers(value):
+            raise TypeError
         p = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: must be a finite point (x, y), got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        hint = not_a_number_hint(value)
+        raise InputError(f"{name}: must be a finite point (x, y), got {shown(value)}{hint}") from None
     if p.shape != (2,) or not np.all(np.isfinite(p)):
-        raise InputError(f"{name}: must be a finite point (x, y), got {value!r}")
+        raise InputError(f"{name}: must be a finite point (x, y), got {shown(value)}")
     return p

@@ -16,7 +16,7 @@ import pandas as pd
 from workers.arena import make_arena
 from workers.case import Box, Case
 from workers.engine import GameResults, simulate_games
-from workers.errors import InputError
+from workers.errors import InputError, shown
 from workers.stats import CaptureStats, results_statistics
 
 __all__ = ["sample_initial_positions", "run_games", "simulate_case", "run_case", "SEEDING"]
@@ -24,21 +24,44 @@ __all__ = ["sample_initial_positions", "run_games", "simulate_case", "run_case",
 SEEDING = "default_rng([*seed, game])"  # part of every sweep's id: sweeps seeded otherwise are never mixed in
 
 
+def _checked_case(case) -> Case:
+    """The Case validated; a one-line InputError when it is not a Case (a dict, say) or is invalid."""
+    if not isinstance(case, Case):
+        raise InputError(f"case: expected a workers.Case, got {type(case).__name__}; build one with "
+                         "Case(n_p, n_e, ...) or farm.config.case_from(mapping)")
+    return case.validate()
+
+
+def _whole(name: str, value, least: int) -> int:
+    """value as an int; InputError unless it is a whole number >= least (never a bool)."""
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
+        raise InputError(f"{name}: must be a whole number >= {least}, got {shown(value)}")
+    return int(value)
+
+
 def _seed_words(seed) -> list[int]:
     words = list(seed) if isinstance(seed, (tuple, list)) else [seed]
     for w in words:
         if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 0:
-            raise InputError(f"seed: must be a whole number >= 0 (or a tuple of them), got {seed!r}")
+            raise InputError(f"seed: must be a whole number >= 0 (or a tuple of them), got {shown(seed)}")
     return [int(w) for w in words]
 
 
 def sample_initial_positions(case: Case, seed, start: int, stop: int):
     """Initial positions of games start..stop-1 of a case.
 
-    seed: int or tuple of ints (else InputError). Returns pursuers: (stop-start, n_p, 2) and
-    evaders: (stop-start, n_e, 2) float64; game i uses default_rng([*seed, i]) alone.
+    seed: int or tuple of ints; 0 <= start <= stop (else InputError, as for an invalid
+    case). Returns pursuers: (stop-start, n_p, 2) and evaders: (stop-start, n_e, 2)
+    float64; game i uses default_rng([*seed, i]) alone.
     """
+    return _initial_positions(_checked_case(case), seed, start, stop)
+
+
+def _initial_positions(case: Case, seed, start, stop):
+    """sample_initial_positions of a case already validated."""
     words = _seed_words(seed)
+    start = _whole("start", start, 0)
+    stop = _whole("stop", stop, start)
     n_p, n_e = case.n_pursuers, case.n_evaders
     arena = make_arena(case.arena)
     pursuers = np.empty((stop - start, n_p, 2))
@@ -61,16 +84,24 @@ def _in_box(rng: np.random.Generator, box: Box, n: int) -> np.ndarray:
 
 
 def run_games(case: Case, seed, start: int, stop: int, *, record: bool = False) -> GameResults:
-    """Simulate games start..stop-1 of a case in one batch; returns GameResults."""
-    pursuers, evaders = sample_initial_positions(case, seed, start, stop)
-    return simulate_case(case, pursuers, evaders, record=record)
+    """Simulate games start..stop-1 of a case in one batch; returns GameResults.
+
+    An invalid case, seed, start or stop raises InputError."""
+    case = _checked_case(case)
+    pursuers, evaders = _initial_positions(case, seed, start, stop)
+    return _simulate(case, pursuers, evaders, record)
 
 
 def simulate_case(case: Case, pursuers, evaders, *, record: bool = False) -> GameResults:
     """Simulate games of a case's settings from given starts; returns GameResults.
 
     pursuers: (B, n_p, 2) float64, evaders: (B, n_e, 2) float64 (the team sizes are the
-    arrays', not the case's)."""
+    arrays', not the case's). An invalid case raises InputError."""
+    return _simulate(_checked_case(case), pursuers, evaders, record)
+
+
+def _simulate(case: Case, pursuers, evaders, record) -> GameResults:
+    """simulate_case of a case already validated."""
     return simulate_games(
         pursuers,
         evaders,
@@ -93,15 +124,20 @@ def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024,
     """Run games 0..n_games-1 of a case in batches; returns (per_game DataFrame, CaptureStats).
 
     per_game has game_statistics' columns, one row per game; progress: optional
-    callable(games_done) called after each batch. An invalid case or n_games raises InputError.
+    callable(games_done) called after each batch. An invalid case, n_games, seed, batch_size
+    or progress raises InputError.
     """
-    case.validate()
-    if not isinstance(n_games, (int, np.integer)) or n_games < 1:
-        raise InputError(f"n_games: must be a whole number >= 1, got {n_games!r}")
+    case = _checked_case(case)
+    n_games = _whole("n_games", n_games, 1)
+    batch_size = _whole("batch_size", batch_size, 1)
+    _seed_words(seed)
+    if progress is not None and not callable(progress):
+        raise InputError(f"progress: must be a callable or None, got {type(progress).__name__}")
     frames = []
     for start in range(0, n_games, batch_size):
         stop = min(n_games, start + batch_size)
-        res = run_games(case, seed, start, stop)
+        pursuers, evaders = _initial_positions(case, seed, start, stop)
+        res = _simulate(case, pursuers, evaders, False)
         frames.append(results_statistics(res, case.tau, first_game=start))
         if progress is not None:
             progress(stop)

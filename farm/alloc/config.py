@@ -20,6 +20,7 @@ engagement's coupling is one clear error.
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 from pydantic import Field, create_model, model_validator
@@ -39,6 +40,16 @@ ENGAGEMENT_DEFAULTS = {
     "v2": {"pursuer_policy": "pure_pursuit", "evader_policy": "target", "exit_point": EXIT},
 }
 _SERVICE = ServiceSettings()
+
+
+def _positive(x) -> bool:
+    """Whether x is a positive finite number (not a bool), or text that reads as one."""
+    if isinstance(x, str):
+        try:
+            x = float(x)
+        except ValueError:
+            return False
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0
 
 
 class _AllocFields(Strict):
@@ -86,21 +97,22 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
         if isinstance(data.get("law"), str):
             data["law"] = {"kind": data["law"]}
         engagement = data.get("engagement", "v2")
-        if engagement not in ENGAGEMENT_DEFAULTS:
+        if not isinstance(engagement, str) or engagement not in ENGAGEMENT_DEFAULTS:
             return data  # the field's own check names the problem
         for name, value in ENGAGEMENT_DEFAULTS[engagement].items():
             if data.get(name) is None and (name != "exit_point" or "exit_point" not in data):
                 data[name] = value
         if engagement == "v2":  # step -> window -> games' length and the score's norm
             speed = data.get("evader_speed")
-            if not (isinstance(speed, (int, float)) and not isinstance(speed, bool) and speed > 0):
-                speed = case_defaults(evader_speed=None)[0]  # a bad speed is Case's to report
+            # a bad speed is Case's to report
+            speed = float(speed) if _positive(speed) else case_defaults(evader_speed=None)[0]
             if data.get("step_seconds") is None:
                 data["step_seconds"] = CELL_SIDE / speed
-            if data.get("tau") is None:
+            # a bad value is never copied on: its own field's check names it
+            if data.get("tau") is None and _positive(data["step_seconds"]):
                 data["tau"] = data["step_seconds"]
             for name in ("t_max", "capture_time_norm"):
-                if data.get(name) is None:
+                if data.get(name) is None and _positive(data.get("tau")):
                     data[name] = data["tau"]
         return data
 

@@ -16,7 +16,7 @@ import numpy as np
 from gymnasium.error import ResetNeeded
 
 from farm.alloc.config import AllocConfig
-from farm.errors import ConfigError
+from farm.errors import ActionError, ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +108,10 @@ class SwarmAllocationEnv(gym.Env):
     A `Box(-1, 1, (A,), float32)`, A = n_actions(N) (49 for N = 3): one number per
     feasible move (stay or one of the 8 neighbours inside the grid), cell by cell in cell
     order, moves in row-major (d_row, d_col) order (moves(N) gives src, dst and start).
-    Values are clipped to [-1, 1]. Each cell's slice maps to a probability row
+    Values are clipped to [-1, 1]. step() refuses (farm.errors.ActionError, a
+    workers.InputError and ValueError) an action of another shape, of no real numbers
+    (booleans, complex numbers, text or objects) or with NaN or an infinity, before it
+    changes anything. Each cell's slice maps to a probability row
     (`action_map`):
 
     - `softmax` (default): p = softmax(beta a), beta = `softmax_beta` (5);
@@ -238,6 +241,28 @@ class SwarmAllocationEnv(gym.Env):
         self._reset_done = False  # step() needs a reset() first
 
     # ----- the MDP ------------------------------------------------------------------
+    def check_action(self, action) -> np.ndarray:
+        """The action as (A,) float64, values as given (step() clips them), or ActionError.
+
+        Refused: anything that is not an array of real numbers (integers or floats) of the
+        action space's shape (A,), and NaN or infinite values.
+        """
+        expected = f"action: expected shape {self.action_space.shape} of finite numbers in the action space"
+        try:
+            a = np.asarray(action)
+        except (TypeError, ValueError, OverflowError):
+            raise ActionError(f"{expected}, got a {type(action).__name__} that is not an array of numbers") from None
+        if a.dtype.kind not in "iuf":
+            raise ActionError(f"{expected}, got dtype {a.dtype}")
+        if a.shape != self.action_space.shape:
+            raise ActionError(f"{expected}, got shape {a.shape}")
+        with np.errstate(over="ignore"):  # a float128 beyond float64 becomes inf, refused below
+            a = a.astype(np.float64)
+        bad = np.flatnonzero(~np.isfinite(a))
+        if len(bad):
+            raise ActionError(f"{expected}, got {a[bad[0]]} at index {bad[0]} ({len(bad)} value(s) not finite)")
+        return a
+
     def move_probabilities(self, action: np.ndarray) -> np.ndarray:
         """Map an action to the probabilities of the feasible moves (the `action_map`).
 
@@ -336,14 +361,16 @@ class SwarmAllocationEnv(gym.Env):
     def step(self, action):
         """One step of the MDP (see Description); returns (obs, reward, terminated, truncated, info).
 
-        action: (A,) float in [-1, 1]; obs: (2 N^2,) float32 [D, I]; reward: float;
-        terminated, truncated: bool (see Episode End); info: see Info. Raises
-        gymnasium.error.ResetNeeded before the first reset().
+        action: (A,) finite numbers, clipped to [-1, 1]; obs: (2 N^2,) float32 [D, I];
+        reward: float; terminated, truncated: bool (see Episode End); info: see Info.
+        Raises gymnasium.error.ResetNeeded before the first reset(), and
+        farm.errors.ActionError for an action of another shape, not of real numbers, or
+        not finite (check_action), leaving the env as it was.
         """
         if not self._reset_done:
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         cfg = self.config
-        p = self.move_probabilities(action)
+        p = self.move_probabilities(self.check_action(action))
         self.D = np.bincount(self.dst, weights=p * self.D[self.src], minlength=self.n * self.n)
         breach = self._advance_intruders()
         self.breached += breach

@@ -211,15 +211,32 @@ def evaluate_fidelity(config, policies: dict, client, episodes: int, seed: int) 
 
 
 def load_policy(run_dir: Path):
-    """The trained TD3 policy of a run folder (its model.zip), on the CPU."""
+    """The trained TD3 policy of a run folder (its model.zip), on the CPU.
+
+    ConfigError without a model.zip; ModelError (one line naming the file) for a file
+    stable-baselines3 cannot load (truncated, damaged, not a TD3 model) or whose
+    parameters are not all finite."""
+    import torch
     from stable_baselines3 import TD3
 
+    from farm.errors import ConfigError, ModelError
+
+    run_dir = Path(run_dir)
     path = run_dir / "model.zip"
     if not path.exists():
-        from farm.errors import ConfigError
-
         raise ConfigError(f"{run_dir}: no trained model (model.zip); run `farm train CONFIG --out {run_dir}`")
-    return TD3.load(path, device="cpu")
+    try:
+        model = TD3.load(path, device="cpu")
+    except Exception as e:  # any failure to read it: the file is not a model this can evaluate
+        problem = (str(e).strip().splitlines() or [""])[0]
+        raise ModelError(f"{path}: not a loadable stable-baselines3 model ({type(e).__name__}"
+                         f"{': ' + problem if problem else ''})") from None
+    with torch.no_grad():
+        for name, p in model.policy.named_parameters():
+            if not bool(torch.isfinite(p).all()):
+                raise ModelError(f"{path}: the policy's {name} is not finite (a run that diverged); "
+                                 f"train it again")
+    return model
 
 
 def baselines(grid_size: int) -> dict:

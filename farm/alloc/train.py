@@ -20,11 +20,16 @@ training curve), checkpoints/ (with the replay buffer, for --resume), best/ and
 tb/ (TensorBoard). The algorithm is stable-baselines3's TD3 as it ships, on SB3's
 DummyVecEnv; metrics.json records the wall time of the gradient updates, timed by
 a callback (UpdateTimer), and the share of the run spent outside them.
+
+A run that diverges (a loss, a parameter or an action not finite) stops with
+farm.errors.TrainingDiverged naming the step (a callback, DivergenceGuard): no
+model.zip or metrics.json is written for it.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
 import time
 from pathlib import Path
@@ -32,7 +37,7 @@ from typing import Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import Field
+from pydantic import Field, field_validator
 from stable_baselines3 import TD3
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
 from stable_baselines3.common.monitor import Monitor
@@ -42,9 +47,21 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from farm.alloc.config import AllocConfig
 from farm.alloc.env import SwarmAllocationEnv
 from farm.config import ConfigError, Strict, load_yaml_model
+from farm.errors import ActionError, TrainingDiverged
 
 
+DIVERGED = "DIVERGED"  # written into a run folder whose training diverged: not a result
 EVAL_SEED_OFFSET = 1_000_000  # the periodic evaluation's episodes: seeded apart from training's
+# What policy_kwargs may set from a config (SB3's TD3Policy arguments that are plain values).
+POLICY_KWARGS = ("net_arch", "n_critics", "share_features_extractor", "normalize_images", "optimizer_kwargs")
+
+
+def _whole(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
 class TD3Params(Strict):
@@ -64,6 +81,46 @@ class TD3Params(Strict):
     noise_type: Literal["normal", "none"] = "normal"
     noise_std: float = Field(0.2, ge=0)
     policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}
+
+    @field_validator("gradient_steps")
+    @classmethod
+    def _some_gradient_steps(cls, v):
+        if v == 0:
+            raise ValueError("must be -1 (as many as the rollout's steps) or >= 1; 0 never updates the model")
+        return v
+
+    @field_validator("policy_kwargs")
+    @classmethod
+    def _policy_kwargs(cls, v):
+        unknown = sorted(set(v) - set(POLICY_KWARGS))
+        if unknown:
+            raise ValueError(f"{unknown[0]}: not a TD3 policy argument a config can set "
+                             f"(choose from {', '.join(POLICY_KWARGS)})")
+        for name in ("share_features_extractor", "normalize_images"):
+            if name in v and not isinstance(v[name], bool):
+                raise ValueError(f"{name}: must be true or false, got {v[name]!r}")
+        sizes = v.get("net_arch")
+        layers = ([] if sizes is None else sizes.values() if isinstance(sizes, dict) and set(sizes) <= {"pi", "qf"}
+                  else [sizes])
+        for layer in layers:
+            if not isinstance(layer, list) or not all(_whole(x) and x >= 1 for x in layer):
+                raise ValueError(f"net_arch: must be a list of layer sizes >= 1 (or {{pi: [...], qf: [...]}}), "
+                                 f"got {sizes!r}")
+        if "n_critics" in v and not (_whole(v["n_critics"]) and v["n_critics"] >= 1):
+            raise ValueError(f"n_critics: must be a whole number >= 1, got {v['n_critics']!r}")
+        adam = v.get("optimizer_kwargs") or {}
+        if not isinstance(adam, dict) or not set(adam) <= {"betas", "eps", "weight_decay", "amsgrad"}:
+            raise ValueError(f"optimizer_kwargs: must be a mapping of Adam's betas, eps, weight_decay or amsgrad, "
+                             f"got {adam!r}")
+        betas = adam.get("betas", (0.9, 0.999))
+        if not (isinstance(betas, (list, tuple)) and len(betas) == 2 and all(_number(b) and 0 <= b < 1 for b in betas)):
+            raise ValueError(f"optimizer_kwargs.betas: must be two numbers in [0, 1), got {betas!r}")
+        for name in ("eps", "weight_decay"):
+            if name in adam and not (_number(adam[name]) and adam[name] >= 0):
+                raise ValueError(f"optimizer_kwargs.{name}: must be a number >= 0, got {adam[name]!r}")
+        if not isinstance(adam.get("amsgrad", False), bool):
+            raise ValueError(f"optimizer_kwargs.amsgrad: must be true or false, got {adam['amsgrad']!r}")
+        return v
 
 
 class EvalParams(Strict):
@@ -160,6 +217,50 @@ class UpdateTimer(BaseCallback):
 
     def _on_step(self) -> bool:
         return True
+
+
+class DivergenceGuard(BaseCallback):
+    """Stops a run that diverges, through SB3's public callback hooks: the actions of every
+    step (`self.locals`), and after every training phase (at the next rollout's start and
+    at the end of training) the logger's actor and critic losses and every parameter of
+    the policy (actor, critics and their targets) must be finite; else TrainingDiverged
+    names the step. It reads and changes nothing of the training (no random numbers)."""
+
+    LOSSES = ("train/actor_loss", "train/critic_loss")
+
+    def _on_training_start(self) -> None:
+        self._check("in the policy it starts from")
+
+    def _on_step(self) -> bool:
+        actions = self.locals.get("actions")
+        if actions is not None and not np.all(np.isfinite(actions)):
+            raise TrainingDiverged(f"training diverged at step {self.num_timesteps}: the policy's action is not "
+                                   f"finite (lower td3.learning_rate?)")
+        return True
+
+    def _on_rollout_start(self) -> None:
+        self._check("after the update")
+
+    def _on_training_end(self) -> None:
+        self._check("after the update")
+
+    def _check(self, what: str) -> None:
+        import torch
+
+        for name in self.LOSSES:
+            value = self.logger.name_to_value.get(name)
+            if value is not None and not math.isfinite(value):
+                raise TrainingDiverged(f"training diverged at step {self.num_timesteps}: {name} is {value} "
+                                       f"{what} (lower td3.learning_rate?)")
+        with torch.no_grad():  # one sum per tensor is fast; a sum that is not finite is looked into
+            params = list(self.model.policy.named_parameters())
+            sums = torch.stack([p.sum() for _, p in params])
+            if bool(torch.isfinite(sums).all()):
+                return
+            for name, p in params:
+                if not bool(torch.isfinite(p).all()):
+                    raise TrainingDiverged(f"training diverged at step {self.num_timesteps}: the policy's {name} "
+                                           f"is not finite {what} (lower td3.learning_rate?)")
 
 
 class StepProgress(BaseCallback):
@@ -267,7 +368,8 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
     remaining = max(0, p.n_timesteps - done_steps)
     timer = UpdateTimer()
     callbacks = CallbackList([
-        timer,
+        timer,  # first: it times the updates alone
+        DivergenceGuard(),  # next: no evaluation or checkpoint sees a step or an update it refuses
         EvalCallback(eval_env, eval_freq=config.eval.freq, n_eval_episodes=config.eval.episodes,
                      log_path=str(run_dir), best_model_save_path=str(run_dir / "best"), deterministic=True,
                      verbose=0),
@@ -276,8 +378,16 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         StepProgress(p.n_timesteps, done_steps, show_progress),
     ])
     t0 = time.perf_counter()
-    model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=not checkpoint,
-                tb_log_name="td3", log_interval=config.log_interval)
+    try:
+        try:
+            model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=not checkpoint,
+                        tb_log_name="td3", log_interval=config.log_interval)
+        except ActionError as e:  # the env refuses a non-finite action before the guard sees it
+            raise TrainingDiverged(f"training diverged at step {model.num_timesteps + 1}: the policy's action is "
+                                   f"not finite (lower td3.learning_rate?): {e}") from None
+    except TrainingDiverged as e:  # the folder says so, for farm report and whoever looks
+        (run_dir / DIVERGED).write_text(str(e) + "\n")
+        raise
     wall = time.perf_counter() - t0
     model.save(run_dir / "model.zip")
     evals = np.load(run_dir / "evaluations.npz") if (run_dir / "evaluations.npz").exists() else None

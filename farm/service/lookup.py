@@ -126,7 +126,9 @@ class NeighbourIndex:
     them from the store on every miss would parse and verify every row of the setting."""
 
     def __init__(self, store: StatsStore, cache: dict[str, CaptureStats]):
-        """store: a StatsStore; cache: digest -> value of its sound rows (store.load_all())."""
+        """store: a StatsStore; cache: digest -> value of its sound rows (store.load_all()).
+        Settings and team sizes come from verified rows only (store.sizes(): a row whose
+        checksum does not cover them, or whose columns disagree with its key, is left out)."""
         self._by_settings: dict[str, dict[tuple[int, int], CaptureStats]] = {}
         for digest, settings, n_p, n_e in store.sizes():
             if digest in cache:
@@ -143,14 +145,22 @@ class NeighbourIndex:
 
 def estimate(key: StatsKey, neighbours: list[tuple[int, int, CaptureStats]]) -> CaptureStats | None:
     """Inverse-distance (power 2) average of every statistic over the nearest stored
-    (n_p, n_e) of the same settings (n_games 0, `estimate` saying how); None without neighbours."""
+    (n_p, n_e) of the same settings (n_games 0, `estimate` saying how); None without neighbours.
+
+    Neighbours at distance 0 (the key's own team sizes) are the estimate: their plain mean
+    (one such neighbour: its statistics), never 0/0. Duplicate sizes weigh alike."""
     if not neighbours:
         return None
     n_p, n_e = key.sizes
     sizes = np.array([(a, b) for a, b, _ in neighbours], dtype=np.float64)
     d = np.hypot(sizes[:, 0] - n_p, sizes[:, 1] - n_e)
     nearest = np.argsort(d, kind="stable")[:ESTIMATE_NEIGHBOURS]
-    w = 1.0 / d[nearest] ** 2
+    own = bool(d[nearest[0]] == 0)
+    if own:  # the key's own sizes: no distance to weigh by (1 / 0**2 would make every statistic 0/0)
+        nearest = nearest[d[nearest] == 0]
+        w = np.ones(len(nearest))
+    else:
+        w = 1.0 / d[nearest] ** 2
     w /= w.sum()
     rows = [neighbours[i][2].flat() for i in nearest]
     out: dict = {}
@@ -160,8 +170,8 @@ def estimate(key: StatsKey, neighbours: list[tuple[int, int, CaptureStats]]) -> 
         out[name] = float(np.sum(w[ok] * xs[ok]) / np.sum(w[ok])) if ok.any() else math.nan
     out["n_games"] = 0
     used = ", ".join(f"({neighbours[i][0]},{neighbours[i][1]})" for i in nearest)
-    return CaptureStats.from_flat(
-        out, estimate=f"inverse-distance (power 2) over the {len(nearest)} nearest stored (n_p, n_e): {used}")
+    how = "mean of the cases of its own team sizes" if own else "inverse-distance (power 2)"
+    return CaptureStats.from_flat(out, estimate=f"{how} over the {len(nearest)} nearest stored (n_p, n_e): {used}")
 
 
 # ----------------------------------------------------------------------------- the core
@@ -469,7 +479,8 @@ def open_client(settings: ServiceSettings, *, mode: str = "ray", store, address:
     mode "ray": joins the cluster at address (or starts a local Ray, farm.runtime.ray_cluster)
     and uses the named service actor of `store` on it, which must serve that store;
     mode "local": an in-process lookup over `store`. The cluster and the in-process store
-    are released at the block's end.
+    are released at the block's end. A store no service can use (a folder, read-only,
+    damaged) is refused in one line before any work (before Ray starts, when it is local).
     """
     if mode == "local":
         client = CaptureTimeClient(settings, local_store=store)
@@ -480,8 +491,16 @@ def open_client(settings: ServiceSettings, *, mode: str = "ray", store, address:
         return
     if mode != "ray":
         raise ConfigError(f"service.mode: must be 'ray' or 'local', got {mode!r}")
-    from farm.runtime import ray_cluster
-    from farm.service.actor import get_service
+    import os
+    import sys
 
+    from farm.runtime import ray_cluster
+    from farm.service.store import check_store
+
+    ray = sys.modules.get("ray")  # not imported here: ray_cluster sets Ray's loopback switch before it is
+    if address is None and not os.environ.get("RAY_ADDRESS") and not (ray is not None and ray.is_initialized()):
+        check_store(store)  # a new Ray on this machine, its store here: a folder, read-only or damaged, before Ray
     with ray_cluster(address, num_cpus=num_cpus):
+        from farm.service.actor import get_service
+
         yield CaptureTimeClient(settings, service=get_service(Path(store)))

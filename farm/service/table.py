@@ -67,6 +67,28 @@ class TableConfig(Strict):
             return [base]
         return [base.with_(pursuer_policy=p.pursuer_policy, evader_policy=p.evader_policy) for p in self.policies]
 
+    def check(self) -> None:
+        """Validate every policy pair and team size once (a key per value, not per cell)."""
+        for settings in self.settings_list():
+            for n_p in self.n_pursuers:
+                settings.key(n_p, self.n_evaders[0])
+            for n_e in self.n_evaders:
+                settings.key(self.n_pursuers[0], n_e)
+
+    def size(self):
+        """Cases, games and CPU seconds by the cost model (farm.sizes.JobSize; at most 4096 cells sampled)."""
+        from farm.sizes import ITEM_BYTES, JobSize, game_seconds
+
+        settings = self.settings_list()
+        cells = len(self.n_pursuers) * len(self.n_evaders)
+        picks = np.linspace(0, cells - 1, min(cells, 4096)).round().astype(int)
+        mean = float(np.mean([game_seconds(s.key(self.n_pursuers[i // len(self.n_evaders)],
+                                                 self.n_evaders[i % len(self.n_evaders)]).case)
+                              for s in settings for i in picks]))
+        cases = len(settings) * cells
+        games = cases * settings[0].games
+        return JobSize("table", cases, "case", games, mean * games, cases * ITEM_BYTES)
+
     def keys(self):
         """(settings, n_p, n_e, StatsKey) for every cell of every table."""
         out = []
@@ -79,7 +101,7 @@ class TableConfig(Strict):
 
 def load_table_config(path) -> TableConfig:
     """Read and validate a table YAML; raises ConfigError with one line."""
-    return load_yaml_model(path, TableConfig, "table", check=TableConfig.keys)
+    return load_yaml_model(path, TableConfig, "table", check=TableConfig.check)
 
 
 def fill_table(config: TableConfig, *, store=None, address=None, workers=None, show_progress=True) -> dict:
@@ -88,8 +110,11 @@ def fill_table(config: TableConfig, *, store=None, address=None, workers=None, s
     from farm.progress import GameProgress
     from farm.service.lookup import open_client
 
+    from farm.shards import warn_coarse_steps
+
     settings = config.settings_list()
     pairs = [(n_p, n_e) for n_p in config.n_pursuers for n_e in config.n_evaders]
+    warn_coarse_steps(s.game for s in settings)
     t0 = time.perf_counter()
     with open_client(settings[0], store=config.store_path(store), address=address, num_cpus=workers) as client:
         before = len(client.stats()["computations"])
@@ -108,7 +133,7 @@ def table_frames(config: TableConfig, store=None) -> list[tuple[ServiceSettings,
     path = config.store_path(store)
     if not path.exists():
         raise ConfigError(f"{path}: no capture-time store yet; run `farm table CONFIG` first")
-    db = StatsStore(path)
+    db = StatsStore(path, read_only=True)
     values = db.load_all()
     out = []
     for settings in config.settings_list():

@@ -33,7 +33,9 @@ from workers import ENGINE_VERSION, GAME_FIELDS, SEEDING, Case
 from farm.config import NUMERIC_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
 from farm.shards import MAX_SHARD_GAMES, games_per_shard, shard_ranges
 
-__all__ = ["SweepConfig", "Point", "load_sweep_config", "VARIABLE_FIELDS"]
+__all__ = ["SweepConfig", "Point", "load_sweep_config", "VARIABLE_FIELDS", "FULL_CHECK_POINTS"]
+
+FULL_CHECK_POINTS = 20_000  # a sweep with more points has each axis value checked once when loaded
 
 # What a sweep may vary: every game field but the arena and the initial-position law.
 VARIABLE_FIELDS = tuple(name for name in GAME_FIELDS if name not in ("arena", "law"))
@@ -115,13 +117,13 @@ class SweepConfig(Strict):
         check_game_names(v)
         return v
 
-    def points(self) -> list["Point"]:
-        """The resolved points of the sweep, in a fixed order."""
+    def _axes(self) -> list[list[dict]]:
+        """The product's axes, slowest first: one per grid field, then the zip's rows, then the
+        random draws; point i is one value of each, the last axis varying fastest."""
         axes: list[list[dict]] = []
         v = self.vary
-        if v.grid:
-            names = list(v.grid)
-            axes.append([dict(zip(names, combo)) for combo in itertools.product(*v.grid.values())])
+        for name, values in (v.grid or {}).items():
+            axes.append([{name: x} for x in values])
         if v.zip:
             names = list(v.zip)
             axes.append([dict(zip(names, row)) for row in zip(*v.zip.values())])
@@ -135,19 +137,58 @@ class SweepConfig(Strict):
                                else float(rng.uniform(lo, hi)))
                 draws.append(d)
             axes.append(draws)
-        combos = [{}] if not axes else [dict(kv for part in parts for kv in part.items()) for parts in itertools.product(*axes)]
-        out = []
-        for index, changes in enumerate(combos):
-            try:
-                case = case_from({**self.base, **changes})
-            except ConfigError as e:
-                field = str(e).split(":", 1)[0].split(".", 1)[0]
-                where = ", ".join(f"{k}={v!r}" for k, v in changes.items())
-                prefix = f"vary: point {index} ({where})" if field in changes else "base"
-                raise ConfigError(f"{prefix}: {e}") from None
-            shard = self.shard_games or games_per_shard(case)
-            out.append(Point(index, changes, case, self.games_per_point, shard))
-        return out
+        return axes
+
+    def count(self) -> int:
+        """How many points the sweep has, without planning them."""
+        return math.prod(len(axis) for axis in self._axes())
+
+    def point(self, index: int, axes: list[list[dict]] | None = None) -> "Point":
+        """Point `index` (0 <= index < count()) alone; ConfigError naming it when its case is bad."""
+        axes = self._axes() if axes is None else axes
+        changes: dict = {}
+        rest = index
+        for axis in reversed(axes):
+            rest, k = divmod(rest, len(axis))
+            changes = {**axis[k], **changes}
+        try:
+            case = case_from({**self.base, **changes})
+        except ConfigError as e:
+            field = str(e).split(":", 1)[0].split(".", 1)[0]
+            where = ", ".join(f"{k}={v!r}" for k, v in changes.items())
+            prefix = f"vary: point {index} ({where})" if field in changes else "base"
+            raise ConfigError(f"{prefix}: {e}") from None
+        return Point(index, changes, case, self.games_per_point, self.shard_games or games_per_shard(case))
+
+    def points(self) -> list["Point"]:
+        """The resolved points of the sweep, in a fixed order (every grid combination, zip row
+        and random draw; the last block varying fastest)."""
+        axes = self._axes()
+        return [self.point(i, axes) for i in range(math.prod(len(axis) for axis in axes))]
+
+    def check(self) -> None:
+        """Validate the sweep's points: all of them up to FULL_CHECK_POINTS, else each value
+        of each axis once (the rest when the sweep runs)."""
+        axes = self._axes()
+        total = math.prod(len(axis) for axis in axes)
+        if total <= FULL_CHECK_POINTS:
+            indexes = range(total)
+        else:  # point i with axis j at value k and every other axis at its first value
+            strides = [math.prod(len(x) for x in axes[j + 1:]) for j in range(len(axes))]
+            indexes = sorted({k * strides[j] for j, axis in enumerate(axes) for k in range(len(axis))})
+        for i in indexes:
+            self.point(i, axes)
+
+    def size(self) -> "JobSize":
+        """Points, games and CPU seconds by the cost model (a sample of at most 64 points)."""
+        from farm.sizes import ITEM_BYTES, JobSize, game_seconds
+
+        axes = self._axes()
+        total = math.prod(len(axis) for axis in axes)
+        sample = sorted({round(k * (total - 1) / 63) for k in range(64)}) if total > 64 else range(total)
+        mean = float(np.mean([game_seconds(self.point(i, axes).case) for i in sample]))
+        return JobSize("sweep", total, "point", total * self.games_per_point, mean * total * self.games_per_point,
+                       total * ITEM_BYTES)
 
     def sweep_id(self) -> str:
         """Hash of the resolved sweep: every point's case key (engine version inside), games,
@@ -178,4 +219,4 @@ class Point:
 
 def load_sweep_config(path) -> SweepConfig:
     """Read and validate a sweep YAML; raises ConfigError with one line."""
-    return load_yaml_model(path, SweepConfig, "sweep", check=SweepConfig.points)
+    return load_yaml_model(path, SweepConfig, "sweep", check=SweepConfig.check)

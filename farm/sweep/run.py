@@ -35,7 +35,7 @@ from workers import ENGINE_VERSION, SEEDING, Case, CaptureStats
 from farm import metrics
 from farm.errors import ConfigError, SweepError
 from farm.output import atomic_write_bytes, write_table
-from farm.shards import play_shard, write_shard
+from farm.shards import SWEEP_ID_KEY, play_shard, warn_coarse_steps, write_shard
 from farm.sweep.config import Point, SweepConfig
 
 
@@ -81,22 +81,32 @@ class SweepRun:
         self.shard_dir = self.out / "shards"
 
     # ----- the folder -------------------------------------------------------------
-    def prepare(self) -> None:
-        """Create or reopen the folder; refuse one that holds another sweep."""
+    def prepare(self, rebuild: bool = False) -> None:
+        """Create or reopen the folder; refuse one that holds another sweep. rebuild: write a
+        damaged or missing sweep.json again from this config, when every shard in the folder
+        carries this config's sweep id."""
         manifest = self.out / "sweep.json"
         if self.out.exists() and not self.out.is_dir():
             raise ConfigError(f"out: {self.out} exists and is not a folder")
+        how = "rebuild (`farm sweep CONFIG --out DIR --rebuild`) writes it again from CONFIG if the shards are CONFIG's"
+        rewrite = False
         if manifest.exists():
             try:
                 other = json.loads(manifest.read_text()).get("sweep_id")
             except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-                raise ConfigError(f"out: {manifest} is unreadable; choose another folder") from None
-            if other != self.sweep_id:
-                raise ConfigError(
-                    f"out: {self.out} holds sweep {other}, not this config's {self.sweep_id}; choose another folder"
-                )
+                if not rebuild:
+                    raise ConfigError(f"out: {manifest} is damaged; {how}") from None
+                self._check_shards_are_mine()
+                rewrite = True
+            else:
+                if other != self.sweep_id:
+                    raise ConfigError(f"out: {self.out} holds sweep {other}, not this config's {self.sweep_id}; "
+                                      "choose another folder")
         elif self.out.exists() and any(self.out.iterdir()):
-            raise ConfigError(f"out: {self.out} is not empty and holds no sweep; choose another folder")
+            if not rebuild:
+                raise ConfigError(f"out: {self.out} is not empty and holds no sweep.json; {how}, else choose "
+                                  "another folder")
+            self._check_shards_are_mine()
         self.shard_dir.mkdir(parents=True, exist_ok=True)
         for stale in self.shard_dir.glob(".*.tmp"):
             stale.unlink(missing_ok=True)
@@ -111,8 +121,26 @@ class SweepRun:
                 for p in self.points
             ],
         }
-        if not manifest.exists():
+        if rewrite or not manifest.exists():
             atomic_write_bytes(manifest, json.dumps(doc, indent=2).encode())
+
+    def _check_shards_are_mine(self) -> None:
+        """ConfigError unless the folder has shards and every one carries this sweep's id."""
+        files = sorted(self.shard_dir.glob("*.parquet")) if self.shard_dir.is_dir() else []
+        if not files:
+            raise ConfigError(f"out: {self.out} has no shards to rebuild sweep.json from; choose another folder")
+        for path in files:
+            try:
+                meta = pq.read_schema(path).metadata or {}
+            except (OSError, pa.ArrowInvalid) as e:
+                raise ConfigError(f"out: {path} is unreadable ({type(e).__name__}); delete it and rerun") from None
+            found = meta.get(SWEEP_ID_KEY.encode(), b"").decode()
+            if not found:
+                raise ConfigError(f"out: {path} carries no sweep id (written before swarm-farm 0.3): sweep.json "
+                                  "cannot be rebuilt safely; choose another folder")
+            if found != self.sweep_id:
+                raise ConfigError(f"out: {path} belongs to sweep {found}, not this config's {self.sweep_id}; "
+                                  "choose another folder")
 
     def all_shards(self) -> list[Shard]:
         """Every shard of every point, in order."""
@@ -124,7 +152,7 @@ class SweepRun:
 
     def store(self, shard: Shard, df: pd.DataFrame) -> None:
         """Write a shard's rows to its file, atomically."""
-        write_shard(df, self.shard_dir / shard.file_name)
+        write_shard(df, self.shard_dir / shard.file_name, self.sweep_id)
 
     # ----- running ----------------------------------------------------------------
     def run_in_process(self, shards: list[Shard], progress=None) -> None:
@@ -210,12 +238,19 @@ class SweepRun:
 
 
 def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = None, use_ray: bool = True,
-              show_progress: bool = True, metrics_port: int | None = None) -> tuple[pd.DataFrame, dict]:
-    """Run (or resume) a sweep into `out`; returns (summary, info)."""
-    from farm.progress import GameProgress
+              show_progress: bool = True, metrics_port: int | None = None, yes: bool = False,
+              rebuild: bool = False) -> tuple[pd.DataFrame, dict]:
+    """Run (or resume) a sweep into `out`; returns (summary, info).
 
+    A large sweep says its size first and one over farm.sizes' limits is refused unless yes;
+    rebuild: see SweepRun.prepare."""
+    from farm.progress import GameProgress
+    from farm.sizes import check_size
+
+    check_size(config.size(), yes=yes, cpus=workers or 2)
     run = SweepRun(config, out)
-    run.prepare()
+    warn_coarse_steps(p.case for p in run.points)
+    run.prepare(rebuild)
     todo = run.missing_shards()
     total_games = sum(s.games for s in run.all_shards())
     done_games = total_games - sum(s.games for s in todo)

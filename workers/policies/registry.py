@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 from numba import njit
 
-from workers.errors import InputError
+from workers.errors import InputError, shown
 
 __all__ = [
     "PURSUERS",
@@ -92,7 +92,7 @@ def _table(team: str) -> dict[str, Policy]:
 def lookup(table: dict, name, field: str):
     """table[name]; InputError naming `field` and the choices when name is not a key."""
     if not isinstance(name, str) or name not in table:
-        raise InputError(f"{field}: unknown policy {name!r} (choose from {', '.join(sorted(table))})")
+        raise InputError(f"{field}: unknown policy {shown(name)} (choose from {', '.join(sorted(table))})")
     return table[name]
 
 

@@ -1,0 +1,130 @@
+"""What the command line refuses (issue 17): contradictory or ignored flags, empty entries,
+addresses that are not addresses, jobs too big to run blind, a damaged sweep.json; and
+negative numbers that need no '='."""
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+import yaml
+
+from farm.sizes import JobSize, check_size
+
+
+def farm(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, "RAY_ADDRESS": ""})
+
+
+def one_line_error(r, *words):
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    line = r.stderr.strip()
+    assert line.startswith("farm: error: ") and "\n" not in line and "Traceback" not in line, line
+    for w in words:
+        assert w in line, line
+    return line
+
+
+@pytest.mark.parametrize("args,first,second", [
+    (("--pursuers", "4,5", "--evaders", "8,5", "--n-pursuers", 3), "--pursuers", "--n-pursuers"),
+    (("--pursuers", "4,5", "--evaders", "8,5", "--n-evaders", 2), "--evaders", "--n-evaders"),
+    (("--positions", "p.json", "--pursuers", "4,5", "--evaders", "8,5"), "--positions", "--pursuers"),
+    (("--pursuers", "4,5", "--evaders", "8,5", "--seed", 3), "--pursuers", "--seed"),
+    (("--pursuers", "4,5", "--evaders", "8,5", "--law", "uniform"), "--pursuers", "--law"),
+])
+def test_game_contradictory_flags_name_both(args, first, second):
+    one_line_error(farm("game", *args), first, second)
+
+
+def test_game_ignored_and_empty_entries():
+    one_line_error(farm("game", "--plot-times", "0,1"), "--plot-times", "--plot")
+    one_line_error(farm("game", "--pursuers", "4,5;;4,2", "--evaders", "8,5"), "--pursuers", "empty entry")
+    one_line_error(farm("game", "--pursuers", "4,5", "--evaders", "8,5,"), "--evaders", "empty entry")
+
+
+def test_negative_numbers_need_no_equals_sign():
+    r = farm("game", "--pursuers", "4,5", "--evaders", "8,5", "--evader-policy", "target", "--target", "-1,5")
+    assert r.returncode == 0, r.stderr
+    one_line_error(farm("game", "--dt", "-1"), "--dt")
+
+
+@pytest.mark.parametrize("address", ["notahost", "ray://", "10.0.0.5"])
+def test_address_that_is_not_one_is_one_line(address, tmp_path):
+    one_line_error(farm("sweep", "configs/smoke.yaml", "--out", tmp_path / "o", "--address", address), address)
+
+
+def test_sweep_flags_that_contradict(tmp_path):
+    for extra, words in ((("--no-ray", "--workers", 2), ("--no-ray", "--workers")),
+                         (("--no-ray", "--address", "127.0.0.1:1"), ("--no-ray", "--address")),
+                         (("--address", "127.0.0.1:1", "--metrics-port", 9000), ("--address", "--metrics-port"))):
+        one_line_error(farm("sweep", "configs/smoke.yaml", "--out", tmp_path / "o", *extra), *words)
+    one_line_error(farm("table", "show", "configs/table_small.yaml", "--workers", 2), "--workers")
+
+
+def write(path, doc):
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def test_huge_jobs_say_their_size_and_are_refused_at_once_unless_yes(tmp_path):
+    values = list(range(1, 11))
+    sweep = write(tmp_path / "huge.yaml", {"name": "huge", "games_per_point": 1000,
+                                           "base": {"n_pursuers": 3, "n_evaders": 1},
+                                           "vary": {"grid": {"n_pursuers": values, "n_evaders": values,
+                                                             "t_max": [10.0 + v for v in values],
+                                                             "tau": [float(v) for v in values],
+                                                             "pursuer_speed": [float(v) for v in values],
+                                                             "evader_speed": [float(v) for v in values],
+                                                             "dt": [0.01 * v for v in values],
+                                                             "capture_radius": [0.1 * v for v in values],
+                                                             "target": [[0.0, float(v)] for v in values]}}})
+    t0 = time.perf_counter()
+    line = one_line_error(farm("sweep", sweep, "--out", tmp_path / "o"), "1,000,000,000 points", "--yes", "CPU")
+    assert time.perf_counter() - t0 < 60 and "memory" in line
+    assert not (tmp_path / "o").exists()  # nothing planned, nothing written
+    table = write(tmp_path / "t.yaml", {"name": "big", "store": str(tmp_path / "s.sqlite"),
+                                        "n_pursuers": list(range(1, 1001)), "n_evaders": list(range(1, 1001))})
+    one_line_error(farm("table", table), "1,000,000 cases", "--yes")
+    assert not (tmp_path / "s.sqlite").exists()
+    one_line_error(farm("pe-table", "--games", 1_000_000_000, "--out", tmp_path / "pe"), "6,000,000,000 games",
+                   "--yes")
+
+
+def test_a_job_over_ten_cpu_minutes_says_its_size_first(capsys):
+    check_size(JobSize("sweep", 10, "point", 1000, 1200.0, 10), yes=False, cpus=2)
+    err = capsys.readouterr().err
+    assert err.startswith("farm: sweep of 10 points, 1,000 games: about 20 min of CPU time") and "10 min on 2" in err
+    check_size(JobSize("sweep", 10, "point", 1000, 10.0, 10), yes=False)
+    assert capsys.readouterr().err == ""  # small jobs just run
+    check_size(JobSize("sweep", 10, "point", 10**9, 1e9, 10), yes=True)  # over the limit, but asked for
+    assert "years" in capsys.readouterr().err
+
+
+SMALL = {"name": "rebuild", "seed": 2, "games_per_point": 6, "shard_games": 3,
+         "base": {"n_pursuers": 2, "n_evaders": 1, "t_max": 5},
+         "vary": {"grid": {"evader_policy": ["centroid", "constant_area"]}}}
+
+
+def test_a_damaged_sweep_json_is_rebuilt_from_the_config_when_the_shards_match(tmp_path):
+    config = write(tmp_path / "s.yaml", SMALL)
+    out = tmp_path / "out"
+    assert farm("sweep", config, "--out", out, "--no-ray", "--quiet").returncode == 0
+    before = pd.read_csv(out / "summary.csv")
+    manifest = json.loads((out / "sweep.json").read_text())
+    (out / "sweep.json").write_text('{"sweep_id": "12')  # damaged
+    one_line_error(farm("sweep", config, "--out", out, "--no-ray"), "sweep.json is damaged", "--rebuild")
+    other = write(tmp_path / "other.yaml", {**SMALL, "seed": 3})
+    one_line_error(farm("sweep", other, "--out", out, "--no-ray", "--rebuild"), "belongs to sweep")
+    r = farm("sweep", config, "--out", out, "--no-ray", "--quiet", "--rebuild")
+    assert r.returncode == 0, r.stderr
+    assert json.loads((out / "sweep.json").read_text()) == manifest
+    pd.testing.assert_frame_equal(pd.read_csv(out / "summary.csv"), before)
+
+    (out / "sweep.json").unlink()  # deleted: the folder "holds no sweep" until rebuilt
+    one_line_error(farm("sweep", config, "--out", out, "--no-ray"), "holds no sweep.json", "--rebuild")
+    assert farm("sweep", config, "--out", out, "--no-ray", "--quiet", "--rebuild").returncode == 0
+    assert json.loads((out / "sweep.json").read_text()) == manifest
