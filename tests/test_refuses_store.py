@@ -9,7 +9,6 @@
 - an actor that dies of a project error raises that error's line, not Ray's wrapper.
 """
 
-import json
 import math
 import sqlite3
 import subprocess
@@ -22,7 +21,7 @@ from hypothesis import strategies as st
 
 from farm.errors import ConfigError, StoreCorruptError
 from farm.service import CaptureTimeClient, ServiceSettings, StatsStore
-from farm.service.lookup import LocalBackend, compute_in_process, estimate, open_client
+from farm.service.lookup import compute_in_process, estimate, open_client
 from farm.service.store import _checksum, check_store, check_store_path
 from workers import CaptureStats
 
@@ -91,7 +90,7 @@ def test_a_damaged_column_is_reported_never_served_and_recomputed(tmp_path, writ
     store = StatsStore(path)
     assert store.get(SMALL.key(2, 1)) is None and store.corrupt_rows == {digest}
     assert set(store.load_all()) == {SMALL.key(4, 1).digest()}
-    assert [row[0] for row in store.sizes()] == [SMALL.key(4, 1).digest()]
+    assert [row[0] for row in store.rows()] == [SMALL.key(4, 1).digest()]
     store.close()
 
     client = CaptureTimeClient(SMALL, local_store=path)

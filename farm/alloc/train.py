@@ -44,6 +44,8 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+from workers.errors import is_number
+
 from farm.alloc.config import AllocConfig
 from farm.alloc.env import SwarmAllocationEnv
 from farm.config import ConfigError, Strict, load_yaml_model
@@ -57,11 +59,11 @@ POLICY_KWARGS = ("net_arch", "n_critics", "share_features_extractor", "normalize
 
 
 def _whole(x) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
+    return is_number(x) and isinstance(x, int)
 
 
 def _number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    return is_number(x) and math.isfinite(x)
 
 
 class TD3Params(Strict):

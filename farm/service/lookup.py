@@ -125,14 +125,12 @@ class NeighbourIndex:
     """The computed cases of each setting by team sizes, in memory, for estimates: reading
     them from the store on every miss would parse and verify every row of the setting."""
 
-    def __init__(self, store: StatsStore, cache: dict[str, CaptureStats]):
-        """store: a StatsStore; cache: digest -> value of its sound rows (store.load_all()).
-        Settings and team sizes come from verified rows only (store.sizes(): a row whose
-        checksum does not cover them, or whose columns disagree with its key, is left out)."""
+    def __init__(self, rows: list[tuple[str, str, int, int, CaptureStats]]):
+        """rows: the store's verified rows (StatsStore.rows(): a row whose checksum does not
+        cover its settings and team sizes, or whose columns disagree with its key, is left out)."""
         self._by_settings: dict[str, dict[tuple[int, int], CaptureStats]] = {}
-        for digest, settings, n_p, n_e in store.sizes():
-            if digest in cache:
-                self._by_settings.setdefault(settings, {})[(n_p, n_e)] = cache[digest]
+        for _, settings, n_p, n_e, value in rows:
+            self._by_settings.setdefault(settings, {})[(n_p, n_e)] = value
 
     def add(self, key: StatsKey, value: CaptureStats) -> None:
         """Remember a computed key's value."""
@@ -192,8 +190,9 @@ class Lookup:
         self.compute = compute
         self.background = background
         self.metrics = metrics
-        self.cache: dict[str, CaptureStats] = store.load_all() if store is not None else {}
-        self.index = NeighbourIndex(store, self.cache) if store is not None else None
+        rows = store.rows() if store is not None else []  # each row read and verified once
+        self.cache: dict[str, CaptureStats] = {digest: value for digest, _, _, _, value in rows}
+        self.index = NeighbourIndex(rows) if store is not None else None
         self.inflight: dict[str, Future] = {}
         self.counts: Counter = Counter(hits=0, misses=0)
         self.computations: Counter = Counter()

@@ -275,10 +275,6 @@ class StatsStore:
         """Every verified row: digest -> value (damaged rows are reported and left out)."""
         return {digest: value for digest, _, _, _, value in self.rows()}
 
-    def sizes(self) -> list[tuple[str, str, int, int]]:
-        """(key digest, settings digest, n_p, n_e) of every verified row (rows())."""
-        return [row[:4] for row in self.rows()]
-
     def table(self) -> list[dict]:
         """All verified rows with their keys, for `farm table show`."""
         return [{"key": json.loads(row[4]), "value": value} for row, value in self._verified_rows()]

@@ -32,6 +32,7 @@ from workers import ENGINE_VERSION, GAME_FIELDS, SEEDING, Case
 
 from farm.config import NUMERIC_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
 from farm.shards import MAX_SHARD_GAMES, games_per_shard, shard_ranges
+from farm.sizes import ITEM_BYTES, JobSize, game_seconds
 
 __all__ = ["SweepConfig", "Point", "load_sweep_config", "VARIABLE_FIELDS", "FULL_CHECK_POINTS"]
 
@@ -179,10 +180,8 @@ class SweepConfig(Strict):
         for i in indexes:
             self.point(i, axes)
 
-    def size(self) -> "JobSize":
+    def size(self) -> JobSize:
         """Points, games and CPU seconds by the cost model (a sample of at most 64 points)."""
-        from farm.sizes import ITEM_BYTES, JobSize, game_seconds
-
         axes = self._axes()
         total = math.prod(len(axis) for axis in axes)
         sample = sorted({round(k * (total - 1) / 63) for k in range(64)}) if total > 64 else range(total)
