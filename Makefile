@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-stamp
 CONSTRAINTS ?= -c constraints-cpu.txt
 RESULTS ?= results/demo
 
-.PHONY: demo test bench experiments install browser clean
+.PHONY: demo test bench experiments suite install browser clean
 
 $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -26,6 +26,7 @@ demo: $(STAMP)
 	rm -rf $(RESULTS)/runs/demo-3x3
 	$(VENV)/bin/farm train configs/train/demo_3x3.yaml --out $(RESULTS)/runs/demo-3x3
 	$(VENV)/bin/farm eval $(RESULTS)/runs/demo-3x3 --episodes 10
+	$(VENV)/bin/farm suite configs/suite_demo.yaml --out $(RESULTS)/suite
 	$(VENV)/bin/farm report $(RESULTS)
 
 # Debian's chromium renders the report in the tests; installed here when missing (needs root).
@@ -42,6 +43,17 @@ bench: $(STAMP)
 	$(PY) benchmarks/farm.py
 	$(PY) benchmarks/service.py
 	$(PY) benchmarks/alloc.py
+	$(PY) benchmarks/planners.py
+
+# The scenario suite (configs/suite.yaml): TD3 trained on each scenario (configs/train/suite_*.yaml,
+# into results/runs/suite_<scenario>), then the baselines, the planners and TD3 on one leaderboard.
+SUITE_RUNS := $(patsubst configs/train/%.yaml,%,$(wildcard configs/train/suite_*.yaml))
+suite: $(STAMP)
+	for e in $(SUITE_RUNS); do \
+	  test -f results/runs/$$e/model.zip || $(VENV)/bin/farm train configs/train/$$e.yaml --out results/runs/$$e || exit 1; \
+	done
+	$(VENV)/bin/farm suite configs/suite.yaml --out results/suite
+	$(VENV)/bin/farm report results
 
 # The paper's allocation experiments: train, evaluate against the baselines, figures.
 EXPERIMENTS := paper_3x3_c1_0 paper_3x3_c1_1.5 paper_3x3_100v100 larger_5x5 larger_8x8

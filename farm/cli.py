@@ -331,9 +331,9 @@ def cmd_train(a) -> int:
 
 
 def cmd_eval(a) -> int:
-    """`farm eval RUN_DIR`: the trained policy and the baselines on the same seeded episodes."""
+    """`farm eval RUN_DIR`: the trained policy, the baselines and the planners on the same seeded episodes."""
     from farm.alloc.evaluate import (baselines, evaluate_fidelity, evaluate_policies, load_policy, mean_ci95,
-                                     plot_behaviour_steps, steps_table)
+                                     planners, plot_behaviour_steps, steps_table)
     from farm.alloc.train import load_train_config, store_of
     from farm.output import write_table
     from farm.service.lookup import open_client
@@ -348,6 +348,7 @@ def cmd_eval(a) -> int:
     settings = config.env.service_settings()
     mode = "ray" if a.fidelity == "games" else config.service.mode  # the games are Ray tasks
     with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
+        policies.update(planners(config.env, client))
         table, per, steps = evaluate_policies(config.env, policies, client, a.episodes, a.seed, out=run_dir)
         write_table(table, run_dir / "eval_table", "csv")
         write_table(per, run_dir / "eval_episodes", "csv")
@@ -390,6 +391,27 @@ def cmd_claims(a) -> int:
         print(f"{r['claim']}\n  measured: {r['measured']}\n  verdict:  {r['verdict']}")
     write_table(pd.DataFrame(rows), runs / "claims", "csv")
     print(f"wrote {runs / 'claims.csv'}")
+    return 0
+
+
+def cmd_suite(a) -> int:
+    """`farm suite CONFIG --out DIR`: every policy on every scenario, on the same seeded episodes; a leaderboard."""
+    from farm.alloc.suite import format_leaderboard, load_suite_config, run_suite
+
+    for flag in ("episodes", "workers"):
+        value = getattr(a, flag)
+        if value is not None and value < 1:
+            raise CliError(f"--{flag}: must be >= 1, got {value}")
+    config = load_suite_config(a.config)
+    out = Path(a.out)
+    with flags("out", "address", "episodes", workers="num_cpus"):
+        board, info = run_suite(config, out, episodes=a.episodes, address=a.address, workers=a.workers,
+                                show_progress=not a.quiet)
+    print(format_leaderboard(board))
+    print(f"{config.name}: {info['tasks']} (scenario, policy) evaluations on {info['workers']} worker(s), "
+          f"{info['warmed_cases']} lattice cases warmed in {info['warm_seconds']:.1f} s, evaluations "
+          f"{info['evaluation_seconds']:.1f} s", file=sys.stderr)
+    print(f"wrote {out / 'leaderboard.csv'}, episodes.csv, leaderboard.png, suite.json")
     return 0
 
 
@@ -462,12 +484,23 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--quiet", action="store_true")
     tr.set_defaults(func=cmd_train)
 
-    ev = sub.add_parser("eval", help="the trained policy against the baselines on the same seeded episodes")
+    ev = sub.add_parser("eval", help="the trained policy against the baselines and the planners on the same seeded episodes")
     ev.add_argument("run_dir")
     ev.add_argument("--episodes", type=int, default=20)
     ev.add_argument("--seed", type=int, default=1000)
     ev.add_argument("--fidelity", choices=["service", "games"], default="service")
     ev.set_defaults(func=cmd_eval)
+
+    su = sub.add_parser("suite", help="every policy on every scenario, same seeded episodes: a leaderboard")
+    su.add_argument("config", help="suite YAML, e.g. configs/suite.yaml")
+    su.add_argument("--out", required=True, help="results folder (leaderboard.csv, episodes.csv, leaderboard.png, "
+                                                 "suite.json)")
+    su.add_argument("--episodes", type=int, help="override episodes (seeded seed .. seed+episodes-1)")
+    su.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
+    su.add_argument("--workers", type=int, help="evaluations running at once (default: the cluster's CPUs; "
+                                                "a local Ray's CPUs)")
+    su.add_argument("--quiet", action="store_true", help="no progress bars")
+    su.set_defaults(func=cmd_suite)
 
     cl = sub.add_parser("claims", help="the paper's claims (a)-(c), measured on evaluated runs")
     cl.add_argument("runs_dir", help="folder of run folders (e.g. results/runs)")

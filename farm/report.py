@@ -298,6 +298,43 @@ def _density_section(root: Path) -> str | None:
     return "<div class=grid>" + "".join(_img(_png(p), p.name) for p in pngs) + "</div>"
 
 
+def _leaderboard_section(root: Path) -> str | None:
+    """Every suite's leaderboard under root (farm suite: leaderboard.csv), its chart and config."""
+    boards = sorted(root.rglob("leaderboard.csv"))
+    if not boards:
+        return None
+    parts = []
+    for path in boards:
+        board = _read_table(path)
+        need = {"scenario", "policy", "episodes", "eliminated_mean", "eliminated_ci95", "return_mean", "return_ci95",
+                "breached_mean", "breached_ci95", "coverage_mean", "coverage_ci95", "seconds_per_step"}
+        if not need <= set(board.columns):
+            raise ReportError(f"{path}: not a leaderboard (missing {', '.join(sorted(need - set(board.columns)))})")
+
+        def pm(col: str) -> list[str]:
+            return [f"{m:.3f} ± {h:.3f}" if pd.notna(h) else f"{m:.3f}"
+                    for m, h in zip(board[f"{col}_mean"], board[f"{col}_ci95"])]
+
+        view = pd.DataFrame({"scenario": board["scenario"], "policy": board["policy"], "episodes": board["episodes"],
+                             "eliminated": pm("eliminated"), "breached": pm("breached"), "return": pm("return"),
+                             "coverage": pm("coverage"),
+                             "ms per step": [f"{1000 * x:.2f}" for x in board["seconds_per_step"]]})
+        chart = path.with_name("leaderboard.png")
+        manifest = path.with_name("suite.json")
+        doc = _read_json(manifest) if manifest.exists() else None
+        title = doc.get("name", path.parent.name) if isinstance(doc, dict) else path.parent.name
+        parts.append(
+            f"<h3>{html.escape(str(title))}</h3><p class=src>{html.escape(str(path))}</p>"
+            + (_img(_png(chart), "leaderboard chart") if chart.exists() else "")
+            + "<p>Mean over the episodes ± the half-width of the 95% t interval; every policy of a scenario "
+              "played the same seeded episodes. ms per step: the policy's own decision time.</p>"
+            + _table(view)
+            + (f"<details><summary>configuration</summary><pre>{html.escape(json.dumps(doc, indent=2))}</pre>"
+               "</details>" if doc is not None else "")
+        )
+    return "".join(parts)
+
+
 SECTIONS = [
     ("pe", "The paper's pursuit-evasion tables", "farm pe-table --out RESULTS_DIR/pe-table"),
     ("sweeps", "Sweeps", "farm sweep configs/smoke.yaml --out RESULTS_DIR/sweep-smoke"),
@@ -305,6 +342,7 @@ SECTIONS = [
     ("training", "Training curves", "farm train CONFIG (the allocation trainer)"),
     ("density", "Density maps of an evaluation episode", "farm eval RUN_DIR"),
     ("eval", "Evaluation against the baselines", "farm eval RUN_DIR"),
+    ("leaderboard", "Leaderboard", "farm suite configs/suite_demo.yaml --out RESULTS_DIR/suite"),
     ("games", "Game figures", "farm game --plot RESULTS_DIR/game.png"),
 ]
 
@@ -339,7 +377,8 @@ def build_report(results_dir: str | Path) -> str:
 
     Finds under results_dir (at any depth) the PE tables (pe_tables.csv or .parquet),
     sweep folders (sweep.json), capture-time stores (*.sqlite), training runs
-    (evaluations.npz), density maps, evaluation tables and game figures, and makes one
+    (evaluations.npz), density maps, evaluation tables, suite leaderboards
+    (leaderboard.csv, with leaderboard.png and suite.json) and game figures, and makes one
     section of each kind; a kind without data says which command would produce it.
     Raises ReportError when the folder does not exist, holds none of these, or holds a
     damaged one.
@@ -357,13 +396,15 @@ def build_report(results_dir: str | Path) -> str:
         "training": _training_section(root),
         "density": _density_section(root),
         "eval": _eval_section(root),
+        "leaderboard": _leaderboard_section(root),
     }
     used.update(root.rglob("fig_*.png"))
+    used.update(root.rglob("leaderboard.png"))
     found["games"] = _game_figures(root, used)
     if not any(found.values()):
         raise ReportError(
             f"{root}: no results found (looked for pe_tables.*, sweep folders, capture-time stores, "
-            "training runs, figures); run `make demo` or a farm command first"
+            "training runs, leaderboards, figures); run `make demo` or a farm command first"
         )
     body = []
     for key, title, command in SECTIONS:

@@ -97,10 +97,12 @@ def _check_running(ray, address: str | None, num_cpus: int | None, metrics_port:
 
 
 def connected() -> bool:
-    """Whether this process is connected to Ray already (ray_cluster then uses that Ray)."""
-    import ray
+    """Whether this process is connected to Ray already (ray_cluster then uses that Ray).
 
-    return ray.is_initialized()
+    Never imports Ray: a process that has not imported it is not connected, and importing it
+    here would come before ray_cluster sets the loopback switch (LOOPBACK_ENV)."""
+    ray = sys.modules.get("ray")
+    return ray is not None and ray.is_initialized()
 
 
 @contextmanager

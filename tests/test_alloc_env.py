@@ -105,8 +105,10 @@ def test_same_seed_same_episode(store):
 
 
 def test_reward_by_hand(store):
-    """One engineered step checked against docs/model.md's formula with the service's numbers."""
-    env = make(store, c_distribution=0.7, c_capture=1.5, breach_penalty=2.0, capture_time_norm=8.0)
+    """One engineered step checked against docs/model.md's formula with the service's numbers
+    (the earlier, conditional capture score; tests/test_capture_score.py checks the expected one)."""
+    env = make(store, c_distribution=0.7, c_capture=1.5, breach_penalty=2.0, capture_time_norm=8.0,
+               capture_score="conditional")
     env.reset(seed=0)
     env.D = np.zeros(9)
     env.D[4] = 0.6  # centre: 6 defenders

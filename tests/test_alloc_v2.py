@@ -87,8 +87,9 @@ def test_elimination_is_the_captured_within_window_fraction_and_escapes_are_not(
     assert 0 < captured < 1 and escaped > 0 and captured + escaped <= 1 + 1e-12  # the rest escape or still run
     assert env.I[4] == pytest.approx(0.6 * (1 - captured), abs=1e-12)
     assert info["eliminated_step"] == pytest.approx(0.6 * captured, abs=1e-12)  # the escaped are not eliminated
-    t = v.mean_capture.mean
-    assert reward == pytest.approx(-(env.I.sum()) + 1.5 * 0.6 * (1 - t / 10.0), abs=1e-12)
+    # the expected capture score: captures that do not happen within the window earn nothing
+    assert 0 < v.capture_score_tau <= captured
+    assert reward == pytest.approx(-(env.I.sum()) + 1.5 * 0.6 * v.capture_score_tau, abs=1e-12)
     assert info["coverage"] == pytest.approx(0.6 / 1.0) and info["defenders_per_engaged"] == 8
 
 

@@ -9,6 +9,10 @@ that never escaped has escape time NaN, `first_escape` / `mean_escape` are NaN
 when nobody escaped, and without an exit point every escape column says nobody
 escaped. Per case, time statistics are over the games where the quantity is
 finite, and `n_censored` says how many games were left out.
+
+The capture score (docs/model.md section 5) is an expectation over all games: per game,
+`capture_score_tau` is the mean over its evaders of max(0, 1 - t/tau), an evader not
+captured within tau scoring 0; per case, the mean over every game, censored or not.
 """
 
 from __future__ import annotations
@@ -46,7 +50,9 @@ def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0,
 
     Columns: game (int64), first_capture, mean_capture, last_capture, frac_captured,
     frac_captured_tau, all_captured_tau (bool), frac_escaped, frac_escaped_tau,
-    first_escape, mean_escape (float64). A time within tau + 1e-9 counts as within tau.
+    first_escape, mean_escape, capture_score_tau (float64). A time within tau + 1e-9
+    counts as within tau. capture_score_tau: the mean over the game's evaders of
+    max(0, 1 - t/tau), 0 for an evader not captured within tau.
     """
     ct = np.asarray(capture_times, dtype=np.float64)
     et = np.full(ct.shape, np.nan) if escape_times is None else np.asarray(escape_times, dtype=np.float64)
@@ -57,6 +63,7 @@ def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0,
     escaped = _event_stats(et, tau)
     with np.errstate(invalid="ignore"):
         last = np.where(captured["all"], np.max(np.where(np.isfinite(ct), ct, 0.0), axis=1), np.nan)
+        earliness = np.where(captured["within"], np.maximum(0.0, 1.0 - ct / tau), 0.0)
     return pd.DataFrame(
         {
             "game": np.arange(first_game, first_game + len(ct), dtype=np.int64),
@@ -70,6 +77,7 @@ def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0,
             "frac_escaped_tau": escaped["n_tau"] / n_e,
             "first_escape": escaped["first"],
             "mean_escape": escaped["mean"],
+            "capture_score_tau": earliness.sum(axis=1) / n_e,
         }
     )
 
@@ -82,7 +90,7 @@ def results_statistics(res, tau: float, first_game: int = 0) -> pd.DataFrame:
 def _event_stats(times: np.ndarray, tau: float) -> dict[str, np.ndarray]:
     """Per game of times (B, n_e) float64, NaN = the event did not happen: n and n_tau
     (B,) int64, counts by t_max and by tau; first and mean (B,) float64, NaN when no
-    event; all and all_tau (B,) bool."""
+    event; all and all_tau (B,) bool; within (B, n_e) bool, the events within tau."""
     happened = np.isfinite(times)
     n = happened.sum(axis=1)
     some = n > 0
@@ -91,7 +99,7 @@ def _event_stats(times: np.ndarray, tau: float) -> dict[str, np.ndarray]:
         first = np.where(some, np.nanmin(np.where(some[:, None], times, 0.0), axis=1), np.nan)
         mean = np.where(some, np.nansum(times, axis=1) / np.maximum(n, 1), np.nan)
     return {"n": n, "n_tau": within.sum(axis=1), "first": first, "mean": mean,
-            "all": happened.all(axis=1), "all_tau": within.all(axis=1)}
+            "all": happened.all(axis=1), "all_tau": within.all(axis=1), "within": within}
 
 
 @dataclass(frozen=True)
@@ -137,7 +145,8 @@ _FRACTIONS = {"frac_captured": ("frac_captured", "frac_captured_mean"),
               "frac_captured_tau": ("frac_captured_tau", "frac_captured_tau_mean"),
               "p_all_captured_tau": ("all_captured_tau", "p_all_captured_tau"),
               "frac_escaped": ("frac_escaped", "frac_escaped_mean"),
-              "frac_escaped_tau": ("frac_escaped_tau", "frac_escaped_tau_mean")}
+              "frac_escaped_tau": ("frac_escaped_tau", "frac_escaped_tau_mean"),
+              "capture_score_tau": ("capture_score_tau", "capture_score_tau_mean")}
 # Keys the capture-time store wrote beside the statistics before CaptureStats (read, not written).
 _FORMER_KEYS = {"expected_frac_captured_tau", "estimate", "estimate_method", "key"}
 
@@ -151,7 +160,10 @@ class CaptureStats:
     frac_captured / frac_captured_tau: mean over games of the fraction of evaders captured
     by t_max / within tau (the allocation env's expected share of intruders removed);
     p_all_captured_tau: share of games with every evader captured within tau; the escape
-    fractions likewise; one TimeSummary per time metric of TIME_METRICS. estimate: None
+    fractions likewise; capture_score_tau: the mean over all games (those that caught
+    nobody included) of each game's mean over its evaders of max(0, 1 - t/tau), an evader
+    not captured within tau scoring 0 (the allocation env's expected capture score per
+    unit of intruder mass); one TimeSummary per time metric of TIME_METRICS. estimate: None
     for statistics of played games; for the service's interpolation of neighbouring cases,
     how it was made (n_games is then 0).
     """
@@ -162,6 +174,7 @@ class CaptureStats:
     p_all_captured_tau: float
     frac_escaped: float
     frac_escaped_tau: float
+    capture_score_tau: float
     first_capture: TimeSummary
     mean_capture: TimeSummary
     last_capture: TimeSummary
@@ -181,7 +194,7 @@ class CaptureStats:
 
         n_games, m_<stat> for every time metric m and statistic, and the fractions as
         frac_captured_mean, frac_captured_tau_mean, p_all_captured_tau,
-        frac_escaped_mean, frac_escaped_tau_mean."""
+        frac_escaped_mean, frac_escaped_tau_mean, capture_score_tau_mean."""
         out: dict = {"n_games": self.n_games}
         for m in TIME_METRICS:
             out.update({f"{m}_{s}": v for s, v in asdict(getattr(self, m)).items()})
@@ -190,7 +203,11 @@ class CaptureStats:
 
     @classmethod
     def from_flat(cls, row: dict, estimate: str | None = None) -> "CaptureStats":
-        """The inverse of flat(); also reads the store's rows written before CaptureStats."""
+        """The inverse of flat(); also reads the store's rows written before CaptureStats.
+
+        A row without a field of flat() (written before that field existed, e.g. the
+        capture score of version 0.4) raises KeyError naming it: it is never read with a
+        guessed value (the store leaves such rows out and recomputes them)."""
         unknown = set(row) - set(cls.flat_names()) - _FORMER_KEYS
         if unknown:
             raise InputError(f"CaptureStats: unknown fields {', '.join(sorted(unknown))}")

@@ -1,17 +1,21 @@
 """High-level allocation: the grid MDP as a gymnasium env (`farm/SwarmAllocation-v0`).
 
-Importing this package registers the env:
+Importing this package registers the env, and each benchmark scenario
+(farm.alloc.scenarios.SCENARIOS) as `farm/<name>-v0`:
     import gymnasium, farm.alloc
     env = gymnasium.make("farm/SwarmAllocation-v0", grid_size=3, n_defenders=100, n_intruders=50)
+    env = gymnasium.make("farm/paper_3x3_c1_0-v0")
 """
 
 import gymnasium
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.env import SwarmAllocationEnv, moves, n_actions
+from farm.alloc.scenarios import SCENARIOS, register_scenarios
 
 ENV_ID = "farm/SwarmAllocation-v0"
 if ENV_ID not in gymnasium.registry:
     gymnasium.register(ENV_ID, entry_point="farm.alloc.env:SwarmAllocationEnv")
+register_scenarios()
 
-__all__ = ["AllocConfig", "SwarmAllocationEnv", "ENV_ID", "moves", "n_actions"]
+__all__ = ["AllocConfig", "SwarmAllocationEnv", "ENV_ID", "moves", "n_actions", "SCENARIOS"]

@@ -12,9 +12,11 @@ time an intruder needs to cross a cell (step_seconds = cell side / the intruders
 speed `evader_speed` = 10 s), the engagement window is that step (tau = step_seconds),
 the cell's games run no longer (t_max = tau) and are the paper's Table 1 setting,
 pure pursuit against intruders heading for the exit (0, 5) that escape through it,
-and the capture score is normalised by the window (capture_time_norm = tau). v1
-(`engagement: v1`) is the earlier model, for comparison: area_min against centroid,
-tau 5 s, t_max 10 s, no exit, capture_time_norm 10. A value that contradicts the
+and the capture score is an expectation over all of a cell's games, normalised by the
+window (`capture_score: expected`, capture_time_norm = tau). v1 (`engagement: v1`) is
+the earlier model, for comparison: area_min against centroid, tau 5 s, t_max 10 s, no
+exit, capture_time_norm 10 and the earlier score (`capture_score: conditional`: the mean
+capture time of the games that caught someone). A value that contradicts the
 engagement's coupling is one clear error.
 """
 
@@ -36,8 +38,9 @@ EXIT = (0.0, 5.0)  # the intruders' exit: the middle of the cell's left (defende
 
 ENGAGEMENT_DEFAULTS = {
     "v1": {"pursuer_policy": "area_min", "evader_policy": "centroid", "tau": 5.0, "t_max": 10.0,
-           "capture_time_norm": 10.0, "exit_point": None},
-    "v2": {"pursuer_policy": "pure_pursuit", "evader_policy": "target", "exit_point": EXIT},
+           "capture_time_norm": 10.0, "exit_point": None, "capture_score": "conditional"},
+    "v2": {"pursuer_policy": "pure_pursuit", "evader_policy": "target", "exit_point": EXIT,
+           "capture_score": "expected"},
 }
 _SERVICE = ServiceSettings()
 
@@ -69,6 +72,7 @@ class _AllocFields(Strict):
     engagement: Literal["v1", "v2"] = "v2"
     step_seconds: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: CELL_SIDE / evader_speed
     capture_time_norm: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: tau
+    capture_score: Literal["expected", "conditional"] | None = None  # v2: expected, v1: conditional
     games: int = Field(_SERVICE.games, ge=2, le=100_000)  # games per case in the capture-time service
     seed: int = Field(_SERVICE.seed, ge=0)  # the service's seed of those games
 
@@ -129,6 +133,10 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
                              f"engagement: v1)")
         if case.t_max < case.tau - 1e-9:
             raise ValueError(f"t_max: the games ({case.t_max:g} s) must last the window tau ({case.tau:g} s)")
+        if self.capture_score == "expected" and abs(self.capture_time_norm - case.tau) > 1e-9 * case.tau:
+            raise ValueError(f"capture_time_norm: the expected capture score is normalised by the window tau "
+                             f"({case.tau:g} s), got {self.capture_time_norm:g} (for another norm, set "
+                             f"capture_score: conditional)")
         return self
 
     def game(self) -> Case:

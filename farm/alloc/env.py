@@ -3,7 +3,9 @@
 SwarmAllocationEnv is the env (registered as `farm/SwarmAllocation-v0`); its docstring
 describes the MDP: action and observation spaces, one step, the reward, the start and
 the end of an episode, and its arguments. moves and n_actions give the action layout
-of an N x N grid; snap and snap_many the lattice of team sizes (`team_sizes: lattice`).
+of an N x N grid. A step's intruder advance and engagements (and the lattice of team
+sizes, `team_sizes: lattice`) are farm.alloc.model's functions, which the planners use
+to look ahead.
 See farm.alloc.config for the settings and the two engagement models.
 """
 
@@ -16,12 +18,10 @@ import numpy as np
 from gymnasium.error import ResetNeeded
 
 from farm.alloc.config import AllocConfig
+from farm.alloc.model import EngagementModel, advance_intruders
 from farm.errors import ActionError, ConfigError
 
 log = logging.getLogger(__name__)
-
-LATTICE = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
-
 
 def moves(n: int):
     """The feasible moves of an n x n grid, in the action vector's order.
@@ -54,24 +54,6 @@ def n_actions(n: int) -> int:
     return 4 * 4 + 6 * 4 * (n - 2) + 9 * (n - 2) ** 2
 
 
-_LATTICE = np.array(LATTICE)
-_LATTICE_MIDS = np.sqrt(_LATTICE[:-1] * _LATTICE[1:])  # geometric midpoints: never an integer
-
-
-def snap_many(x: np.ndarray) -> np.ndarray:
-    """Snap team sizes to the nearest size of LATTICE in log scale (team_sizes: lattice).
-
-    x: (k,) int team sizes -> (k,) int64 lattice sizes. At a geometric midpoint of two
-    lattice sizes the smaller would win, but no integer is one.
-    """
-    return _LATTICE[np.searchsorted(_LATTICE_MIDS, x)]
-
-
-def snap(x: int) -> int:
-    """Snap one team size to the nearest lattice size in log scale (snap_many for one)."""
-    return int(snap_many(np.asarray([x]))[0])
-
-
 class SwarmAllocationEnv(gym.Env):
     """The grid allocation MDP: place a defender swarm over an N x N grid against intruders.
 
@@ -96,7 +78,7 @@ class SwarmAllocationEnv(gym.Env):
        its mass to each neighbouring row), then advance one column left; the mass that
        leaves the left edge has breached;
     3. every cell with n_p >= 1 and I_c > `engage_min_mass` is engaged (`team_sizes:
-       lattice` snaps n_p and n_e with snap_many). Under v2 the games are by default pure
+       lattice` snaps n_p and n_e with farm.alloc.model.snap_many). Under v2 the games are by default pure
        pursuit against intruders heading for the exit, through which they escape; escaped
        intruders stay in the cell's mass and go on with the next advance, never
        counted as eliminated. Defenders are never lost.
@@ -135,10 +117,15 @@ class SwarmAllocationEnv(gym.Env):
         R = -c_distribution * sum(I) + c_capture * S - breach_penalty * B
 
     sum(I) is the intruder mass left after the step's engagements; B the mass breached
-    this step; the capture score S = sum over engaged cells of I_c max(0, 1 - t_c /
-    capture_time_norm), I_c the cell's mass before its engagement, t_c the mean capture
-    time of the cell's game (t_max when nobody is caught); capture_time_norm defaults to
-    tau under v2 (10 s under v1). Defaults: c_distribution 1, c_capture 0, breach_penalty 1.
+    this step; the capture score S = sum over engaged cells of I_c s_c, I_c the cell's
+    mass before its engagement and s_c its game's score per unit of mass. Under
+    `capture_score: expected` (v2's default) s_c is an expectation over all the cell's
+    games: the mean over games of each game's mean over its intruders of max(0, 1 -
+    t/tau), an intruder not caught within tau scoring 0 (CaptureStats.capture_score_tau).
+    Under `conditional` (v1's, the earlier rule) s_c = max(0, 1 - t_c /
+    capture_time_norm), t_c the mean capture time of the games that caught someone (t_max
+    when none did); capture_time_norm is 10 s under v1. Defaults: c_distribution 1,
+    c_capture 0, breach_penalty 1.
 
     ## Starting State
 
@@ -232,6 +219,7 @@ class SwarmAllocationEnv(gym.Env):
                 log.info("capture-time store: %s", store)
             client = CaptureTimeClient(self.config.service_settings(), local_store=store)
         self.client = client
+        self.model = EngagementModel(self.config, client, estimates)
         self.base = (n // 2) * n
         self.D = np.zeros(n * n)
         self.I = np.zeros(n * n)
@@ -295,50 +283,21 @@ class SwarmAllocationEnv(gym.Env):
         T[self.dst, self.src] = self.move_probabilities(action)
         return T
 
-    def _advance_intruders(self) -> float:
-        n, d = self.n, self.config.vertical_drift
-        grid = self.I.reshape(n, n)
-        if d > 0:
-            up = d * grid[1:]
-            down = d * grid[:-1]
-            grid = grid.copy()
-            grid[1:] -= up
-            grid[:-1] += up
-            grid[:-1] -= down
-            grid[1:] += down
-        breach = float(grid[:, 0].sum())
-        moved = np.zeros_like(grid)
-        moved[:, :-1] = grid[:, 1:]
-        self.I = moved.reshape(-1)
-        return breach
-
     def _engage(self):
         """Every cell holding both sides plays its game; returns (capture score, mass
         eliminated, engaged cells, estimated answers, coverage, defenders per engaged cell)."""
-        cfg = self.config
-        n_p = np.rint(self.D * cfg.n_defenders).astype(np.int64)
-        total = float(self.I.sum())
-        cells = np.flatnonzero((n_p >= 1) & (self.I > cfg.engage_min_mass))
-        if len(cells) == 0:
+        e = self.model.engage(self.D, self.I)
+        if len(e.cells) == 0:
             return 0.0, 0.0, 0, 0, 0.0, 0.0
-        coverage = float(self.I[cells].sum()) / total if total > 0 else 0.0
-        n_e = np.maximum(1, np.rint(self.I[cells] * cfg.n_intruders).astype(np.int64))
-        n_p = n_p[cells]
-        if cfg.team_sizes == "lattice":
-            n_p, n_e = snap_many(n_p), snap_many(n_e)
-        pairs = list(zip(n_p.tolist(), n_e.tolist()))
-        values = self.client.get_many(pairs, estimate=self.estimates)
-        frac = np.array([v.frac_captured_tau for v in values])
-        t = np.array([v.mean_capture.mean for v in values], dtype=np.float64)
-        t = np.where(np.isfinite(t), t, cfg.t_max)
-        before = self.I[cells].copy()
-        score = float(np.sum(before * np.maximum(0.0, 1.0 - t / cfg.capture_time_norm)))
-        self.I[cells] = before * (1.0 - frac)
-        estimates = sum(v.estimate is not None for v in values)
-        self.engagements += len(cells)
-        self.estimated += estimates
-        return (score, float(np.sum(before - self.I[cells])), len(cells), estimates, coverage,
-                float(np.mean(n_p)))
+        total = float(self.I.sum())
+        before = self.I[e.cells].copy()
+        coverage = float(before.sum()) / total if total > 0 else 0.0
+        score = float(np.sum(before * e.score))
+        self.I[e.cells] = before * (1.0 - e.removed)
+        self.engagements += len(e.cells)
+        self.estimated += e.estimates
+        return (score, float(np.sum(before - self.I[e.cells])), len(e.cells), e.estimates, coverage,
+                float(np.mean(e.n_p)))
 
     def reset(self, *, seed=None, options=None):
         """Start an episode (see Starting State); returns (observation, info).
@@ -372,7 +331,7 @@ class SwarmAllocationEnv(gym.Env):
         cfg = self.config
         p = self.move_probabilities(self.check_action(action))
         self.D = np.bincount(self.dst, weights=p * self.D[self.src], minlength=self.n * self.n)
-        breach = self._advance_intruders()
+        self.I, breach = advance_intruders(self.I, self.n, cfg.vertical_drift)
         self.breached += breach
         score, eliminated, engaged, estimates, coverage, per_cell = self._engage()
         self.eliminated += eliminated

@@ -1,5 +1,5 @@
-"""`farm eval RUN_DIR`: the trained policy and the baselines on the same seeded
-episodes; mean return, intruder mass eliminated, breaches, episode length and the
+"""`farm eval RUN_DIR`: the trained policy, the baselines and the planners on the same
+seeded episodes; mean return, intruder mass eliminated, breaches, episode length and the
 behaviour measures (docs/model.md section 5), each with a 95% CI over episodes:
   coverage: the share of the intruder mass sharing a cell with defenders, per step
             (averaged over the episode's steps);
@@ -242,3 +242,11 @@ def load_policy(run_dir: Path):
 def baselines(grid_size: int) -> dict:
     """Every baseline policy for an N x N grid, by name."""
     return {name: cls(grid_size) for name, cls in BASELINES.items()}
+
+
+def planners(config, client) -> dict:
+    """Every planner (farm.alloc.planners.PLANNERS) for an AllocConfig, planning on the client's
+    statistics, by name."""
+    from farm.alloc.planners import PLANNERS
+
+    return {name: cls(config, client) for name, cls in PLANNERS.items()}

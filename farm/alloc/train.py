@@ -5,6 +5,8 @@ Config (RL-Zoo-style hyperparameters under `td3`):
 
     name: paper-3x3-c1-0
     seed: 0
+    scenario: null          # a name of farm.alloc.scenarios.SCENARIOS: its env settings are the
+                            # base, and `env:` overrides them one by one
     env: {grid_size: 3, n_defenders: 100, n_intruders: 50, c_distribution: 1.0, c_capture: 0.0}
     td3: {n_timesteps: 30000, learning_rate: 0.001, buffer_size: 200000, learning_starts: 1000,
           batch_size: 256, tau: 0.005, gamma: 0.95, train_freq: 1, gradient_steps: 1,
@@ -37,7 +39,7 @@ from typing import Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from stable_baselines3 import TD3
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
 from stable_baselines3.common.monitor import Monitor
@@ -48,6 +50,7 @@ from workers.errors import is_number
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.env import SwarmAllocationEnv
+from farm.alloc.scenarios import SCENARIOS
 from farm.config import ConfigError, Strict, load_yaml_model
 from farm.errors import ActionError, TrainingDiverged
 
@@ -150,6 +153,7 @@ class TrainConfig(Strict):
 
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
     seed: int = Field(0, ge=0)
+    scenario: str | None = None  # SCENARIOS' name: its env settings are the base of `env`
     env: AllocConfig = AllocConfig()
     td3: TD3Params = TD3Params()
     eval: EvalParams = EvalParams()
@@ -157,6 +161,25 @@ class TrainConfig(Strict):
     log_interval: int = Field(100, ge=1)  # episodes between TensorBoard rollout records
     threads: int | None = Field(1, ge=1, le=1024)  # torch threads while training; None: torch's choice
     service: ServiceParams = ServiceParams()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _scenario_env(cls, data):
+        """A named scenario's env settings are the base; `env:` (a mapping) overrides them.
+        An unknown name is left to the field's own check, an env given as an AllocConfig is
+        taken whole."""
+        if isinstance(data, dict) and isinstance(data.get("scenario"), str) and data["scenario"] in SCENARIOS:
+            env = data.get("env")
+            if env is None or isinstance(env, dict):
+                data = {**data, "env": {**SCENARIOS[data["scenario"]].env, **(env or {})}}
+        return data
+
+    @field_validator("scenario")
+    @classmethod
+    def _known_scenario(cls, v):
+        if v is not None and v not in SCENARIOS:
+            raise ValueError(f"unknown scenario {v!r} (choose from {', '.join(SCENARIOS)})")
+        return v
 
 
 def load_train_config(path) -> TrainConfig:
@@ -166,7 +189,7 @@ def load_train_config(path) -> TrainConfig:
 
 def lattice_pairs(env: AllocConfig) -> list[tuple[int, int]]:
     """The team-size pairs of the lattice up to the env's team sizes (team_sizes: lattice)."""
-    from farm.alloc.env import LATTICE, snap
+    from farm.alloc.model import LATTICE, snap
 
     top_p, top_e = snap(env.n_defenders), snap(env.n_intruders)
     return [(p, e) for p in LATTICE if p <= top_p for e in LATTICE if e <= top_e]

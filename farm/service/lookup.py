@@ -491,13 +491,11 @@ def open_client(settings: ServiceSettings, *, mode: str = "ray", store, address:
     if mode != "ray":
         raise ConfigError(f"service.mode: must be 'ray' or 'local', got {mode!r}")
     import os
-    import sys
 
-    from farm.runtime import ray_cluster
+    from farm.runtime import connected, ray_cluster
     from farm.service.store import check_store
 
-    ray = sys.modules.get("ray")  # not imported here: ray_cluster sets Ray's loopback switch before it is
-    if address is None and not os.environ.get("RAY_ADDRESS") and not (ray is not None and ray.is_initialized()):
+    if address is None and not os.environ.get("RAY_ADDRESS") and not connected():
         check_store(store)  # a new Ray on this machine, its store here: a folder, read-only or damaged, before Ray
     with ray_cluster(address, num_cpus=num_cpus):
         from farm.service.actor import get_service

@@ -30,7 +30,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from workers import ENGINE_VERSION, SEEDING, Case, CaptureStats
+from workers import ENGINE_VERSION, SEEDING, Case, CaptureStats, game_statistics
 
 from farm import metrics
 from farm.errors import ConfigError, SweepError
@@ -229,6 +229,9 @@ class SweepRun:
             row = {"point": point.index}
             row.update({k: (json.dumps(v) if isinstance(v, (list, dict)) or v is None else v) for k, v in case.items()})
             row["case_key"] = point.case.key()
+            if "capture_score_tau" not in per.columns:  # shards written before the score (0.3): from their times
+                per = per.assign(capture_score_tau=game_statistics(
+                    np.stack(per["capture_times"].to_numpy()), point.case.tau)["capture_score_tau"].to_numpy())
             row.update(CaptureStats.from_games(per).flat())
             rows.append(row)
         summary = pd.DataFrame(rows)

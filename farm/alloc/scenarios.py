@@ -1,0 +1,138 @@
+"""The benchmark suite's scenarios: the one definition of each, by name.
+
+A Scenario is a name, a one-line description and the allocation env's settings (AllocConfig
+keyword arguments). SCENARIOS holds them all: the paper's five runs, with the env settings of
+configs/train/paper_3x3_c1_0.yaml, paper_3x3_c1_1.5.yaml, paper_3x3_100v100.yaml,
+larger_5x5.yaml and larger_8x8.yaml, and harder scenarios built from the model's own levers
+(fewer defenders than intruders, faster intruders, vertical drift, a wide front).
+
+Every scenario uses `team_sizes: lattice`: each cell's team sizes are snapped to the 16 sizes of
+farm.alloc.env.LATTICE (1, 2, 3, 4, 6, 8, 12, ..., 192, 256; larger teams play as 256), so a
+scenario meets at most 16 x 16 = 256 distinct games, the whole lattice is computed once up
+front (farm.alloc.train.lattice_pairs, `client.warm`) and every policy, episode and run
+shares it. That is why the paper's runs here differ from their training configs, which use
+exact team sizes: configs/train/suite_<name>.yaml trains each scenario as it is defined here.
+
+Importing farm.alloc registers each scenario as the gymnasium id `farm/<name>-v0`
+(register_scenarios), with the scenario's settings as the env's keyword arguments, which the
+caller may override as RL Zoo's `env_kwargs` do:
+
+    import gymnasium, farm.alloc
+    env = gymnasium.make("farm/outnumbered_3x3-v0")              # the scenario as defined
+    env = gymnasium.make("farm/outnumbered_3x3-v0", c_capture=0.0)  # one setting changed
+
+The harder scenarios were chosen by measuring the policies on them (`farm suite`, 10 episodes,
+seeds 1000..1009, the service's 64 games a case, when the scenarios were chosen). A cell's
+capture fraction grows with its defenders and hardly falls with its intruders (pure pursuit
+at equal speeds: 1 defender catches 0.41 of 1 intruder and 0.39 of 32, 3 defenders 0.80 and
+0.68, 12 defenders 1.00 and 0.94), so "fewer defenders" means few in absolute numbers, about
+one a row. In outnumbered_3x3, outnumbered_5x5, fast_5x5 and wide_front_8x8 no heuristic
+(stay_at_base, greedy_nearest, spread_evenly, the intercept planner) eliminated more than 0.76
+of the intruder mass (the best, intercept: 0.74, 0.73, 0.69, 0.75; the mmr and
+receding_horizon planners 0.67 to 0.84); drift_5x5 tells the policies that anticipate the
+drift (intercept 0.99) from those that do not (spread_evenly 0.82, greedy_nearest 0.62).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Mapping
+
+from farm.alloc.config import AllocConfig
+
+__all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "gym_id", "register_scenarios"]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One benchmark scenario: name, a one-line description and the env's settings.
+
+    name: the scenario's name (letters, digits, `_`, `.`), also its gymnasium id's
+    (`farm/<name>-v0`); description: one line; env: AllocConfig keyword arguments, read-only.
+    """
+
+    name: str
+    description: str
+    env: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self):
+        object.__setattr__(self, "env", MappingProxyType(dict(self.env)))
+
+    def config(self, **overrides) -> AllocConfig:
+        """The scenario's AllocConfig, settings in `overrides` replacing its own (e.g. games=4).
+
+        A bad or contradictory setting raises pydantic's ValidationError naming the field.
+        """
+        return AllocConfig(**{**self.env, **overrides})
+
+    @property
+    def gym_id(self) -> str:
+        """The scenario's gymnasium id, `farm/<name>-v0`."""
+        return gym_id(self.name)
+
+
+def gym_id(name: str) -> str:
+    """The gymnasium id of the scenario named name: `farm/<name>-v0`."""
+    return f"farm/{name}-v0"
+
+
+_LATTICE = {"team_sizes": "lattice"}
+_BIG = {"max_steps": 16}  # the larger maps' episodes, as configs/train/larger_*.yaml
+
+_ALL = [
+    # The paper's five runs (configs/train/<name>.yaml), on the lattice.
+    Scenario("paper_3x3_c1_0", "paper fig. 6: 3x3, 100 defenders v 50 intruders, C = (1, 0)",
+             {"grid_size": 3, "n_defenders": 100, "n_intruders": 50, "c_distribution": 1.0, "c_capture": 0.0,
+              **_LATTICE}),
+    Scenario("paper_3x3_c1_1.5", "paper fig. 7: 3x3, 100 defenders v 50 intruders, C = (1, 1.5)",
+             {"grid_size": 3, "n_defenders": 100, "n_intruders": 50, "c_distribution": 1.0, "c_capture": 1.5,
+              **_LATTICE}),
+    Scenario("paper_3x3_100v100", "paper figs. 8-9: 3x3, 100 defenders v 100 intruders, C = (0.3, 1)",
+             {"grid_size": 3, "n_defenders": 100, "n_intruders": 100, "c_distribution": 0.3, "c_capture": 1.0,
+              **_LATTICE}),
+    Scenario("larger_5x5", "the paper's larger map: 5x5, 100 defenders v 50 intruders, C = (1, 1.5)",
+             {"grid_size": 5, **_BIG, "n_defenders": 100, "n_intruders": 50, "c_distribution": 1.0,
+              "c_capture": 1.5, **_LATTICE}),
+    Scenario("larger_8x8", "beyond the paper: 8x8, 800 defenders v 400 intruders, C = (1, 1.5)",
+             {"grid_size": 8, **_BIG, "n_defenders": 800, "n_intruders": 400, "c_distribution": 1.0,
+              "c_capture": 1.5, **_LATTICE}),
+    # Harder: the model's own levers (measured on the baselines and planners, see the module doc).
+    Scenario("outnumbered_3x3", "3x3, 4 defenders v 100 intruders: about one defender a row",
+             {"grid_size": 3, "n_defenders": 4, "n_intruders": 100, "c_distribution": 1.0, "c_capture": 1.5,
+              **_LATTICE}),
+    Scenario("outnumbered_5x5", "5x5, 4 defenders v 200 intruders: fewer defenders than rows",
+             {"grid_size": 5, **_BIG, "n_defenders": 4, "n_intruders": 200, "c_distribution": 1.0,
+              "c_capture": 1.5, **_LATTICE}),
+    Scenario("fast_5x5", "5x5, 12 defenders v 100 intruders twice as fast (5 s steps and windows)",
+             {"grid_size": 5, **_BIG, "n_defenders": 12, "n_intruders": 100, "evader_speed": 2.0,
+              "c_distribution": 1.0, "c_capture": 1.5, **_LATTICE}),
+    Scenario("drift_5x5", "5x5, 20 defenders v 100 intruders drifting between rows (0.25 to each neighbour a step)",
+             {"grid_size": 5, **_BIG, "n_defenders": 20, "n_intruders": 100, "vertical_drift": 0.25,
+              "c_distribution": 1.0, "c_capture": 1.5, **_LATTICE}),
+    Scenario("wide_front_8x8", "8x8, 6 defenders v 400 intruders: an eight-row front, fewer defenders than rows",
+             {"grid_size": 8, **_BIG, "n_defenders": 6, "n_intruders": 400, "c_distribution": 1.0,
+              "c_capture": 1.5, **_LATTICE}),
+]
+
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in _ALL}
+PAPER_SCENARIOS = ("paper_3x3_c1_0", "paper_3x3_c1_1.5", "paper_3x3_100v100", "larger_5x5", "larger_8x8")
+
+
+def register_scenarios() -> list[str]:
+    """Register every scenario as the gymnasium id `farm/<name>-v0` (once; registering again
+    does nothing); returns the ids.
+
+    Each id makes farm.alloc.env.SwarmAllocationEnv with the scenario's settings as keyword
+    arguments; gymnasium.make's own keyword arguments replace them, one by one, and may add
+    the env's other arguments (client, store, render_mode, estimates).
+    """
+    import gymnasium
+
+    ids = []
+    for scenario in SCENARIOS.values():
+        if scenario.gym_id not in gymnasium.registry:
+            gymnasium.register(scenario.gym_id, entry_point="farm.alloc.env:SwarmAllocationEnv",
+                               kwargs=dict(scenario.env))
+        ids.append(scenario.gym_id)
+    return ids
