@@ -556,7 +556,7 @@ def plot_leaderboard(board: pd.DataFrame, path, title: str = "intruder mass elim
     scenarios = list(dict.fromkeys(board["scenario"]))
     policies = list(dict.fromkeys(board["policy"]))
     width = 0.8 / len(policies)
-    fig, axes = new_figure(figsize=(min(24.0, 3.0 + len(scenarios) * (0.3 + 0.16 * len(policies))), 4.2))
+    fig, axes = new_figure(figsize=(min(24.0, max(7.0, 3.0 + len(scenarios) * (0.3 + 0.16 * len(policies)))), 4.2))
     ax = axes[0, 0]
     colours = [f"C{k % 10}" for k in range(len(policies))]
     for k, policy in enumerate(policies):
