@@ -398,11 +398,13 @@ def cmd_suite(a) -> int:
     """`farm suite CONFIG --out DIR`: every policy on every scenario, on the same seeded episodes; a leaderboard."""
     from farm.alloc.suite import format_leaderboard, load_suite_config, run_suite
 
-    for flag in ("episodes", "workers"):
+    for flag, least in (("episodes", 1), ("workers", 1), ("games", 2)):
         value = getattr(a, flag)
-        if value is not None and value < 1:
-            raise CliError(f"--{flag}: must be >= 1, got {value}")
+        if value is not None and value < least:
+            raise CliError(f"--{flag}: must be >= {least}, got {value}")
     config = load_suite_config(a.config)
+    if a.games is not None:
+        config = config.model_copy(update={"env": {**config.env, "games": a.games}})
     out = Path(a.out)
     with flags("out", "address", "episodes", workers="num_cpus"):
         board, info = run_suite(config, out, episodes=a.episodes, address=a.address, workers=a.workers,
@@ -496,6 +498,8 @@ def build_parser() -> argparse.ArgumentParser:
     su.add_argument("--out", required=True, help="results folder (leaderboard.csv, episodes.csv, leaderboard.png, "
                                                  "suite.json)")
     su.add_argument("--episodes", type=int, help="override episodes (seeded seed .. seed+episodes-1)")
+    su.add_argument("--games", type=int, help="override the capture-time service's games per case of every "
+                                              "scenario (env: {games: N}; quick runs)")
     su.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
     su.add_argument("--workers", type=int, help="evaluations running at once (default: the cluster's CPUs; "
                                                 "a local Ray's CPUs)")

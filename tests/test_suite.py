@@ -25,6 +25,7 @@ from farm.config import ConfigError
 from test_refuses_cli import farm, one_line_error  # the command line's one-line refusals, checked alike
 
 ROOT = Path(__file__).resolve().parent.parent
+DEMO_GAMES = 8  # games per case in the tests' demo suite (the demo's own: the service's 64)
 BOARD_COLUMNS = ["scenario", "policy", "episodes", *[f"{m}_{s}" for m in MEASURES for s in ("mean", "ci95")],
                  "seconds_per_step"]
 
@@ -142,6 +143,7 @@ def test_the_cli_refuses_bad_configs_in_one_line(tmp_path, doc, words):
 def test_the_cli_refuses_bad_flags_and_a_file_as_out(tmp_path):
     config = write(tmp_path / "s.yaml", {"scenarios": ["paper_3x3_c1_0"]})
     one_line_error(farm("suite", config, "--out", tmp_path / "o", "--episodes", 0), "--episodes")
+    one_line_error(farm("suite", config, "--out", tmp_path / "o", "--games", 1), "--games", ">= 2")
     (tmp_path / "file").write_text("")
     one_line_error(farm("suite", config, "--out", tmp_path / "file"), "--out", "not a folder")
 
@@ -158,9 +160,10 @@ def test_a_missing_run_folder_is_one_line_before_ray(tmp_path):
 # ----------------------------------------------------------------------------- runs on Ray
 @pytest.fixture(scope="module")
 def demo(ray_local, tmp_path_factory):
-    """`farm suite configs/suite_demo.yaml --episodes 2` through the CLI's main(), in this
-    process on conftest's 2-CPU local Ray, from a cold store (the config's relative store
-    lands in this fixture's folder); yields (the results folder, the store, its stdout)."""
+    """`farm suite configs/suite_demo.yaml --episodes 2 --games 8` through the CLI's main(), in
+    this process on conftest's 2-CPU local Ray, from a cold store (the config's relative store
+    lands in this fixture's folder; `make demo` runs it with the service's 64 games a case);
+    yields (the results folder, the store, its stdout)."""
     from farm.cli import main
 
     work = tmp_path_factory.mktemp("demo")
@@ -169,8 +172,8 @@ def demo(ray_local, tmp_path_factory):
     os.chdir(work)
     try:
         with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-            code = main(["suite", str(ROOT / "configs" / "suite_demo.yaml"), "--episodes", "2", "--out", "suite",
-                         "--quiet"])
+            code = main(["suite", str(ROOT / "configs" / "suite_demo.yaml"), "--episodes", "2", "--games",
+                         str(DEMO_GAMES), "--out", "suite", "--quiet"])
     finally:
         os.chdir(here)
     assert code == 0, (stdout.getvalue(), stderr.getvalue())
@@ -196,6 +199,7 @@ def test_the_demo_suite_writes_the_leaderboard_episodes_plot_and_config(demo):
     assert doc["resolved"]["episodes"] == 2 and doc["resolved"]["seeds"] == [1000, 1001]
     assert doc["resolved"]["policies"] == policies
     assert doc["resolved"]["scenarios"]["outnumbered_3x3"]["env"]["n_defenders"] == 4
+    assert doc["resolved"]["scenarios"]["outnumbered_3x3"]["env"]["games"] == DEMO_GAMES  # --games
     assert doc["info"]["warmed_cases"] > 100
     assert "outnumbered_3x3" in r and "leaderboard.csv" in r
 
@@ -230,7 +234,7 @@ def test_a_rerun_gives_the_same_numbers(demo, tmp_path):
     """One of the demo's scenarios again, every policy, over the store the first run filled."""
     out, store, _ = demo
     config = load_suite_config(ROOT / "configs" / "suite_demo.yaml").model_copy(
-        update={"store": str(store), "scenarios": ["outnumbered_3x3"]})
+        update={"store": str(store), "scenarios": ["outnumbered_3x3"], "env": {"games": DEMO_GAMES}})
     run_suite(config, tmp_path / "again", episodes=2, show_progress=False)
 
     def rows(folder, name, timed):
