@@ -170,10 +170,12 @@ class SwarmAllocationEnv(gym.Env):
       None: farm.service.store.default_store_path(), logged at INFO. Unused with a client.
     - `render_mode`: None (default) or "rgb_array": render() returns a (32 N, 32 N, 3)
       uint8 image of the densities.
-    - `estimates`: bool, default False. True: answer a first visit of a team-size pair
-      with the service's interpolation of its computed neighbours while the exact value
-      is computed in the background (counted in info["estimates"]); False: wait for the
-      exact value.
+    - `estimates`: False (default), True or "lattice". True: answer a first visit of a
+      team-size pair with the service's interpolation of its computed neighbours while the
+      exact value is computed in the background (counted in info["estimates"]; which
+      visits are interpolated depends on timing); "lattice": answer every pair off the
+      lattice by the interpolation of its lattice anchors, computed exactly, for the
+      client's life (timing-independent, so reproducible); False: wait for the exact value.
     - `**kwargs`: AllocConfig fields (e.g. grid_size: int, n_defenders: int,
       c_capture: float), the settings when config is None; given with a config they
       are a farm.errors.ConfigError.
@@ -192,11 +194,13 @@ class SwarmAllocationEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
 
     def __init__(self, config: AllocConfig | None = None, *, client=None, store: str | None = None,
-                 render_mode: str | None = None, estimates: bool = False, **kwargs):
+                 render_mode: str | None = None, estimates: bool | str = False, **kwargs):
         """Make the env; the class docstring's Arguments section describes each argument."""
         if config is not None and kwargs:
             raise ConfigError(f"SwarmAllocationEnv: give a config or AllocConfig keyword arguments, not both "
                               f"(got a config and {', '.join(sorted(kwargs))})")
+        if estimates not in (False, True, "lattice") or estimates.__class__ not in (bool, str):
+            raise ConfigError(f"estimates: must be false, true or 'lattice', got {estimates!r}")
         self.estimates = estimates
         self.engagements = 0  # engaged cells answered by the service, over the env's lifetime
         self.estimated = 0  # of which by an interpolation (estimates=True)

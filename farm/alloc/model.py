@@ -21,10 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from farm.alloc.config import AllocConfig
+from farm.service.keys import LATTICE
 
 __all__ = ["LATTICE", "snap", "snap_many", "advance_intruders", "team_sizes", "Engagement", "EngagementModel"]
 
-LATTICE = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 _LATTICE = np.array(LATTICE)
 _LATTICE_MIDS = np.sqrt(_LATTICE[:-1] * _LATTICE[1:])  # geometric midpoints: never an integer
 
@@ -102,10 +102,11 @@ class EngagementModel:
     """A config's engagements answered by a capture-time client: the env's and the planners' model.
 
     config: AllocConfig; client: a CaptureTimeClient of config.service_settings();
-    estimates: take a first visit's interpolation (see SwarmAllocationEnv).
+    estimates: False, True or "lattice": how a first visit may be interpolated
+    (CaptureTimeClient.get_many's `estimate`; see SwarmAllocationEnv).
     """
 
-    def __init__(self, config: AllocConfig, client, estimates: bool = False):
+    def __init__(self, config: AllocConfig, client, estimates: bool | str = False):
         self.config = config
         self.client = client
         self.estimates = estimates

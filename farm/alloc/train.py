@@ -16,6 +16,7 @@ Config (RL-Zoo-style hyperparameters under `td3`):
     log_interval: 100       # episodes between TensorBoard rollout records
     threads: 1              # torch threads for the networks during training; null: torch's own choice
     service: {mode: ray, store: results/capture_times.sqlite, address: null, warm_lattice: true, estimates: false}
+                            # estimates: false, true or lattice (ServiceParams)
 
 A run folder holds model.zip, config.yaml, metrics.json, evaluations.npz (the
 training curve), checkpoints/ (with the replay buffer, for --resume), best/ and
@@ -143,9 +144,12 @@ class ServiceParams(Strict):
     address: str | None = None
     warm_lattice: bool = True
     # During training (its steps and its periodic evaluations), a first visit's outcome comes
-    # from the service's interpolation of computed neighbours while the exact value is computed
-    # in the background (farm eval afterwards is exact).
-    estimates: bool = False
+    # from an interpolation while the exact value is computed in the background (farm eval
+    # afterwards is exact). true: the service's interpolation of what it has computed by then
+    # (which visits, and from what, depends on timing); lattice: every pair off the lattice is
+    # interpolated from its lattice anchors, computed exactly (reproducible: CaptureTimeClient.
+    # lattice_estimates).
+    estimates: bool | Literal["lattice"] = False
 
 
 class TrainConfig(Strict):

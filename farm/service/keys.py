@@ -18,9 +18,27 @@ from workers import Case, InputError
 
 from farm.config import SETTING_FIELDS
 
-__all__ = ["ServiceSettings", "StatsKey", "SERVICE_FIELDS"]
+__all__ = ["ServiceSettings", "StatsKey", "SERVICE_FIELDS", "LATTICE", "lattice_anchors"]
 
 SERVICE_FIELDS = ("games", "seed")  # a key's settings beyond its game's
+# The lattice of team sizes, about a factor 1.5 apart: the allocation env's `team_sizes:
+# lattice` snaps to it (farm.alloc.model), and `estimates: lattice` interpolates between it.
+LATTICE = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
+
+
+def _bracket(n: int) -> tuple[int, ...]:
+    """The lattice sizes around a team size n >= 1: (n,) on the lattice, else the one below and
+    the one above (above 256: 256 alone)."""
+    if n in LATTICE or n >= LATTICE[-1]:
+        return (min(n, LATTICE[-1]),)
+    below = max(v for v in LATTICE if v < n)
+    return below, min(v for v in LATTICE if v > n)
+
+
+def lattice_anchors(n_pursuers: int, n_evaders: int) -> list[tuple[int, int]]:
+    """The lattice pairs around a team-size pair: itself when both sizes are on the lattice,
+    else the 2 or 4 corners of the lattice cell holding it (sizes above 256 anchored at 256)."""
+    return [(p, e) for p in _bracket(n_pursuers) for e in _bracket(n_evaders)]
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,7 @@ import pandas as pd
 from workers import CaptureStats
 
 from farm.errors import ConfigError
-from farm.service.keys import ServiceSettings, StatsKey
+from farm.service.keys import ServiceSettings, StatsKey, lattice_anchors
 from farm.service.store import StatsStore
 from farm.shards import games_per_shard, play_shard, shard_ranges
 
@@ -418,6 +418,7 @@ class CaptureTimeClient:
             backend = LocalBackend(local_store)
         self.backend: StatsBackend = backend
         self._memo: dict[tuple[int, int], CaptureStats] = {}
+        self._estimates: dict[tuple[int, int], CaptureStats] = {}  # estimate="lattice": fixed per client
 
     def with_settings(self, settings: ServiceSettings) -> "CaptureTimeClient":
         """A client of other settings on the same backend (which this client keeps owning)."""
@@ -435,11 +436,20 @@ class CaptureTimeClient:
                 return value
         return self.get_many([(n_pursuers, n_evaders)])[0]
 
-    def get_many(self, pairs: Iterable[tuple[int, int]], *, estimate: bool = False) -> list[CaptureStats]:
+    def get_many(self, pairs: Iterable[tuple[int, int]], *, estimate: bool | str = False) -> list[CaptureStats]:
         """One call for a batch (all engaged cells of a step): hits from the memo, the rest in
-        one backend call. With estimate=True a missing key may come back as an interpolation
-        (its `estimate` says how) while the exact value is computed (in the background on
-        Ray; in process, on its next exact ask); estimates are not memoized."""
+        one backend call.
+
+        estimate: False, exact values only. True: a missing key may come back as the
+        service's interpolation of whatever it has computed by then (its `estimate` says
+        how) while the exact value is computed (in the background on Ray; in process, on its
+        next exact ask); estimates are not memoized; which visits are estimated, and from
+        what, depends on timing. "lattice": the timing-independent rule (lattice_estimates).
+        """
+        if estimate == "lattice":
+            return self.lattice_estimates(pairs)
+        if estimate not in (False, True):
+            raise ConfigError(f"estimate: must be false, true or 'lattice', got {estimate!r}")
         pairs = [tuple(p) for p in pairs]
         memo = self._memo if self.backend.repeatable else {}
         out: list = [None if any(x.__class__ is bool for x in p) else memo.get(p) for p in pairs]
@@ -450,6 +460,37 @@ class CaptureTimeClient:
                 out[i] = value
                 if value.estimate is None and self.backend.repeatable:
                     self._memo[pairs[i]] = value
+        return out
+
+    def lattice_estimates(self, pairs: Iterable[tuple[int, int]]) -> list[CaptureStats]:
+        """Statistics under the timing-independent estimate rule (`estimates: lattice`).
+
+        A pair on the lattice (both sizes in farm.service.keys.LATTICE) is answered exactly. Any
+        other pair is answered by `estimate` over its lattice anchors (lattice_anchors: the
+        corners of the lattice cell holding it), which are computed exactly first, and keeps
+        that answer for the client's life, whatever the service computes meanwhile; its exact
+        value is asked for in the background (the service's estimate path), for evaluations and
+        later runs. So whether a visit is estimated, and its value, depend only on the pair:
+        a run that takes estimates is reproducible, on a cold or a warm store, alone or beside
+        other runs on one service.
+        """
+        pairs = [tuple(p) for p in pairs]
+        anchors = {p: lattice_anchors(*p) for p in pairs}
+        exact = sorted({a for p in pairs for a in anchors[p]})
+        values = dict(zip(exact, self.get_many(exact)))
+        out, fresh = [], []
+        for p in pairs:
+            if anchors[p] == [p]:
+                out.append(values[p])
+                continue
+            value = self._estimates.get(p)
+            if value is None:
+                value = estimate(self.key(*p), [(a[0], a[1], values[a]) for a in anchors[p]])
+                self._estimates[p] = value
+                fresh.append(p)
+            out.append(value)
+        if fresh:  # exact values for later: the service answers its own estimate and computes them
+            self.backend.get_many([self.key(*p) for p in fresh], True)
         return out
 
     def warm(self, pairs: Iterable[tuple[int, int]], progress: Callable[[int], None] | None = None) -> int:
