@@ -417,6 +417,27 @@ def cmd_suite(a) -> int:
     return 0
 
 
+def cmd_experiments(a) -> int:
+    """`farm experiments CONFIG --out DIR`: TD3 trainings over a grid and seeds as Ray Tune trials
+    on one capture-time service; trials.csv and summary.csv (resumable)."""
+    from farm.experiments import format_summary, load_experiment_config, run_experiment
+
+    if a.workers is not None and a.workers < 1:
+        raise CliError(f"--workers: must be >= 1, got {a.workers}")
+    config = load_experiment_config(a.config)
+    out = Path(a.out)
+    with flags("out", "address", "workers"):
+        trials, summary, info = run_experiment(config, out, source=str(a.config), address=a.address,
+                                               workers=a.workers, show_progress=not a.quiet)
+    print(format_summary(summary))
+    print(f"{config.name}: {len(trials)}/{info['trials']} trial(s) finished ({info['finished_before']} before this run), "
+          f"{info['workers']} at once at {info['trial_cpus']:g} CPU each on {info['cluster_cpus']:g} CPUs, "
+          f"{info['warmed_cases']} lattice cases warmed in {info['warm_seconds']:.1f} s, {info['seconds']:.1f} s in all",
+          file=sys.stderr)
+    print(f"wrote {out / 'trials.csv'}, {out / 'summary.csv'}, trials/<trial>/run")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The `farm` argument parser, one subcommand per cmd_* function."""
     parser = _Parser(prog="farm", description="swarm-farm: swarm-to-swarm engagement planning and learning")
@@ -505,6 +526,16 @@ def build_parser() -> argparse.ArgumentParser:
                                                 "a local Ray's CPUs)")
     su.add_argument("--quiet", action="store_true", help="no progress bars")
     su.set_defaults(func=cmd_suite)
+
+    ex = sub.add_parser("experiments", help="TD3 over a grid of settings and seeds as Ray Tune trials on one "
+                                            "capture-time service (resumable)")
+    ex.add_argument("config", help="experiments YAML, e.g. configs/experiments/smoke.yaml")
+    ex.add_argument("--out", required=True, help="results folder (trials.csv, summary.csv, trials/, tune/)")
+    ex.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
+    ex.add_argument("--workers", type=int, help="trials at once (default: the cluster's CPUs; a local Ray gets "
+                                                "max(2, WORKERS) CPUs)")
+    ex.add_argument("--quiet", action="store_true", help="no progress bars")
+    ex.set_defaults(func=cmd_experiments)
 
     cl = sub.add_parser("claims", help="the paper's claims (a)-(c), measured on evaluated runs")
     cl.add_argument("runs_dir", help="folder of run folders (e.g. results/runs)")

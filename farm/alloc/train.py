@@ -327,10 +327,14 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
     return path, steps
 
 
-def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True) -> dict:
+def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True,
+          callbacks: list | None = None) -> dict:
     """Train (or resume) into run_dir, with the capture-time client of config.service
     (farm.service.lookup.open_client: a local Ray or the cluster named, or in process);
-    returns the metrics written to metrics.json."""
+    returns the metrics written to metrics.json.
+
+    callbacks: more SB3 callbacks, called after the run's own (so after a step's
+    evaluation and checkpoint): farm.experiments reports a trial's progress to Ray Tune so."""
     import torch
 
     run_dir = Path(run_dir)
@@ -353,20 +357,20 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     if config.threads is not None:
         torch.set_num_threads(config.threads)
     try:
-        return _train(config, run_dir, resume, show_progress)
+        return _train(config, run_dir, resume, show_progress, callbacks or [])
     finally:
         torch.set_num_threads(threads_before)
 
 
-def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool) -> dict:
+def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, extra: list) -> dict:
     from farm.service.lookup import open_client
 
     with open_client(config.env.service_settings(), mode=config.service.mode, store=store_of(config),
                      address=config.service.address) as client:
-        return _learn(config, run_dir, resume, show_progress, client)
+        return _learn(config, run_dir, resume, show_progress, client, extra)
 
 
-def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client) -> dict:
+def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list) -> dict:
     warm(client, config, progress=show_progress)
     train_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
     env = DummyVecEnv([lambda: Monitor(train_env)])
@@ -405,6 +409,7 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         CheckpointCallback(save_freq=config.checkpoint_freq, save_path=str(run_dir / "checkpoints"),
                            save_replay_buffer=True, verbose=0),
         StepProgress(p.n_timesteps, done_steps, show_progress),
+        *extra,
     ])
     t0 = time.perf_counter()
     try:

@@ -1,0 +1,89 @@
+"""The Ray Tune side of farm.experiments: the SB3 callback a trial reports through, and the
+Tune callback showing the experiment's progress.
+
+This module imports Ray at its top, so it is imported only inside functions, after
+farm.runtime.ray_cluster has set Ray's loopback switch (farm/runtime.py), as
+farm/service/actor.py is. Both classes live at a module's top level so that Tune's pickled
+experiment state names them (a restored experiment finds them by name).
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from pathlib import Path
+
+from ray import tune
+from stable_baselines3.common.callbacks import BaseCallback
+
+__all__ = ["TuneReport", "Progress"]
+
+
+class TuneReport(BaseCallback):
+    """An SB3 callback reporting a trial's steps to Ray Tune every `every` steps
+    ({"timesteps": n, "phase": "train"}), with a Tune checkpoint when the run's
+    CheckpointCallback (called before it) has just saved one: a marker folder holding
+    progress.json (the steps and the SB3 checkpoint's path), the weights and the replay
+    buffer staying in the run folder (farm.experiments' module doc says why).
+
+    run_dir: the trial's run folder; every: steps between reports."""
+
+    def __init__(self, run_dir, every: int):
+        super().__init__()
+        self.run_dir, self.every = Path(run_dir), max(1, int(every))
+
+    def _on_step(self) -> bool:
+        from farm.alloc.train import latest_checkpoint
+
+        if self.num_timesteps % self.every:
+            return True
+        metrics = {"timesteps": int(self.num_timesteps), "phase": "train"}
+        last = latest_checkpoint(self.run_dir)
+        if last is None or last[1] != self.num_timesteps:
+            tune.report(metrics)
+            return True
+        with tempfile.TemporaryDirectory(prefix="farm-trial-") as folder:  # Tune copies it before report returns
+            (Path(folder) / "progress.json").write_text(json.dumps({"timesteps": int(self.num_timesteps),
+                                                                   "sb3_checkpoint": str(last[0])}))
+            tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(folder))
+        return True
+
+
+class Progress(tune.Callback):
+    """Feeds the running experiment's display (farm.experiments._PROGRESS["display"]): trials
+    done, running and waiting, steps and the ETA on stderr. Holds no state of its own, so the
+    copy Tune unpickles on a restore shows the new run's display."""
+
+    @staticmethod
+    def _display():
+        from farm.experiments import _PROGRESS
+
+        return _PROGRESS.get("display")
+
+    @staticmethod
+    def _key(trial) -> str:
+        return trial.config["spec"]["trial"]["key"]
+
+    def on_trial_start(self, iteration, trials, trial, **info):
+        """A trial started (or restarted)."""
+        display = self._display()
+        if display is not None:
+            display.started(self._key(trial))
+
+    def on_trial_result(self, iteration, trials, trial, result, **info):
+        """A trial reported."""
+        display = self._display()
+        if display is not None:
+            display.result(self._key(trial), result)
+
+    def on_trial_complete(self, iteration, trials, trial, **info):
+        """A trial finished."""
+        display = self._display()
+        if display is not None:
+            display.ended(self._key(trial), True)
+
+    def on_trial_error(self, iteration, trials, trial, **info):
+        """A trial failed for good (FailureConfig's retries spent)."""
+        display = self._display()
+        if display is not None:
+            display.ended(self._key(trial), False)

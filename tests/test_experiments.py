@@ -1,0 +1,135 @@
+"""`farm experiments`: a grid of TD3 trainings as Ray Tune trials on one capture-time service
+(farm/experiments.py): the smoke grid on a real 2-CPU Ray with a cold store, resuming, the
+same trial twice, and bad configs in one line."""
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+from farm.errors import ClusterError, ConfigError
+
+ROOT = Path(__file__).resolve().parent.parent
+SMOKE = ROOT / "configs" / "experiments" / "smoke.yaml"
+
+
+def smoke_config(path: Path, store: Path, **changes) -> Path:
+    """configs/experiments/smoke.yaml with its base absolute, the store given and top-level
+    fields replaced by `changes`, written to path."""
+    raw = yaml.safe_load(SMOKE.read_text())
+    raw.update(base=str(ROOT / raw["base"]), store=str(store), **changes)
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def one_line_error(path: Path) -> str:
+    from farm.experiments import load_experiment_config, plan
+
+    with pytest.raises(ConfigError) as e:
+        plan(load_experiment_config(path), str(path))
+    message = str(e.value)
+    assert "\n" not in message
+    return message
+
+
+@pytest.mark.parametrize("changes, expected", [
+    ({"colour": "red"}, "colour: not an experiments field"),
+    ({"grid": {"env.colour": [1, 2]}}, "grid: env.colour: not a field of env"),
+    ({"grid": {"td3.nope": [1]}}, "grid: td3.nope: not a field of td3"),
+    ({"grid": {"seed": [1, 2]}}, "grid: seed: set by the experiment"),
+    ({"grid": {"service.store": ["x"]}}, "grid: service.store: set by the experiment"),
+    ({"grid": {"env.c_capture": []}}, "grid: env.c_capture: must be a non-empty list"),
+    ({"seeds": []}, "seeds: must name at least one seed"),
+    ({"seeds": [0, 0]}, "seeds: a seed is named twice"),
+    ({"grid": {"td3.learning_rate": [0.001, -1.0]}}, "td3.learning_rate: Input should be greater than 0 (point 1"),
+    ({"scenario": "paper_3x3_c1_0"}, "base: give exactly one of"),
+])
+def test_a_bad_experiments_config_is_one_line(tmp_path, changes, expected):
+    path = smoke_config(tmp_path / "bad.yaml", tmp_path / "store.sqlite", **changes)
+    assert expected in one_line_error(path)
+
+
+def test_the_cli_refuses_a_bad_config_in_one_line(tmp_path, capsys):
+    from farm.cli import main
+
+    path = smoke_config(tmp_path / "bad.yaml", tmp_path / "store.sqlite", seeds=[])
+    assert main(["experiments", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "seeds: must name at least one seed" in err
+
+
+def test_the_smoke_plan_is_2_points_by_2_seeds(tmp_path):
+    from farm.experiments import load_experiment_config, plan
+
+    p = plan(load_experiment_config(smoke_config(tmp_path / "s.yaml", tmp_path / "store.sqlite")))
+    assert [t.key for t in p.trials] == ["p0_s0", "p0_s1", "p1_s0", "p1_s1"]
+    assert [t.config["env"]["c_capture"] for t in p.trials] == [0.0, 0.0, 1.5, 1.5]
+    assert {t.config["env"]["team_sizes"] for t in p.trials} == {"lattice"}
+    assert all(t.config["threads"] == 1 and t.config["service"]["mode"] == "ray" for t in p.trials)
+
+
+def test_trials_leave_one_cpu_to_the_games():
+    from farm.experiments import trial_cpus
+
+    assert trial_cpus(2, 2) == 0.5  # 2 trials on 2 CPUs: 1 CPU left for the service's game tasks
+    assert trial_cpus(2, 1) == 1.0
+    assert trial_cpus(64, 64) * 64 <= 63
+    with pytest.raises(ClusterError, match="at least 2 CPUs"):
+        trial_cpus(1, 1)
+
+
+def test_a_folder_of_another_experiment_is_refused_before_ray(tmp_path):
+    from farm.experiments import _write_manifest, load_experiment_config, plan, run_experiment
+
+    config = load_experiment_config(smoke_config(tmp_path / "s.yaml", tmp_path / "store.sqlite"))
+    out = tmp_path / "exp"
+    _write_manifest(config, plan(config), out)
+    other = load_experiment_config(smoke_config(tmp_path / "o.yaml", tmp_path / "store.sqlite", seeds=[0]))
+    with pytest.raises(ConfigError, match="holds another experiment") as e:
+        run_experiment(other, out, show_progress=False)
+    assert "\n" not in str(e.value)
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "notes.txt").write_text("mine")
+    with pytest.raises(ConfigError, match="not empty and holds no experiment"):
+        run_experiment(config, tmp_path / "busy", show_progress=False)
+
+
+def _mtimes(out: Path) -> dict:
+    return {p.parent.parent.name: p.stat().st_mtime_ns for p in sorted((out / "trials").glob("*/run/model.zip"))}
+
+
+def test_smoke_grid_on_a_cold_store_then_a_rerun_trains_nothing(ray_local, tmp_path):
+    """2 trials at once on 2 CPUs, a cold store and no warm-up: every game a trial meets is
+    computed while both trials wait (the reserved CPU); then the same command trains nothing."""
+    from farm.experiments import load_experiment_config, run_experiment
+
+    path = smoke_config(tmp_path / "smoke.yaml", tmp_path / "store.sqlite")
+    config = load_experiment_config(path)
+    out = tmp_path / "exp"
+    trials, summary, info = run_experiment(config, out, show_progress=False, warm=False)
+    assert info["workers"] == 2 and info["trial_cpus"] == 0.5 and info["started"] == 4
+    assert len(pd.read_csv(out / "trials.csv")) == 4 and len(pd.read_csv(out / "summary.csv")) == 2
+    for policy in ("td3", "stay_at_base", "intercept"):
+        assert trials[f"{policy}_eliminated"].between(0, 1).all()
+    assert summary["seeds"].tolist() == [2, 2]
+    before = _mtimes(out)
+    assert len(before) == 4
+
+    trials2, _, info2 = run_experiment(config, out, show_progress=False, warm=False)
+    assert _mtimes(out) == before
+    assert info2["started"] == 0 and info2["finished_before"] == 4 and info2["tune_finished"] == 4
+    pd.testing.assert_frame_equal(trials2, trials)
+
+    other = smoke_config(tmp_path / "other.yaml", tmp_path / "store.sqlite", seeds=[0])
+    with pytest.raises(ConfigError, match="holds another experiment"):
+        run_experiment(load_experiment_config(other), out, show_progress=False)
+
+    # The same trial again, in another experiment: the same row but for the timings.
+    from farm.experiments import TIMING_COLUMNS
+
+    again = smoke_config(tmp_path / "again.yaml", tmp_path / "store.sqlite", seeds=[0],
+                         grid={"env.c_capture": [0.0]})
+    rows, _, _ = run_experiment(load_experiment_config(again), tmp_path / "again", show_progress=False)
+    keep = [c for c in trials.columns if c not in TIMING_COLUMNS]
+    pd.testing.assert_series_equal(rows[keep].iloc[0], trials[keep].iloc[0], check_names=False)
