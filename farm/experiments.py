@@ -113,8 +113,9 @@ __all__ = ["ExperimentConfig", "load_experiment_config", "Trial", "Plan", "plan"
            "trials_table", "summary_table", "format_summary", "field_problem", "ExperimentError", "RESERVED_FIELDS", "TIMING_COLUMNS"]
 
 RESERVED_FIELDS = ("name", "seed", "threads", "service")  # the experiment sets these for every trial
-TIMING_COLUMNS = ("wall_seconds", "steps_per_second", "update_seconds", "outside_update_share")
-METRICS_COLUMNS = ("timesteps", "resumed_from", "engagements", "estimated_share", *TIMING_COLUMNS)
+TIMING_COLUMNS = ("wall_seconds", "steps_per_second", "update_seconds", "outside_update_share", "train_seconds",
+                  "evaluate_seconds")
+METRICS_COLUMNS = ("timesteps", "resumed_from", "engagements", "estimated_share", *TIMING_COLUMNS[:4])
 RESULT = "result.json"
 MANIFEST = "experiment.json"
 TUNE_DIR = "tune"
@@ -367,8 +368,11 @@ def _run_trial(params: dict) -> None:
     run_dir = folder / "run"
     resume = (run_dir / "config.yaml").exists()
     every = max(1, min(config.checkpoint_freq, config.td3.n_timesteps // 10 or 1))
+    t0 = time.perf_counter()
     metrics = train(config, run_dir, resume=resume, show_progress=False, callbacks=[TuneReport(run_dir, every)])
+    t1 = time.perf_counter()
     table = _evaluate(config, run_dir, spec["episodes"], spec["eval_seed"])
+    t2 = time.perf_counter()
     result = {"trial": trial.key, "point": trial.point, "seed": trial.seed, **trial.values,
               "final_eval_return": metrics.get("final_eval_mean_return"),
               "best_eval_return": metrics.get("best_eval_mean_return")}
@@ -376,6 +380,7 @@ def _run_trial(params: dict) -> None:
         result[f"{row.policy}_return"] = float(row.return_mean)
         result[f"{row.policy}_eliminated"] = float(row.eliminated_mean)
     result.update({name: metrics.get(name) for name in METRICS_COLUMNS})
+    result.update(train_seconds=t1 - t0, evaluate_seconds=t2 - t1)
     _write_json(result_path, result)
     tune.report({**result, "phase": "done"})
 
@@ -543,7 +548,7 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
                      num_cpus=max(2, workers or 2) if starts_ray else None) as client:
         import ray
 
-        if warm:
+        if warm and len(before) < len(the_plan.trials):  # a trial left to run
             info["warmed_cases"] = _warm(the_plan, client.backend.actor, show_progress)
         info["warm_seconds"] = time.perf_counter() - t0
         cpus = float(ray.cluster_resources().get("CPU", 0))
@@ -590,7 +595,7 @@ def _fit(plan: Plan, out: Path, workers: int, share: float):
         tuner = tune.Tuner(
             trainable,
             param_space={"spec": tune.grid_search(specs)},
-            tune_config=tune.TuneConfig(max_concurrent_trials=workers, trial_dirname_creator=_trial_dirname,
+            tune_config=tune.TuneConfig(max_concurrent_trials=workers, reuse_actors=True, trial_dirname_creator=_trial_dirname,
                                         trial_name_creator=_trial_dirname),
             run_config=tune.RunConfig(name=TUNE_DIR, storage_path=str(out),
                                       failure_config=tune.FailureConfig(max_failures=MAX_FAILURES),

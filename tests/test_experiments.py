@@ -99,37 +99,48 @@ def _mtimes(out: Path) -> dict:
     return {p.parent.parent.name: p.stat().st_mtime_ns for p in sorted((out / "trials").glob("*/run/model.zip"))}
 
 
-def test_smoke_grid_on_a_cold_store_then_a_rerun_trains_nothing(ray_local, tmp_path):
-    """2 trials at once on 2 CPUs, a cold store and no warm-up: every game a trial meets is
-    computed while both trials wait (the reserved CPU); then the same command trains nothing."""
+@pytest.fixture(scope="module")
+def cold(ray_local, tmp_path_factory):
+    """Point 0 of the smoke grid (C_capture 0, seeds 0 and 1) on a cold store without warm-up:
+    (folder, trials, info, store)."""
     from farm.experiments import load_experiment_config, run_experiment
 
-    path = smoke_config(tmp_path / "smoke.yaml", tmp_path / "store.sqlite")
-    config = load_experiment_config(path)
+    tmp = tmp_path_factory.mktemp("cold")
+    store = tmp / "store.sqlite"
+    path = smoke_config(tmp / "cold.yaml", store, grid={"env.c_capture": [0.0]})
+    trials, _, info = run_experiment(load_experiment_config(path), tmp / "exp", show_progress=False, warm=False)
+    return tmp, trials, info, store
+
+
+def test_two_trials_on_two_cpus_with_a_cold_store(cold):
+    """2 trials at once on 2 CPUs, a cold store and no warm-up: every game a trial meets is
+    computed while both trials wait, on the CPU the trials leave free (trial_cpus)."""
+    _, trials, info, store = cold
+    assert info["workers"] == 2 and info["trial_cpus"] == 0.5 and info["cluster_cpus"] == 2
+    assert info["started"] == 2 and info["warmed_cases"] == 0
+    assert trials["trial"].tolist() == ["p0_s0", "p0_s1"] and (trials["engagements"] > 0).all()
+
+
+def test_smoke_grid_then_a_rerun_trains_nothing(cold, tmp_path):
+    """The smoke grid: trials.csv and summary.csv; the trials it shares with the cold run give
+    the same rows but for the timings (seeded evaluations); the same command again trains nothing."""
+    from farm.experiments import TIMING_COLUMNS, load_experiment_config, run_experiment
+
+    _, cold_trials, _, store = cold
+    config = load_experiment_config(smoke_config(tmp_path / "smoke.yaml", store))
     out = tmp_path / "exp"
-    trials, summary, info = run_experiment(config, out, show_progress=False, warm=False)
-    assert info["workers"] == 2 and info["trial_cpus"] == 0.5 and info["started"] == 4
+    trials, summary, info = run_experiment(config, out, show_progress=False)
+    assert info["started"] == 4
     assert len(pd.read_csv(out / "trials.csv")) == 4 and len(pd.read_csv(out / "summary.csv")) == 2
-    for policy in ("td3", "stay_at_base", "intercept"):
+    for policy in ("td3", "stay_at_base", "intercept", "receding_horizon"):
         assert trials[f"{policy}_eliminated"].between(0, 1).all()
-    assert summary["seeds"].tolist() == [2, 2]
+    assert summary["seeds"].tolist() == [2, 2] and summary["env.c_capture"].tolist() == [0.0, 1.5]
+    keep = [c for c in cold_trials.columns if c not in TIMING_COLUMNS]
+    pd.testing.assert_frame_equal(trials[keep].iloc[:2], cold_trials[keep])
     before = _mtimes(out)
     assert len(before) == 4
 
-    trials2, _, info2 = run_experiment(config, out, show_progress=False, warm=False)
+    trials2, _, info2 = run_experiment(config, out, show_progress=False)
     assert _mtimes(out) == before
     assert info2["started"] == 0 and info2["finished_before"] == 4 and info2["tune_finished"] == 4
     pd.testing.assert_frame_equal(trials2, trials)
-
-    other = smoke_config(tmp_path / "other.yaml", tmp_path / "store.sqlite", seeds=[0])
-    with pytest.raises(ConfigError, match="holds another experiment"):
-        run_experiment(load_experiment_config(other), out, show_progress=False)
-
-    # The same trial again, in another experiment: the same row but for the timings.
-    from farm.experiments import TIMING_COLUMNS
-
-    again = smoke_config(tmp_path / "again.yaml", tmp_path / "store.sqlite", seeds=[0],
-                         grid={"env.c_capture": [0.0]})
-    rows, _, _ = run_experiment(load_experiment_config(again), tmp_path / "again", show_progress=False)
-    keep = [c for c in trials.columns if c not in TIMING_COLUMNS]
-    pd.testing.assert_series_equal(rows[keep].iloc[0], trials[keep].iloc[0], check_names=False)
