@@ -98,6 +98,7 @@ import sys
 import threading
 import time
 import typing
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -570,12 +571,15 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
 
     write_table(trials, out / "trials", "csv")
     write_table(summary, out / "summary", "csv")
-    errors = [(r.metrics or {}, r.error, r.path) for r in results if r.error is not None]
-    info["tune_finished"] = sum(1 for r in results if r.error is None)
+    errors = [(r.error, r.path) for r in results if r.error is not None]
+    info["tune_finished"] = sum(1 for r in results if r.error is None and (r.metrics or {}).get("phase") == "done")
     if errors:
-        _, error, path = errors[0]
+        error, path = errors[0]
         problem = (str(error).strip().splitlines() or [type(error).__name__])[-1]
         raise ExperimentError(f"trial {Path(path).name} failed ({len(errors)} of {len(results)} failed): {problem}")
+    if len(trials) < len(the_plan.trials):  # Tune was stopped (Ctrl+C): its state is saved
+        raise ExperimentError(f"{len(the_plan.trials) - len(trials)} of {len(the_plan.trials)} trials unfinished "
+                              f"(interrupted); run the same command again to go on")
     return trials, summary, info
 
 
@@ -602,7 +606,26 @@ def _fit(plan: Plan, out: Path, workers: int, share: float):
                                       checkpoint_config=tune.CheckpointConfig(num_to_keep=2),
                                       verbose=0, callbacks=[Progress()]),
         )
-    return tuner.fit()
+    with _quiet_tune():
+        return tuner.fit()
+
+
+# Ray Tune's own output, off while an experiment runs (its progress is farm's bar): the new
+# output engine prints a configuration box whatever the verbosity, the legacy one is silent at
+# verbose=0; the warning that saving the experiment's state took long is meant for remote storage.
+_TUNE_QUIET = {"RAY_AIR_NEW_OUTPUT": "0", "TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S": "0"}
+
+
+@contextmanager
+def _quiet_tune():
+    """Set _TUNE_QUIET's variables that are not set, for the block."""
+    added = [name for name in _TUNE_QUIET if name not in os.environ]
+    os.environ.update({name: _TUNE_QUIET[name] for name in added})
+    try:
+        yield
+    finally:
+        for name in added:
+            os.environ.pop(name, None)
 
 
 # ----------------------------------------------------------------------------- the tables
