@@ -30,7 +30,9 @@ How it runs (run_experiment), on a local Ray or a cluster (farm.runtime.ray_clus
    trial. Points on `team_sizes: lattice` have their lattice computed first, all points' pairs
    at once (the service plays them as Ray tasks on every CPU, before any trial starts).
 2. Each (point, seed) is one Ray Tune trial (ray.tune.Tuner, a function trainable,
-   `_run_trial`), at most `workers` at once (default: the cluster's CPUs). A trial trains
+   `_run_trial`), at most `workers` at once (default: the cluster's CPUs), on actors Tune
+   reuses from trial to trial (a new actor's imports, torch's optimiser pulling in
+   torch._dynamo, cost about 5 s; on the smoke grid about as much as the training). A trial trains
    with farm.alloc.train.train into DIR/trials/<trial>/run with `service.mode: ray`: inside
    the trial's actor the process is connected to Ray already, so farm.runtime.ray_cluster
    joins it (starts nothing) and get_service finds the running named actor. Then it
@@ -54,7 +56,9 @@ run on the 2 cores, and the game tasks mostly run while the trials wait for them
 waiting is idle). A cluster of fewer than 2 CPUs is refused. On top of it, warming the
 lattice first (step 1) means a lattice run meets no missing key at all once its trials
 start. tests/test_experiments.py runs 2 trials at once on a 2-CPU Ray on a cold store
-without warming (every engagement's game computed while both trials wait).
+without warming (every engagement's game computed while both trials wait): about 20 s with
+Ray's start. The same run with trials at 1 CPU each (trial_cpus replaced) made no step in 90 s:
+both trials waited for their first engagement's games, and Ray had no CPU left to run them.
 
 Resuming: DIR/experiment.json holds the config's digest; the same command again restores
 the Tune experiment in DIR/tune (Tuner.can_restore / Tuner.restore, unfinished and errored
@@ -65,7 +69,13 @@ in its run folder (farm train --resume's path); the Tune checkpoint it reports a
 checkpoint is a small marker naming the steps, the weights staying in the run folder (which
 therefore must be on storage every node sees, on a multi-node cluster). A DIR holding
 another experiment (another digest), or files that are not an experiment's, is refused in
-one line. FailureConfig(max_failures=2) restarts a trial whose worker died.
+one line. FailureConfig(max_failures=2) restarts a trial whose worker died. An experiment
+stopped by Ctrl+C (Tune saves its state) ends in ExperimentError saying how many trials are
+unfinished; run the same command again. Tried by hand: the driver SIGKILLed at 1,500 of
+3,000 steps of two trials; the rerun trained those two from their 1,500-step checkpoints
+(metrics.json's resumed_from) and the other two from the start, and left the finished steps'
+checkpoints untouched. (A resumed trial is not bit-identical to an uninterrupted one: SB3's
+checkpoint holds neither the random generators' states nor the env's episode.)
 
 Written into DIR:
 - experiment.json: the config as given, its digest, every trial's key, point and seed;
@@ -77,7 +87,9 @@ Written into DIR:
   baseline and planner `<policy>_return` and `<policy>_eliminated` (means over the
   evaluation episodes), then metrics.json's figures (timesteps, resumed_from,
   engagements, estimated_share, and the timings wall_seconds, steps_per_second,
-  update_seconds, outside_update_share: only these differ between reruns of a trial);
+  update_seconds, outside_update_share), then train_seconds and evaluate_seconds (the
+  trial's whole training call and its evaluation). Only the timings (TIMING_COLUMNS) differ
+  between runs of the same trial: the training is seeded and the evaluation episodes too;
 - summary.csv: one row per point: the point's fields, seeds, then for td3's return and
   eliminated and for the final evaluation's return `<m>_mean` and `<m>_ci95` over seeds
   (farm.alloc.evaluate.mean_ci95; NaN half-width for one seed), then every baseline's and
