@@ -69,6 +69,34 @@ def test_the_smoke_plan_is_2_points_by_2_seeds(tmp_path):
     assert all(t.config["threads"] == 1 and t.config["service"]["mode"] == "ray" for t in p.trials)
 
 
+def test_a_scenario_is_a_base_and_the_grid_overrides_its_env(tmp_path):
+    from farm.alloc.scenarios import SCENARIOS
+    from farm.experiments import load_experiment_config, plan
+
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump({"name": "sc", "scenario": "outnumbered_3x3", "seeds": [3],
+                                    "overrides": {"td3.n_timesteps": 500},
+                                    "grid": {"env.c_capture": [0.5, 1.0], "td3.policy_kwargs.net_arch": [[64, 64]]}}))
+    trials = plan(load_experiment_config(path)).trials
+    assert [t.key for t in trials] == ["p0_s3", "p1_s3"]
+    env = SCENARIOS["outnumbered_3x3"].env
+    for t, c in zip(trials, (0.5, 1.0)):
+        assert t.config["env"]["c_capture"] == c and t.config["td3"]["n_timesteps"] == 500
+        assert t.config["td3"]["policy_kwargs"]["net_arch"] == [64, 64] and t.config["seed"] == 3
+        assert all(t.config["env"][k] == v for k, v in env.items() if k != "c_capture")
+
+
+def test_the_cli_refuses_a_folder_of_other_files_in_one_line(tmp_path, capsys):
+    from farm.cli import main
+
+    path = smoke_config(tmp_path / "s.yaml", tmp_path / "store.sqlite")
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "notes.txt").write_text("mine")
+    assert main(["experiments", str(path), "--out", str(tmp_path / "busy")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("farm: error: --out: ") and "holds no experiment" in err
+
+
 def test_trials_leave_one_cpu_to_the_games():
     from farm.experiments import trial_cpus
 
