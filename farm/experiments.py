@@ -74,8 +74,12 @@ stopped by Ctrl+C (Tune saves its state) ends in ExperimentError saying how many
 unfinished; run the same command again. Tried by hand: the driver SIGKILLed at 1,500 of
 3,000 steps of two trials; the rerun trained those two from their 1,500-step checkpoints
 (metrics.json's resumed_from) and the other two from the start, and left the finished steps'
-checkpoints untouched. (A resumed trial is not bit-identical to an uninterrupted one: SB3's
-checkpoint holds neither the random generators' states nor the env's episode.)
+checkpoints untouched. A trial's worker SIGKILLed at about 1,000 steps: Tune restarted the
+trial (FailureConfig), which went on from its 1,000-step checkpoint, and the experiment
+finished; the three other trials' rows equalled an uninterrupted run's. A resumed trial is
+not bit-identical to an uninterrupted one (td3_return -0.333 resumed from 1,000 steps, -0.652
+from 1,500): SB3's checkpoint holds neither the random generators' states nor the env's
+episode; issue 19 asks for equality, left to do.
 
 Written into DIR:
 - experiment.json: the config as given, its digest, every trial's key, point and seed;
