@@ -281,28 +281,16 @@ class _Planner:
 
 
 class _Rates:
-    """The capture-time statistics a planner needs, one client call per batch (EngagementModel.rates).
-
-    Answers are kept, so that a pair costs one call over the planner's life (the client
-    memoizes too, but a Ray actor's client still makes a call per batch), except under
-    estimates, whose interpolations are not final.
-    """
+    """The capture-time statistics a planner needs, one client call per batch
+    (EngagementModel.rates; the client's memo answers a pair it has seen without a call)."""
 
     def __init__(self, config: AllocConfig, client, estimates: bool):
         self.model = EngagementModel(config, client, estimates)
-        self.keep = not estimates
-        self.table: dict[tuple[int, int], tuple[float, float]] = {}
 
     def get(self, n_p, n_e) -> tuple[np.ndarray, np.ndarray]:
         """(removed, score): (k,) float64 each, of the games n_p, n_e: (k,) int (n_p >= 1)."""
-        pairs = list(zip(np.asarray(n_p).tolist(), np.asarray(n_e).tolist()))
-        table = self.table if self.keep else {}
-        missing = sorted({p for p in pairs if p not in table})
-        if missing:
-            removed, score, _ = self.model.rates(np.array([p[0] for p in missing]), np.array([p[1] for p in missing]))
-            table.update(zip(missing, zip(removed.tolist(), score.tolist())))
-        out = np.array([table[p] for p in pairs], dtype=np.float64).reshape(-1, 2)
-        return out[:, 0], out[:, 1]
+        removed, score, _ = self.model.rates(np.asarray(n_p).reshape(-1), np.asarray(n_e).reshape(-1))
+        return removed, score
 
     def grid(self, sizes: np.ndarray, n_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(removed, score): (len(n_e), len(sizes)) float64 each, every size against every n_e."""
