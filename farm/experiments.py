@@ -7,7 +7,8 @@ Config (YAML; every key but `name`, `seeds` and one of `base`/`scenario` optiona
     name: smoke
     base: configs/train/tiny.yaml     # a training config (farm.alloc.train.TrainConfig) ...
     scenario: null                    # ... or a suite scenario's name (TrainConfig's defaults
-                                      # beside it); exactly one of the two
+                                      # beside it); at most one of the two, none when the grid
+                                      # (or overrides) names `scenario`
     overrides: {env.team_sizes: lattice}   # dotted fields set in every trial
     grid: {env.c_capture: [0.0, 1.5]}      # dotted fields -> values: the cartesian product
     seeds: [0, 1]                     # each (point, seed) is one trial: TrainConfig.seed
@@ -195,8 +196,12 @@ class ExperimentConfig(Strict):
 
     @model_validator(mode="after")
     def _one_base(self):
-        if (self.base is None) == (self.scenario is None):
-            raise ValueError("base: give exactly one of `base` (a training config) or `scenario` (a suite scenario)")
+        named = "scenario" in self.grid or "scenario" in self.overrides
+        if self.base is not None and self.scenario is not None:
+            raise ValueError("base: give one of `base` (a training config) or `scenario` (a suite scenario), not both")
+        if self.base is None and self.scenario is None and not named:
+            raise ValueError("base: give `base` (a training config), `scenario` (a suite scenario) or a grid over "
+                             "`scenario`")
         if self.scenario is not None:
             from farm.alloc.scenarios import SCENARIOS
 
@@ -287,6 +292,8 @@ def _base_raw(config: ExperimentConfig, source: str) -> dict:
 
     if config.scenario is not None:
         return {"scenario": config.scenario}
+    if config.base is None:  # the grid or the overrides name the scenario
+        return {}
     path = Path(config.base)
     load_train_config(path)  # one line naming the base file and its field
     raw = yaml.safe_load(path.read_text())
@@ -353,15 +360,18 @@ def _write_json(path: Path, doc: dict) -> None:
 
 def _evaluate(config, run_dir: Path, episodes: int, seed: int) -> pd.DataFrame:
     """The final model, the baselines and the planners on episodes seed .. seed+episodes-1
-    (one client on the shared service); writes eval_table.csv into run_dir; returns the table."""
-    from farm.alloc.evaluate import baselines, evaluate_policies, load_policy, planners
+    (one client on the shared service); writes eval_table.csv, eval_episodes.csv and
+    eval_steps.csv into run_dir (farm eval's files, which farm claims reads); returns the table."""
+    from farm.alloc.evaluate import baselines, evaluate_policies, load_policy, planners, steps_table
     from farm.output import write_table
     from farm.service.lookup import open_client
 
     with open_client(config.env.service_settings(), mode="ray", store=config.service.store) as client:
         policies = {"td3": load_policy(run_dir), **baselines(config.env.grid_size), **planners(config.env, client)}
-        table, _, _ = evaluate_policies(config.env, policies, client, episodes, seed)
+        table, per, steps = evaluate_policies(config.env, policies, client, episodes, seed)
     write_table(table, run_dir / "eval_table", "csv")
+    write_table(per, run_dir / "eval_episodes", "csv")
+    write_table(steps_table(steps), run_dir / "eval_steps", "csv")
     return table
 
 

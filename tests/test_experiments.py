@@ -16,9 +16,11 @@ SMOKE = ROOT / "configs" / "experiments" / "smoke.yaml"
 
 def smoke_config(path: Path, store: Path, **changes) -> Path:
     """configs/experiments/smoke.yaml with its base absolute, the store given and top-level
-    fields replaced by `changes`, written to path."""
+    fields replaced by `changes` (None drops one), written to path."""
     raw = yaml.safe_load(SMOKE.read_text())
-    raw.update(base=str(ROOT / raw["base"]), store=str(store), **changes)
+    raw.update(base=str(ROOT / raw["base"]), store=str(store))
+    raw.update(changes)
+    raw = {k: v for k, v in raw.items() if v is not None}
     path.write_text(yaml.safe_dump(raw, sort_keys=False))
     return path
 
@@ -43,7 +45,9 @@ def one_line_error(path: Path) -> str:
     ({"seeds": []}, "seeds: must name at least one seed"),
     ({"seeds": [0, 0]}, "seeds: a seed is named twice"),
     ({"grid": {"td3.learning_rate": [0.001, -1.0]}}, "td3.learning_rate: Input should be greater than 0 (point 1"),
-    ({"scenario": "paper_3x3_c1_0"}, "base: give exactly one of"),
+    ({"scenario": "paper_3x3_c1_0"}, "base: give one of `base` (a training config) or `scenario`"),
+    ({"base": None}, "base: give `base` (a training config), `scenario` (a suite scenario) or a grid over"),
+    ({"base": None, "grid": {"scenario": ["paper_3x3_c1_0", "nowhere"]}}, "unknown scenario 'nowhere'"),
 ])
 def test_a_bad_experiments_config_is_one_line(tmp_path, changes, expected):
     path = smoke_config(tmp_path / "bad.yaml", tmp_path / "store.sqlite", **changes)
@@ -84,6 +88,20 @@ def test_a_scenario_is_a_base_and_the_grid_overrides_its_env(tmp_path):
         assert t.config["env"]["c_capture"] == c and t.config["td3"]["n_timesteps"] == 500
         assert t.config["td3"]["policy_kwargs"]["net_arch"] == [64, 64] and t.config["seed"] == 3
         assert all(t.config["env"][k] == v for k, v in env.items() if k != "c_capture")
+
+
+def test_a_grid_over_scenarios_needs_no_base():
+    from farm.alloc.scenarios import SCENARIOS
+    from farm.experiments import load_experiment_config, plan
+
+    config = load_experiment_config(ROOT / "configs" / "experiments" / "paper.yaml")
+    trials = plan(config).trials
+    assert sorted({t.config["scenario"] for t in trials}) == sorted(SCENARIOS)
+    assert [t.seed for t in trials[:3]] == [0, 1, 2] and len(trials) == 3 * len(SCENARIOS)
+    for t in trials:
+        env = SCENARIOS[t.config["scenario"]].env
+        assert all(t.config["env"][k] == v for k, v in env.items())
+        assert t.config["td3"]["n_timesteps"] == 20_000 and t.config["td3"]["policy_kwargs"] == {"net_arch": [400, 300]}
 
 
 def test_the_cli_refuses_a_folder_of_other_files_in_one_line(tmp_path, capsys):
