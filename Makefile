@@ -55,15 +55,10 @@ suite: $(STAMP)
 	$(VENV)/bin/farm suite configs/suite.yaml --out results/suite
 	$(VENV)/bin/farm report results
 
-# The paper's allocation experiments: train, evaluate against the baselines, figures.
-EXPERIMENTS := paper_3x3_c1_0 paper_3x3_c1_1.5 paper_3x3_100v100 larger_5x5 larger_8x8
+# The paper's runs and the suite's scenarios, 3 seeds each, as one Ray Tune experiment on one
+# capture-time service (configs/experiments/paper.yaml); the same command again resumes it.
 experiments: $(STAMP)
-	for e in $(EXPERIMENTS); do \
-	  $(VENV)/bin/farm train configs/train/$$e.yaml --out results/runs/$$e --resume 2>/dev/null || \
-	  $(VENV)/bin/farm train configs/train/$$e.yaml --out results/runs/$$e; \
-	  $(VENV)/bin/farm eval results/runs/$$e --episodes 20 || exit 1; \
-	done
-	$(VENV)/bin/farm claims results/runs
+	$(VENV)/bin/farm experiments configs/experiments/paper.yaml --out results/experiments/paper
 	$(VENV)/bin/farm report results
 
 clean:
