@@ -401,7 +401,7 @@ small{color:#777;font-weight:normal} .src{color:#777;font-size:.85em;font-family
 table.t{border-collapse:collapse;font-size:.85em;margin:.6em 0} table.t td,table.t th{padding:.25em .6em;border-bottom:1px solid #eee;text-align:right}
 table.t th{background:#f5f5f5} img{max-width:100%;margin:.3em 0} .grid{display:flex;flex-wrap:wrap;gap:1em}
 .grid img{max-width:560px} .missing{color:#999;font-style:italic} pre{background:#f7f7f7;padding:.6em;overflow:auto;font-size:.8em}
-#selfcheck{font-size:.8em;color:#777} .scroll{overflow-x:auto} .prose table.t td{text-align:left;vertical-align:top}
+#selfcheck{font-size:.8em;color:#777} .scroll{overflow-x:auto} .prose table.t td,.prose table.t th{text-align:left;vertical-align:top}
 """
 
 SELF_CHECK = """
