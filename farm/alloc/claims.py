@@ -43,7 +43,7 @@ import pandas as pd
 from farm.alloc.evaluate import mean_ci95
 from farm.errors import ResultsError
 
-__all__ = ["plateau_minutes", "measure_a", "measure_b", "claims", "SeedClaims", "claims_over_seeds", "find_pair",
+__all__ = ["plateau_minutes", "measure_a", "measure_b", "claims", "SeedClaims", "claims_over_seeds", "find_pairs",
            "write_claims_over_seeds", "COVERAGE_THRESHOLD", "PLATEAU_MINUTES"]
 
 COVERAGE_THRESHOLD = 0.9  # (a): the lower end of the coverage CI at least this
@@ -226,7 +226,7 @@ def _without_c_capture(config: dict) -> dict:
     return rest
 
 
-def find_pair(folder: Path, manifest: dict) -> list[tuple[int, int]]:
+def find_pairs(folder: Path, manifest: dict) -> list[tuple[int, int]]:
     """The pairs of points (C_capture 0, C_capture 1.5), in point order, whose training configs
     (their trials' run/config.yaml) are otherwise the same (farm.alloc.claims' settings for (a)
     and (b), e.g. the paper's 3x3 maps); points not started yet have no config and are left out."""
@@ -338,7 +338,7 @@ def claims_over_seeds(folder, points: tuple[int, int] | None = None, policy: str
 
     folder: a `farm experiments` folder (experiment.json, trials/<trial>/run); only finished
     trials count (their result.json). points: the (C_capture 0, C_capture 1.5) points of (a)
-    and (b); default: the first pair find_pair finds (none: only (c), the note says so).
+    and (b); default: the first pair find_pairs finds (none: only (c), the note says so).
     ResultsError (one line) for an unreadable manifest or a named point the experiment lacks.
     """
     from farm.experiments_results import finished_trials, read_manifest
@@ -353,7 +353,7 @@ def claims_over_seeds(folder, points: tuple[int, int] | None = None, policy: str
                 raise ResultsError(f"points: {p} is not a point of {folder} (points {known[0]}-{known[-1]})")
         pair, note = tuple(points), f"(a), (b): points {points[0]} and {points[1]}, as named"
     else:
-        pairs = find_pair(folder, manifest)
+        pairs = find_pairs(folder, manifest)
         pair, note = (pairs[0] if pairs else None), _pair_note(pairs)
     seeds = _seed_measures(folder, finished, pair, policy) if pair else pd.DataFrame()
     if pair:
