@@ -275,7 +275,8 @@ def _verdict_b(seeds: pd.DataFrame) -> str:
         word = "partly confirmed"
     else:
         word = "mixed"
-    return f"{word} (fewer engaged cells in {fewer} of {n} seeds, more defenders per engaged cell in {more} of {n})"
+    return (f"{word} (fewer engaged cells in {fewer} of {n} seed{'s' if n != 1 else ''}, more defenders per engaged "
+            f"cell in {more} of {n})")
 
 
 def _row_b(seeds: pd.DataFrame) -> dict:
