@@ -377,13 +377,19 @@ def cmd_eval(a) -> int:
 
 
 def cmd_claims(a) -> int:
-    """`farm claims RUNS_DIR`: the paper's claims (a)-(c), measured on evaluated runs."""
+    """`farm claims RUNS_DIR`: the paper's claims (a)-(c), measured on evaluated runs; on an
+    experiment folder (its experiment.json), over its seeds."""
     from farm.alloc.claims import claims
+    from farm.experiments_results import is_experiment
     from farm.output import write_table
 
     runs = Path(a.runs_dir)
     if not runs.is_dir():
         raise CliError(f"{runs}: not a folder of training runs")
+    if is_experiment(runs):
+        return _claims_over_seeds(runs, a.points)
+    if a.points is not None:
+        raise CliError(f"--points: names points of an experiment folder; {runs} holds no experiment.json")
     rows = claims(runs, a.c0, a.c15)
     if not rows:
         raise CliError(f"{runs}: no evaluated runs (run farm train, then farm eval, for each config)")
@@ -391,6 +397,20 @@ def cmd_claims(a) -> int:
         print(f"{r['claim']}\n  measured: {r['measured']}\n  verdict:  {r['verdict']}")
     write_table(pd.DataFrame(rows), runs / "claims", "csv")
     print(f"wrote {runs / 'claims.csv'}")
+    return 0
+
+
+def _claims_over_seeds(folder: Path, points) -> int:
+    """`farm claims EXPERIMENT_DIR`: the claims over the experiment's seeds; claims.csv and claims_seeds.csv."""
+    from farm.alloc.claims import claims_over_seeds, write_claims_over_seeds
+
+    found = claims_over_seeds(folder, None if points is None else tuple(points))
+    print(found.note)
+    if not found.rows:
+        raise CliError(f"{folder}: no finished trial with its evaluations yet (farm experiments writes them)")
+    for r in found.rows:
+        print(f"{r['claim']}\n  measured: {r['measured']}\n  verdict:  {r['verdict']}\n  rule:     {r['rule']}")
+    print("wrote " + ", ".join(map(str, write_claims_over_seeds(folder, found))))
     return 0
 
 
@@ -434,7 +454,8 @@ def cmd_experiments(a) -> int:
           f"{info['workers']} at once at {info['trial_cpus']:g} CPU each on {info['cluster_cpus']:g} CPUs, "
           f"{info['warmed_cases']} lattice cases warmed in {info['warm_seconds']:.1f} s, {info['seconds']:.1f} s in all",
           file=sys.stderr)
-    print(f"wrote {out / 'trials.csv'}, {out / 'summary.csv'}, trials/<trial>/run")
+    written = [out / "trials.csv", out / "summary.csv", *info["claims"], info["learning_curves"]]
+    print(f"wrote {', '.join(str(p) for p in written if p is not None)}, trials/<trial>/run")
     return 0
 
 
@@ -537,10 +558,15 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--quiet", action="store_true", help="no progress bars")
     ex.set_defaults(func=cmd_experiments)
 
-    cl = sub.add_parser("claims", help="the paper's claims (a)-(c), measured on evaluated runs")
-    cl.add_argument("runs_dir", help="folder of run folders (e.g. results/runs)")
+    cl = sub.add_parser("claims", help="the paper's claims (a)-(c), measured on evaluated runs, or over an "
+                                       "experiment's seeds")
+    cl.add_argument("runs_dir", help="folder of run folders (e.g. results/runs), or an experiment folder "
+                                     "(e.g. results/experiments/paper)")
     cl.add_argument("--c0", default="paper_3x3_c1_0", help="the C_capture = 0 run's folder name (make experiments names it so)")
     cl.add_argument("--c15", default="paper_3x3_c1_1.5", help="the C_capture = 1.5 run's folder name")
+    cl.add_argument("--points", type=int, nargs=2, metavar=("C0", "C15"),
+                    help="an experiment folder's points of C_capture 0 and 1.5 (default: found from the trials' "
+                         "configs)")
     cl.set_defaults(func=cmd_claims)
     return parser
 

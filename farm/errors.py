@@ -7,7 +7,7 @@ or a Case); the CLI catches that one base class.
 from workers.errors import InputError, SwarmFarmError
 
 __all__ = ["SwarmFarmError", "InputError", "ConfigError", "ClusterError", "SweepError", "StoreCorruptError",
-           "NotAStoreError", "ReportError", "CliError", "ActionError", "TrainingDiverged", "ModelError"]
+           "NotAStoreError", "ReportError", "ResultsError", "CliError", "ActionError", "TrainingDiverged", "ModelError"]
 
 
 class ConfigError(SwarmFarmError, ValueError):
@@ -32,6 +32,11 @@ class NotAStoreError(SwarmFarmError):
 
 class ReportError(SwarmFarmError, ValueError):
     """A results folder the report cannot be made from."""
+
+
+class ResultsError(SwarmFarmError, ValueError):
+    """An experiment folder that cannot be read back (farm claims, farm report): names the
+    file or the point and the problem."""
 
 
 class CliError(SwarmFarmError):

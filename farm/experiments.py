@@ -40,7 +40,10 @@ How it runs (run_experiment), on a local Ray or a cluster (farm.runtime.ray_clus
    evaluates the final model, the baselines and the planners on the same seeded episodes
    (farm.alloc.evaluate.evaluate_policies), writes DIR/trials/<trial>/result.json and
    reports it to Tune.
-3. DIR/trials.csv and DIR/summary.csv are written from the trials' result.json files.
+3. DIR/trials.csv and DIR/summary.csv are written from the trials' result.json files, then
+   the paper's claims over the seeds (farm.alloc.claims.claims_over_seeds: DIR/claims.csv and
+   claims_seeds.csv, when two points differ only in C_capture 0 and 1.5) and the learning
+   curves over seeds (farm.experiments_results: DIR/learning_curves.png).
 
 How the trials and the service's games share the CPUs. A Tune trial is an actor that holds
 the resources it asked for as long as it lives, and Ray releases a worker's CPU while it
@@ -100,6 +103,10 @@ Written into DIR:
   (farm.alloc.evaluate.mean_ci95; NaN half-width for one seed), then every baseline's and
   planner's `<policy>_return` and `<policy>_eliminated` (mean over the point's trials: the
   same episodes, so the same figures for every seed);
+- claims.csv (one row per claim: claim, verdict over seeds, measured, rule) and claims_seeds.csv
+  (each seed's measures of (a) and (b)), when the grid has a C_capture 0 and 1.5 pair;
+- learning_curves.png: each point's periodic evaluation return over its finished seeds, the
+  mean with a band (95% CI over seeds; min-max of 2 seeds);
 - tune/: Ray Tune's experiment state.
 """
 
@@ -128,7 +135,7 @@ from farm.config import ConfigError, Strict, first_line, load_yaml_model
 from farm.errors import ClusterError, SwarmFarmError
 
 __all__ = ["ExperimentConfig", "load_experiment_config", "Trial", "Plan", "plan", "trial_cpus", "run_experiment",
-           "trials_table", "summary_table", "format_summary", "field_problem", "ExperimentError", "RESERVED_FIELDS", "TIMING_COLUMNS"]
+           "trials_table", "summary_table", "summary_view", "format_summary", "field_problem", "ExperimentError", "RESERVED_FIELDS", "TIMING_COLUMNS"]
 
 RESERVED_FIELDS = ("name", "seed", "threads", "service")  # the experiment sets these for every trial
 TIMING_COLUMNS = ("wall_seconds", "steps_per_second", "update_seconds", "outside_update_share", "train_seconds",
@@ -547,7 +554,8 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
     workers) CPUs); workers: trials at once (default: the cluster's CPUs); warm: False
     skips the lattice warm-up, in the driver and in every trial (the tests use it to make
     trials miss on a cold store). info: trials run this time and before, the CPUs per
-    trial, the warm-up's cases and seconds, the wall seconds.
+    trial, the warm-up's cases and seconds, the wall seconds, the claims' files and the
+    learning curves' figure written (claims: a list of paths, learning_curves: a path or None).
     ConfigError (one line) for bad input before Ray starts; ExperimentError naming the first
     trial that failed (after the tables of the others are written).
     """
@@ -592,11 +600,12 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
         info["started"] = len(display.started_keys)
     info["seconds"] = time.perf_counter() - t0
     trials = trials_table(the_plan, out)
-    summary = summary_table(the_plan, trials)
+    summary = summary_table(the_plan.fields, trials)
     from farm.output import write_table
 
     write_table(trials, out / "trials", "csv")
     write_table(summary, out / "summary", "csv")
+    info.update(_write_claims_and_curves(out))
     errors = [(r.error, r.path) for r in results if r.error is not None]
     info["tune_finished"] = sum(1 for r in results if r.error is None and (r.metrics or {}).get("phase") == "done")
     if errors:
@@ -607,6 +616,19 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
         raise ExperimentError(f"{len(the_plan.trials) - len(trials)} of {len(the_plan.trials)} trials unfinished "
                               f"(interrupted); run the same command again to go on")
     return trials, summary, info
+
+
+def _write_claims_and_curves(out: Path) -> dict:
+    """The paper's claims over the seeds (claims.csv, claims_seeds.csv; when the experiment has
+    a C_capture 0 and 1.5 pair: farm.alloc.claims.claims_over_seeds) and the learning curves
+    over seeds (learning_curves.png); returns {claims: the files written, learning_curves: the
+    figure's path or None}."""
+    from farm.alloc.claims import claims_over_seeds, write_claims_over_seeds
+    from farm.experiments_results import write_learning_curves
+
+    found = claims_over_seeds(out)
+    return {"claims": write_claims_over_seeds(out, found) if found.pair is not None and found.rows else [],
+            "learning_curves": write_learning_curves(out)}
 
 
 def _fit(plan: Plan, out: Path, workers: int, share: float):
@@ -666,8 +688,9 @@ def trials_table(plan: Plan, out: Path) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def summary_table(plan: Plan, trials: pd.DataFrame) -> pd.DataFrame:
-    """summary.csv (see the module doc): one row per point with finished trials."""
+def summary_table(fields: list[str], trials: pd.DataFrame) -> pd.DataFrame:
+    """summary.csv (see the module doc): one row per point with finished trials; fields: the
+    grid's dotted fields (Plan.fields), trials: trials.csv's table."""
     from farm.alloc.evaluate import mean_ci95
 
     if trials.empty:
@@ -676,7 +699,7 @@ def summary_table(plan: Plan, trials: pd.DataFrame) -> pd.DataFrame:
               if c.endswith("_return") and c not in ("td3_return", "final_eval_return", "best_eval_return")]
     rows = []
     for point, g in trials.groupby("point", sort=True):
-        row = {"point": int(point), **{f: g[f].iloc[0] for f in plan.fields}, "seeds": len(g)}
+        row = {"point": int(point), **{f: g[f].iloc[0] for f in fields}, "seeds": len(g)}
         for name, col in (("return", "td3_return"), ("eliminated", "td3_eliminated"),
                           ("final_eval_return", "final_eval_return")):
             x = g[col].to_numpy(dtype=float)
@@ -689,15 +712,16 @@ def summary_table(plan: Plan, trials: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def format_summary(summary: pd.DataFrame) -> str:
-    """summary.csv as a text table: the point's fields, seeds, td3's return and eliminated as
-    mean ± CI, and the baseline or planner eliminating the most."""
+def summary_view(summary: pd.DataFrame) -> pd.DataFrame:
+    """summary.csv as shown (format_summary, farm report): point, the point's fields, seeds,
+    td3's return and eliminated as `mean ± CI` strings, and the baseline or planner eliminating
+    the most (`name value`); an empty frame for an empty summary."""
 
     def pm(m, h):
         return f"{m:.3f} ± {h:.3f}" if math.isfinite(h) else f"{m:.3f}"
 
     if summary.empty:
-        return "(no finished trials)"
+        return pd.DataFrame()
     fields = list(summary.columns[1: list(summary.columns).index("seeds") + 1])
     view = summary[["point", *fields]].copy()
     view["td3 return"] = [pm(m, h) for m, h in zip(summary["return_mean"], summary["return_ci95"])]
@@ -706,4 +730,11 @@ def format_summary(summary: pd.DataFrame) -> str:
     if others:
         best = [max(others, key=lambda n: r[f"{n}_eliminated"]) for _, r in summary.iterrows()]
         view["best other (eliminated)"] = [f"{n} {r[f'{n}_eliminated']:.3f}" for n, (_, r) in zip(best, summary.iterrows())]
-    return view.to_string(index=False)
+    return view
+
+
+def format_summary(summary: pd.DataFrame) -> str:
+    """summary.csv as a text table (summary_view)."""
+    if summary.empty:
+        return "(no finished trials)"
+    return summary_view(summary).to_string(index=False)

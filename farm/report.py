@@ -335,6 +335,53 @@ def _leaderboard_section(root: Path) -> str | None:
     return "".join(parts)
 
 
+def _experiments_section(root: Path) -> str | None:
+    """Every experiment under root (farm experiments: experiment.json): its summary over seeds,
+    its claims over seeds (claims.csv) and its learning curves over seeds."""
+    manifests = sorted(root.rglob("experiment.json"))
+    if not manifests:
+        return None
+    return "".join(_experiment_html(m.parent) for m in manifests)
+
+
+LEARNING_CURVES_CAPTION = (
+    "Learning curves over seeds, one panel per point: the periodic evaluation's return (the mean over its "
+    "episodes) against environment steps, finished trials only. The line is the mean over seeds; the band is "
+    "the 95% t interval over seeds for 3 seeds or more, the min-max for 2 seeds, none for 1 (each panel's "
+    "title says which).")
+
+
+def _experiment_html(folder: Path) -> str:
+    """One experiment folder's part of the Experiments section."""
+    from farm.alloc.plots import learning_curves_figure
+    from farm.errors import ResultsError
+    from farm.experiments import summary_table, summary_view
+    from farm.experiments_results import finished_trials, point_curves, read_manifest
+
+    try:
+        manifest = read_manifest(folder)
+        finished = finished_trials(folder, manifest)
+        curves = point_curves(folder, manifest)
+    except ResultsError as e:
+        raise ReportError(str(e)) from None
+    out = (f"<h3>{html.escape(str(manifest.get('name', folder.name)))}</h3><p class=src>{html.escape(str(folder))}</p>"
+           f"<p>{len(finished)} of {len(manifest['trials'])} trials finished.</p>")
+    if not finished:
+        return out + "<p class=missing>No finished trial yet: <code>farm experiments</code> on this folder goes on.</p>"
+    summary = summary_table(manifest["fields"], pd.DataFrame([t["result"] for t in finished]))
+    out += ("<p>Per point: td3's return and intruder mass eliminated on the evaluation episodes, the mean over "
+            "seeds ± the half-width of the 95% t interval over seeds, beside the baseline or planner eliminating "
+            "the most (the same episodes for every seed).</p>" + _table(summary_view(summary)))
+    claims = folder / "claims.csv"
+    if claims.exists():
+        out += (f"<h4>The paper's claims over seeds</h4><p class=src>{html.escape(str(claims))}</p>"
+                f"<div class=prose>{_table(_read_table(claims))}</div>")
+    if curves:
+        out += (f"<figure>{_img(_fig_bytes(learning_curves_figure(curves)), 'learning curves over seeds')}"
+                f"<figcaption>{html.escape(LEARNING_CURVES_CAPTION)}</figcaption></figure>")
+    return out
+
+
 SECTIONS = [
     ("pe", "The paper's pursuit-evasion tables", "farm pe-table --out RESULTS_DIR/pe-table"),
     ("sweeps", "Sweeps", "farm sweep configs/smoke.yaml --out RESULTS_DIR/sweep-smoke"),
@@ -343,6 +390,7 @@ SECTIONS = [
     ("density", "Density maps of an evaluation episode", "farm eval RUN_DIR"),
     ("eval", "Evaluation against the baselines", "farm eval RUN_DIR"),
     ("leaderboard", "Leaderboard", "farm suite configs/suite_demo.yaml --out RESULTS_DIR/suite"),
+    ("experiments", "Experiments", "farm experiments configs/experiments/smoke.yaml --out RESULTS_DIR/experiments/smoke"),
     ("games", "Game figures", "farm game --plot RESULTS_DIR/game.png"),
 ]
 
@@ -353,7 +401,7 @@ small{color:#777;font-weight:normal} .src{color:#777;font-size:.85em;font-family
 table.t{border-collapse:collapse;font-size:.85em;margin:.6em 0} table.t td,table.t th{padding:.25em .6em;border-bottom:1px solid #eee;text-align:right}
 table.t th{background:#f5f5f5} img{max-width:100%;margin:.3em 0} .grid{display:flex;flex-wrap:wrap;gap:1em}
 .grid img{max-width:560px} .missing{color:#999;font-style:italic} pre{background:#f7f7f7;padding:.6em;overflow:auto;font-size:.8em}
-#selfcheck{font-size:.8em;color:#777} .scroll{overflow-x:auto}
+#selfcheck{font-size:.8em;color:#777} .scroll{overflow-x:auto} .prose table.t td,.prose table.t th{text-align:left;vertical-align:top}
 """
 
 SELF_CHECK = """
@@ -378,7 +426,8 @@ def build_report(results_dir: str | Path) -> str:
     Finds under results_dir (at any depth) the PE tables (pe_tables.csv or .parquet),
     sweep folders (sweep.json), capture-time stores (*.sqlite), training runs
     (evaluations.npz), density maps, evaluation tables, suite leaderboards
-    (leaderboard.csv, with leaderboard.png and suite.json) and game figures, and makes one
+    (leaderboard.csv, with leaderboard.png and suite.json), experiments (experiment.json:
+    their summary, claims and learning curves over seeds) and game figures, and makes one
     section of each kind; a kind without data says which command would produce it.
     Raises ReportError when the folder does not exist, holds none of these, or holds a
     damaged one.
@@ -397,14 +446,16 @@ def build_report(results_dir: str | Path) -> str:
         "density": _density_section(root),
         "eval": _eval_section(root),
         "leaderboard": _leaderboard_section(root),
+        "experiments": _experiments_section(root),
     }
     used.update(root.rglob("fig_*.png"))
     used.update(root.rglob("leaderboard.png"))
+    used.update(root.rglob("learning_curves.png"))
     found["games"] = _game_figures(root, used)
     if not any(found.values()):
         raise ReportError(
             f"{root}: no results found (looked for pe_tables.*, sweep folders, capture-time stores, "
-            "training runs, leaderboards, figures); run `make demo` or a farm command first"
+            "training runs, leaderboards, experiments, figures); run `make demo` or a farm command first"
         )
     body = []
     for key, title, command in SECTIONS:

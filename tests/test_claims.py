@@ -66,3 +66,140 @@ def test_cli_claims_writes_a_table_and_errors_in_one_line(tmp_path):
     assert "(a)" in ok.stdout and (tmp_path / "claims.csv").exists()
     bad = subprocess.run([*farm, "claims", str(tmp_path / "nope")], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "not a folder" in bad.stderr
+
+
+# ----------------------------------------------------------------------------- over an experiment's seeds
+STEPS = [4000, 8000, 12000, 16000, 20000]
+
+
+def make_trial(folder, key, point, seed, c_capture, steps_rows, returns, timesteps=STEPS, wall=600.0, finished=True,
+               defenders=100):
+    """One trial of a hand-built experiment folder: its run folder (config.yaml, eval_steps.csv,
+    evaluations.npz with 3 episodes each equal to `returns`, metrics.json) and, when finished,
+    its result.json (a row of trials.csv)."""
+    trial = folder / "trials" / key
+    run = trial / "run"
+    run.mkdir(parents=True)
+    env = {"grid_size": 3, "n_defenders": defenders, "c_capture": c_capture}
+    (run / "config.yaml").write_text(yaml.safe_dump({"name": f"fake-{key}", "seed": seed, "env": env,
+                                                     "td3": {"n_timesteps": 20000}}))
+    np.savez(run / "evaluations.npz", timesteps=np.array(timesteps), results=np.array(returns)[:, None].repeat(3, axis=1))
+    if not finished:
+        return
+    pd.DataFrame(steps_rows, columns=["policy", "episode", "step", "coverage", "engaged_cells",
+                                      "defenders_per_engaged"]).to_csv(run / "eval_steps.csv", index=False)
+    (run / "metrics.json").write_text(json.dumps({"timesteps": 20000, "wall_seconds": wall}))
+    (trial / "result.json").write_text(json.dumps({
+        "trial": key, "point": point, "seed": seed, "env.c_capture": c_capture, "final_eval_return": returns[-1],
+        "best_eval_return": max(returns), "td3_return": returns[-1], "td3_eliminated": 0.9 + 0.01 * seed,
+        "spread_evenly_return": -0.5, "spread_evenly_eliminated": 0.95}))
+
+
+def make_experiment(root, seed1_b=None, defenders15=100):
+    """A hand-built experiment folder: points 0 (C_capture 0) and 1 (1.5), seeds 0, 1, 2.
+
+    Seed 0 confirms (a) and (b); seed 1 confirms neither (coverage 0.5 at step 1; the same
+    engaged cells and defenders per cell under both settings, unless seed1_b gives its 1.5
+    run's rows); seed 2's 1.5 trial is unfinished (no result.json, 2 evaluations), its 0 trial
+    evaluated at 3 of the 5 timesteps. Plateaus: 6 min (p0_s0), 30 min (p0_s1, wall 30 min,
+    plateau at the last step), the others within 10. defenders15: point 1's defenders (100:
+    the pair's other settings equal)."""
+    folder = root / "fake"
+    trials = [("p0_s0", 0, 0, 0.0, spread_rows((3, 3), (33.0, 33.0), 1.0), [-3, -1, -0.5, -0.5, -0.5], STEPS, 600),
+              ("p0_s1", 0, 1, 0.0, spread_rows((2, 3), (33.0, 50.0), 0.5), [-3, -2.5, -2, -1.5, -1], STEPS, 1800),
+              ("p0_s2", 0, 2, 0.0, spread_rows((3, 3), (33.0, 33.0), 1.0), [-2, -1, 0], [4000, 12000, 20000], 300),
+              ("p1_s0", 1, 0, 1.5, spread_rows((1, 1), (90.0, 100.0), 0.4), [-2, -2, -2, -1, 0], STEPS, 600),
+              ("p1_s1", 1, 1, 1.5, seed1_b or spread_rows((2, 3), (33.0, 50.0), 0.5), [-1, -1, -1, -1, -1], STEPS, 600)]
+    for key, point, seed, c, rows, returns, timesteps, wall in trials:
+        make_trial(folder, key, point, seed, c, rows, returns, timesteps, wall, defenders=100 if point == 0 else defenders15)
+    make_trial(folder, "p1_s2", 1, 2, 1.5, [], [-5, -4], [4000, 8000], finished=False, defenders=defenders15)
+    manifest = {"name": "fake", "digest": "0" * 16, "config": {"name": "fake", "grid": {"env.c_capture": [0.0, 1.5]},
+                                                              "seeds": [0, 1, 2]},
+                "store": str(root / "store.sqlite"), "fields": ["env.c_capture"],
+                "trials": [{"key": f"p{p}_s{s}", "point": p, "seed": s, "values": {"env.c_capture": c}}
+                           for p, c in ((0, 0.0), (1, 1.5)) for s in (0, 1, 2)]}
+    (folder / "experiment.json").write_text(json.dumps(manifest))
+    return folder
+
+
+T975_1 = 12.706204736174698  # scipy.stats.t.ppf(0.975, 1): the 95% t interval of 2 values
+T975_2 = 4.302652729911275  # scipy.stats.t.ppf(0.975, 2): of 3 values
+
+
+def test_claims_over_seeds_on_a_known_experiment(tmp_path):
+    """Seed 0 confirms (a) and (b), seed 1 neither: both mixed; seed 2 (its 1.5 trial unfinished)
+    is left out of (a) and (b); (c) over the 5 finished trials, one of them 30 minutes."""
+    from farm.alloc.claims import claims_over_seeds
+
+    found = claims_over_seeds(make_experiment(tmp_path))
+    assert found.pair == (0, 1) and found.note.startswith("(a), (b): points 0 (C_capture 0) and 1 (C_capture 1.5)")
+    assert "2 seed(s) with both trials finished" in found.note
+    seeds = found.seeds.set_index("seed")
+    assert seeds.index.tolist() == [0, 1]
+    assert seeds.a_verdict.tolist() == ["confirmed", "not confirmed"] and seeds.all_engaged.tolist() == [1.0, 0.5]
+    assert seeds.b_verdict.tolist() == ["confirmed", "not confirmed"]
+    assert seeds.loc[0, "dpe_mean_c15"] == 95.0 and seeds.loc[1, "engaged_mean_c0"] == 2.5
+    rows = {r["claim"][:3]: r for r in found.rows}
+    assert rows["(a)"]["verdict"] == "mixed (confirmed in 1 of 2 seeds)"
+    # coverage at step 1: 1.0 and 0.5 -> mean 0.75, half-width t(0.975, 1) * sd 0.3536 / sqrt 2 = 12.706 * 0.25
+    assert f"coverage at step 1 over seeds 0.750 ± {T975_1 * 0.25:.3f} (per seed 1.000, 0.500)" in rows["(a)"]["measured"]
+    assert rows["(b)"]["verdict"] == ("mixed (fewer engaged cells in 1 of 2 seeds, more defenders per engaged cell "
+                                      "in 1 of 2)")
+    # engaged cells 1.5 - 0: seed 0 1 - 3 = -2, seed 1 2.5 - 2.5 = 0 -> -1 ± 12.706 * 1.414 / 1.414;
+    # defenders per engaged cell: seed 0 95 - 33 = 62, seed 1 41.5 - 41.5 = 0 -> 31 ± 12.706 * 31
+    assert f"over seeds -1.000 ± {T975_1:.3f} (per seed -2.000, 0.000)" in rows["(b)"]["measured"]
+    assert f"31.000 ± {T975_1 * 31:.3f} (per seed 62.000, 0.000)" in rows["(b)"]["measured"]
+    assert rows["(c)"]["verdict"] == "mixed (confirmed in 4 of 5 trials)"
+    assert found.trials.trial.tolist() == ["p0_s0", "p0_s1", "p0_s2", "p1_s0", "p1_s1"]
+    # p0_s0: 12000 of 20000 steps of 10 min; p0_s1: the last step of 30 min; p0_s2: 20000 of 5 min
+    assert found.trials.plateau_minutes.tolist()[:3] == [6.0, 30.0, 5.0]
+    # point 0 over its 3 seeds: mean 41 / 3, half-width t(0.975, 2) * sd / sqrt 3
+    mean = 41 / 3
+    sd = np.sqrt(((6 - mean) ** 2 + (30 - mean) ** 2 + (5 - mean) ** 2) / 2)
+    assert f"point 0: 13.7 ± {T975_2 * sd / np.sqrt(3):.1f} min (per seed 6.0, 30.0, 5.0)" in rows["(c)"]["measured"]
+    assert all("confirmed when every" in r["rule"] for r in found.rows)
+
+
+def test_claims_over_seeds_partly_confirmed_and_without_a_pair(tmp_path):
+    """(b) with more defenders per cell in every seed and fewer cells in none: partly confirmed.
+    Point 1 with other defenders than point 0: no pair, only (c), said in one line."""
+    from farm.alloc.claims import claims_over_seeds
+
+    more_only = spread_rows((2, 3), (90.0, 100.0), 0.5)  # seed 1: the same cells as its 0 run, more defenders
+    folder = make_experiment(tmp_path / "a", seed1_b=more_only)
+    (folder / "trials" / "p1_s0" / "run" / "eval_steps.csv").write_text(
+        pd.DataFrame(spread_rows((3, 3), (90.0, 100.0), 0.4), columns=["policy", "episode", "step", "coverage",
+                     "engaged_cells", "defenders_per_engaged"]).to_csv(index=False))
+    rows = {r["claim"][:3]: r for r in claims_over_seeds(folder).rows}
+    assert rows["(b)"]["verdict"].startswith("partly confirmed (fewer engaged cells in 0 of 2 seeds, more defenders "
+                                             "per engaged cell in 2 of 2)")
+
+    alone = claims_over_seeds(make_experiment(tmp_path / "b", defenders15=50))
+    assert alone.pair is None and "\n" not in alone.note and alone.note.endswith("only (c)")
+    assert [r["claim"][:3] for r in alone.rows] == ["(c)"] and alone.seeds.empty
+    named = claims_over_seeds(tmp_path / "b" / "fake", points=(0, 1))
+    assert named.pair == (0, 1) and [r["claim"][:3] for r in named.rows] == ["(a)", "(b)", "(c)"]
+
+
+def test_cli_claims_on_an_experiment_folder(tmp_path):
+    folder = make_experiment(tmp_path)
+    farm = [sys.executable, "-m", "farm.cli", "claims"]
+    ok = subprocess.run([*farm, str(folder)], capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0, ok.stderr
+    assert ok.stdout.startswith("(a), (b): points 0 (C_capture 0) and 1 (C_capture 1.5)")
+    assert "verdict:  mixed (confirmed in 1 of 2 seeds)" in ok.stdout and "rule:" in ok.stdout
+    table = pd.read_csv(folder / "claims.csv")
+    assert table.columns.tolist() == ["claim", "verdict", "measured", "rule"] and len(table) == 3
+    assert pd.read_csv(folder / "claims_seeds.csv").seed.tolist() == [0, 1]
+    bad = subprocess.run([*farm, str(folder), "--points", "0", "7"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "points: 7 is not a point of" in bad.stderr
+
+
+def test_a_damaged_manifest_is_one_line(tmp_path):
+    from farm.alloc.claims import claims_over_seeds
+    from farm.errors import ResultsError
+
+    (tmp_path / "experiment.json").write_text("{not json")
+    with pytest.raises(ResultsError, match="experiment.json: unreadable experiment manifest") as e:
+        claims_over_seeds(tmp_path)
+    assert "\n" not in str(e.value)

@@ -165,6 +165,7 @@ def test_two_trials_on_two_cpus_with_a_cold_store(cold):
     assert info["workers"] == 2 and info["trial_cpus"] == 0.5 and info["cluster_cpus"] == 2
     assert info["started"] == 2 and info["warmed_cases"] == 0
     assert trials["trial"].tolist() == ["p0_s0", "p0_s1"] and (trials["engagements"] > 0).all()
+    assert info["claims"] == [] and info["learning_curves"].name == "learning_curves.png"  # C_capture 0 only: no pair
 
 
 def test_smoke_grid_then_a_rerun_trains_nothing(cold, tmp_path):
@@ -181,6 +182,9 @@ def test_smoke_grid_then_a_rerun_trains_nothing(cold, tmp_path):
     for policy in ("td3", "stay_at_base", "intercept", "receding_horizon"):
         assert trials[f"{policy}_eliminated"].between(0, 1).all()
     assert summary["seeds"].tolist() == [2, 2] and summary["env.c_capture"].tolist() == [0.0, 1.5]
+    assert [p.name for p in info["claims"]] == ["claims.csv", "claims_seeds.csv"] and info["learning_curves"].exists()
+    claims = pd.read_csv(out / "claims.csv")  # the pair: points 0 and 1, seeds 0 and 1
+    assert [c[:3] for c in claims["claim"]] == ["(a)", "(b)", "(c)"] and "of 2 seeds" in claims["verdict"][0]
     keep = [c for c in cold_trials.columns if c not in TIMING_COLUMNS]
     pd.testing.assert_frame_equal(trials[keep].iloc[:2], cold_trials[keep])
     before = _mtimes(out)

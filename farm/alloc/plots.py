@@ -89,3 +89,34 @@ def plot_training_curve(steps, results, path: Path, title: str) -> Path:
     from farm.plots import save_figure
 
     return save_figure(training_curve_figure(steps, results, title), path)
+
+
+def learning_curves_figure(curves, cols: int = 5):
+    """An experiment's learning curves over seeds: one small panel per point, a grid of them.
+
+    curves: a non-empty list of farm.experiments_results.PointCurves (timesteps (E,) int64,
+    returns (S, E) float64) -> a matplotlib Figure. Each panel draws the mean over seeds as
+    a line with its band shaded (farm.experiments_results.seed_band: the 95% CI over seeds,
+    or the min-max of 2 seeds), titled with the point, its grid values, and the band's kind.
+    cols: panels per row at most.
+    """
+    from farm.experiments_results import seed_band
+    from farm.plots import new_figure
+
+    cols = min(cols, len(curves))
+    rows = -(-len(curves) // cols)
+    fig, axes = new_figure(rows, cols, figsize=(2.9 * cols, 2.3 * rows + 0.4))
+    for i, (ax, c) in enumerate(zip(axes.flat, curves)):
+        mean, low, high, kind = seed_band(c.returns)
+        ax.fill_between(c.timesteps, low, high, color="tab:blue", alpha=0.2, linewidth=0)
+        ax.plot(c.timesteps, mean, color="tab:blue", linewidth=1.5)
+        ax.set_title(f"p{c.point}: {c.label}\n{kind}", fontsize=7)
+        ax.tick_params(labelsize=7)
+        if i + cols >= len(curves):  # no panel below
+            ax.set_xlabel("environment steps", fontsize=7)
+        if i % cols == 0:
+            ax.set_ylabel("evaluation return", fontsize=7)
+    for ax in axes.flat[len(curves):]:
+        ax.set_visible(False)
+    fig.tight_layout()
+    return fig
