@@ -396,7 +396,7 @@ class RunState:
     def restore(self, model: TD3, state: dict) -> None:
         """Put a captured state back, into a model just loaded from the same checkpoint (its
         training env reset: the Monitor accepts steps again); rewrites evaluations.npz with
-        the evaluations up to the checkpoint."""
+        the evaluations up to the checkpoint (removes it when there were none)."""
         import random
 
         import torch
@@ -410,9 +410,12 @@ class RunState:
         e.evaluations_length = list(history["ep_lengths"])
         e.best_mean_reward, e.last_mean_reward = history["best_mean_reward"], history["last_mean_reward"]
         e.n_calls = state["steps"]  # one env: a call per step, so it evaluates where an uninterrupted run does
-        if e.log_path is not None and e.evaluations_timesteps:  # EvalCallback's own layout
-            np.savez(e.log_path, timesteps=e.evaluations_timesteps, results=e.evaluations_results,
-                     ep_lengths=e.evaluations_length)
+        if e.log_path is not None:  # the stopped part's later evaluations go: the resumed run redoes them
+            if e.evaluations_timesteps:  # EvalCallback's own layout
+                np.savez(e.log_path, timesteps=e.evaluations_timesteps, results=e.evaluations_results,
+                         ep_lengths=e.evaluations_length)
+            else:
+                Path(e.log_path + ".npz").unlink(missing_ok=True)
         self.timer.earlier_wall_seconds = state["wall_seconds"]
         self.timer.update_seconds = state["update_seconds"]
         np.random.set_state(state["numpy_rng"])
