@@ -68,22 +68,22 @@ Resuming: DIR/experiment.json holds the config's digest; the same command again 
 the Tune experiment in DIR/tune (Tuner.can_restore / Tuner.restore, unfinished and errored
 trials resumed), and a finished trial is never trained again: Tune does not rerun it, and a
 trial that finds its result.json (written before its last report) reports it without
-training. An unfinished trial resumes from the last SB3 checkpoint (with its replay buffer)
-in its run folder (farm train --resume's path); the Tune checkpoint it reports after each SB3
-checkpoint is a small marker naming the steps, the weights staying in the run folder (which
-therefore must be on storage every node sees, on a multi-node cluster). A DIR holding
-another experiment (another digest), or files that are not an experiment's, is refused in
-one line. FailureConfig(max_failures=2) restarts a trial whose worker died. An experiment
-stopped by Ctrl+C (Tune saves its state) ends in ExperimentError saying how many trials are
-unfinished; run the same command again. Tried by hand: the driver SIGKILLed at 1,500 of
-3,000 steps of two trials; the rerun trained those two from their 1,500-step checkpoints
-(metrics.json's resumed_from) and the other two from the start, and left the finished steps'
-checkpoints untouched. A trial's worker SIGKILLed at about 1,000 steps: Tune restarted the
-trial (FailureConfig), which went on from its 1,000-step checkpoint, and the experiment
-finished; the three other trials' rows equalled an uninterrupted run's. A resumed trial is
-not bit-identical to an uninterrupted one (td3_return -0.333 resumed from 1,000 steps, -0.652
-from 1,500): SB3's checkpoint holds neither the random generators' states nor the env's
-episode; issue 19 asks for equality, left to do.
+training. An unfinished trial resumes from the last checkpoint in its run folder (the model,
+the replay buffer and the run's state: random generators, the env's episode, the evaluations
+so far; farm train --resume's path, see farm.alloc.train) and ends as it would have without
+the stop: its row of trials.csv equals an uninterrupted run's but for the timings and
+resumed_from. The Tune checkpoint it reports after each checkpoint is a small marker naming
+the steps, the files staying in the run folder (which therefore must be on storage every
+node sees, on a multi-node cluster). A DIR holding another experiment (another digest), or
+files that are not an experiment's, is refused in one line. FailureConfig(max_failures=2)
+restarts a trial whose worker died. An experiment stopped by Ctrl+C (Tune saves its state)
+ends in ExperimentError saying how many trials are unfinished; run the same command again.
+tests/test_experiments.py kills (SIGKILL) a trial's worker after its checkpoint of step 150
+of 300: Tune restarts the trial, which goes on from that checkpoint; and kills the driver
+with the local Ray it started once one trial of two has finished and the other has a
+checkpoint: the same command again leaves the finished trial's files untouched and resumes
+the other from its checkpoint. In both, every row equals the uninterrupted run's but for the
+timings and resumed_from.
 
 Written into DIR:
 - experiment.json: the config as given, its digest, every trial's key, point and seed;

@@ -20,33 +20,47 @@ __all__ = ["TuneReport", "Progress"]
 
 
 class TuneReport(BaseCallback):
-    """An SB3 callback reporting a trial's steps to Ray Tune every `every` steps
-    ({"timesteps": n, "phase": "train"}), with a Tune checkpoint when the run's
-    CheckpointCallback (called before it) has just saved one: a marker folder holding
-    progress.json (the steps and the SB3 checkpoint's path), the weights and the replay
-    buffer staying in the run folder (farm.experiments' module doc says why).
+    """An SB3 callback reporting a trial's steps to Ray Tune each time they pass a multiple
+    of `every` ({"timesteps": n, "phase": "train"}), after the step's update (at the next
+    rollout's start or at the end of training), with a Tune checkpoint when the run's
+    Checkpointer (called before it) has just saved one: a marker folder holding progress.json
+    (the steps and the SB3 checkpoint's path), the weights, the replay buffer and the run's
+    state staying in the run folder (farm.experiments' module doc says why).
 
     run_dir: the trial's run folder; every: steps between reports."""
 
     def __init__(self, run_dir, every: int):
         super().__init__()
         self.run_dir, self.every = Path(run_dir), max(1, int(every))
+        self.reported = 0
+
+    def _on_training_start(self) -> None:
+        self.reported = int(self.model.num_timesteps)  # a resumed run reported its checkpoint's steps before
 
     def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_start(self) -> None:
+        self._report_when_due()
+
+    def _on_training_end(self) -> None:
+        self._report_when_due()
+
+    def _report_when_due(self) -> None:
         from farm.alloc.train import latest_checkpoint
 
-        if self.num_timesteps % self.every:
-            return True
-        metrics = {"timesteps": int(self.num_timesteps), "phase": "train"}
+        steps = int(self.model.num_timesteps)
+        if steps // self.every <= self.reported // self.every:
+            return
+        self.reported = steps
+        metrics = {"timesteps": steps, "phase": "train"}
         last = latest_checkpoint(self.run_dir)
-        if last is None or last[1] != self.num_timesteps:
+        if last is None or last[1] != steps:
             tune.report(metrics)
-            return True
+            return
         with tempfile.TemporaryDirectory(prefix="farm-trial-") as folder:  # Tune copies it before report returns
-            (Path(folder) / "progress.json").write_text(json.dumps({"timesteps": int(self.num_timesteps),
-                                                                   "sb3_checkpoint": str(last[0])}))
+            (Path(folder) / "progress.json").write_text(json.dumps({"timesteps": steps, "sb3_checkpoint": str(last[0])}))
             tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(folder))
-        return True
 
 
 class Progress(tune.Callback):

@@ -1,7 +1,16 @@
 """`farm experiments`: a grid of TD3 trainings as Ray Tune trials on one capture-time service
 (farm/experiments.py): the smoke grid on a real 2-CPU Ray with a cold store, resuming, the
-same trial twice, and bad configs in one line."""
+same trial twice, a trial's worker and the driver SIGKILLed mid-training (the trials go on
+from their checkpoints, to the uninterrupted run's rows), and bad configs in one line."""
 
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
 from pathlib import Path
 
 import pandas as pd
@@ -9,6 +18,7 @@ import pytest
 import yaml
 
 from farm.errors import ClusterError, ConfigError
+from farm.experiments import RESULT
 
 ROOT = Path(__file__).resolve().parent.parent
 SMOKE = ROOT / "configs" / "experiments" / "smoke.yaml"
@@ -194,3 +204,153 @@ def test_smoke_grid_then_a_rerun_trains_nothing(cold, tmp_path):
     assert _mtimes(out) == before
     assert info2["started"] == 0 and info2["finished_before"] == 4 and info2["tune_finished"] == 4
     pd.testing.assert_frame_equal(trials2, trials)
+
+
+# ----------------------------------------------------------------------------- kills
+# A trial's worker or the driver SIGKILLed mid-training: the trial goes on from its last
+# checkpoint and its row equals the cold run's (an uninterrupted run of the same trials: a
+# checkpoint's timing changes nothing of a run, so these runs checkpoint every 50 steps for a
+# wide window to kill in) but for the timings and resumed_from.
+DEADLINE = 240  # seconds for a file to appear: generous, the tests poll
+
+
+def kill_config(tmp: Path, store: Path, **changes) -> Path:
+    """The cold run's experiment (point 0 of the smoke grid) checkpointing every 50 steps and,
+    as the cold run, without the lattice warm-up (the cold run has stored every case these
+    trials meet): its base is tiny.yaml with `service.warm_lattice: false`."""
+    base = yaml.safe_load((ROOT / "configs" / "train" / "tiny.yaml").read_text())
+    base["service"]["warm_lattice"] = False
+    (tmp / "tiny.yaml").write_text(yaml.safe_dump(base, sort_keys=False))
+    return smoke_config(tmp / "kill.yaml", store, grid={"env.c_capture": [0.0]}, base=str(tmp / "tiny.yaml"),
+                        overrides={"env.team_sizes": "lattice", "checkpoint_freq": 50}, **changes)
+
+
+def holder(folder: Path) -> int | None:
+    """The pid of a process other than this one holding a file under folder open (Linux's
+    /proc; a trial's worker holds its run's TensorBoard file while it trains), or None."""
+    prefix = str(folder) + os.sep
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit() or int(proc.name) == os.getpid():
+            continue
+        try:
+            if any(os.readlink(fd).startswith(prefix) for fd in (proc / "fd").iterdir()):
+                return int(proc.name)
+        except OSError:  # gone, or not ours to look into
+            continue
+    return None
+
+
+def wait_for(what: str, ready, alive=lambda: True):
+    """Poll ready() until it returns something true (returned), at most DEADLINE seconds, while alive()."""
+    deadline = time.monotonic() + DEADLINE
+    while time.monotonic() < deadline:
+        value = ready()
+        if value:
+            return value
+        if not alive():
+            raise AssertionError(f"ended before {what}")
+        time.sleep(0.05)
+    raise AssertionError(f"no {what} within {DEADLINE} s")
+
+
+def kill_group(process: subprocess.Popen) -> None:
+    """SIGKILL a process started in a session of its own, and its process group."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(process.pid, signal.SIGKILL)
+    process.wait(timeout=60)
+
+
+def checkpointed(run: Path, at_least: int) -> bool:
+    from farm.alloc.train import latest_checkpoint
+
+    last = latest_checkpoint(run)
+    return last is not None and last[1] >= at_least
+
+
+def assert_rows_equal_cold(trials: pd.DataFrame, cold_trials: pd.DataFrame) -> None:
+    from farm.experiments import TIMING_COLUMNS
+
+    keep = [c for c in cold_trials.columns if c not in TIMING_COLUMNS and c != "resumed_from"]
+    expected = cold_trials.set_index("trial").loc[trials["trial"]].reset_index()
+    pd.testing.assert_frame_equal(trials[keep].reset_index(drop=True), expected[keep])
+
+
+def test_a_trials_worker_killed_mid_training_goes_on_from_its_checkpoint(cold, tmp_path):
+    """The trial's worker SIGKILLed after its checkpoint of step 150 (past learning_starts):
+    FailureConfig restarts the trial, which resumes from the checkpoint; its row equals the
+    uninterrupted run's."""
+    from farm.experiments import load_experiment_config, run_experiment
+
+    _, cold_trials, _, store = cold
+    config = load_experiment_config(kill_config(tmp_path, store, seeds=[0]))
+    out = tmp_path / "exp"
+    run = out / "trials" / "p0_s0" / "run"
+    killed = []  # the worker's pid, or why it was not killed
+
+    def kill_after_the_checkpoint():
+        try:
+            wait_for("checkpoint of step 150", lambda: checkpointed(run, 150))
+            pid = wait_for("trial worker", lambda: holder(run))
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+        except AssertionError as e:
+            killed.append(str(e))
+
+    killer = threading.Thread(target=kill_after_the_checkpoint, daemon=True)
+    killer.start()
+    trials, _, _ = run_experiment(config, out, show_progress=False)
+    killer.join(timeout=DEADLINE)
+    assert killed and isinstance(killed[0], int), f"the worker was not killed: {killed}"
+    resumed_from = json.loads((run / "metrics.json").read_text())["resumed_from"]
+    assert 150 <= resumed_from < 300 and resumed_from % 50 == 0
+    assert trials["resumed_from"].tolist() == [resumed_from]
+    assert_rows_equal_cold(trials, cold_trials)
+
+
+def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, tmp_path):
+    """`farm experiments --workers 1` (its own local Ray) SIGKILLed with its process group
+    once one trial has finished and the other has a checkpoint past learning_starts; the same
+    command again leaves the finished trial untouched, resumes the other from its checkpoint,
+    and both rows equal the uninterrupted run's."""
+    from farm.experiments import load_experiment_config, plan, trials_table
+
+    _, cold_trials, _, store = cold
+    path = kill_config(tmp_path, store)
+    out = tmp_path / "exp"
+    command = [sys.executable, "-m", "farm.cli", "experiments", str(path), "--out", str(out), "--workers", "1",
+               "--quiet"]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env.pop("RAY_ADDRESS", None)
+    runs = {key: out / "trials" / key / "run" for key in ("p0_s0", "p0_s1")}
+
+    def finished_and_checkpointed():
+        done = [key for key in runs if (out / "trials" / key / RESULT).exists()]
+        return done if len(done) == 1 and any(checkpointed(run, 150) for key, run in runs.items()
+                                              if key not in done) else None
+
+    with open(tmp_path / "driver.log", "w") as log:
+        driver = subprocess.Popen(command, env=env, start_new_session=True, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            [finished] = wait_for("one trial finished and the other checkpointed", finished_and_checkpointed,
+                                  alive=lambda: driver.poll() is None)
+        finally:
+            kill_group(driver)  # the driver, the local Ray it started and its workers
+    [unfinished] = [key for key in runs if key != finished]
+    wait_for("the killed workers gone", lambda: all(holder(run) is None for run in runs.values()))
+    result = out / "trials" / finished / RESULT
+    before = (result.read_bytes(), result.stat().st_mtime_ns, (runs[finished] / "model.zip").stat().st_mtime_ns)
+    assert not (runs[unfinished] / "metrics.json").exists()
+
+    rerun = subprocess.Popen(command, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        _, stderr = rerun.communicate(timeout=600)
+    finally:
+        kill_group(rerun)  # whatever of its Ray is left
+    assert rerun.returncode == 0, stderr[-3000:]
+    assert (result.read_bytes(), result.stat().st_mtime_ns, (runs[finished] / "model.zip").stat().st_mtime_ns) == before
+    resumed_from = json.loads((runs[unfinished] / "metrics.json").read_text())["resumed_from"]
+    assert 150 <= resumed_from < 300
+    trials = trials_table(plan(load_experiment_config(path)), out)  # trials.csv's rows, from result.json
+    assert trials["trial"].tolist() == ["p0_s0", "p0_s1"] and (out / "trials.csv").exists()
+    assert_rows_equal_cold(trials, cold_trials)

@@ -181,7 +181,9 @@ class SwarmAllocationEnv(gym.Env):
       are a farm.errors.ConfigError.
 
     close() closes the client (and its store) when the env made it, and leaves a client
-    it was given open for its owner.
+    it was given open for its owner. get_state() and set_state() save and restore the
+    episode in progress, the generator and the counters (a resumed training goes on with
+    the same episode and draws).
 
     Attributes: config: AllocConfig; client: CaptureTimeClient; n: int, the grid side N;
     src, dst: (A,) int64 and start: (N^2,) int64 as moves(N) returns them; n_moves:
@@ -346,6 +348,40 @@ class SwarmAllocationEnv(gym.Env):
         truncated = not terminated and self.steps >= cfg.max_steps
         info = self._info(breach, eliminated, engaged, estimates, coverage, per_cell)
         return self._obs(), float(reward), bool(terminated), bool(truncated), info
+
+    def get_state(self) -> dict:
+        """The env's state, for set_state() to continue it later (a resumed training): a
+        picklable dict of copies. D, I: (N^2,) float64 the densities; steps: int; breached,
+        eliminated: float; started: bool, a reset() done; rng: dict, the generator's
+        bit_generator.state; engagements, estimated: int, the lifetime counters. The client is no
+        part of it: its answers do not depend on what it answered before (under `estimates:
+        true` they depend on timing anyway)."""
+        return {"D": self.D.copy(), "I": self.I.copy(), "steps": self.steps, "breached": self.breached,
+                "eliminated": self.eliminated, "started": self._reset_done,
+                "rng": self.np_random.bit_generator.state, "engagements": self.engagements,
+                "estimated": self.estimated}
+
+    def set_state(self, state: dict) -> None:
+        """Take a state get_state() returned (of an env of the same grid): the episode goes on
+        from there, the generator draws what the saved one would have, the counters go on.
+        ConfigError (one line) for a state of another grid size or with a field missing."""
+        cells = self.n * self.n
+        missing = sorted({"D", "I", "steps", "breached", "eliminated", "started", "rng", "engagements",
+                          "estimated"} - set(state))
+        if missing:
+            raise ConfigError(f"set_state: the state has no {missing[0]!r}")
+        if np.shape(state["D"]) != (cells,) or np.shape(state["I"]) != (cells,):
+            raise ConfigError(f"set_state: the state's densities are of shape {np.shape(state['D'])}, "
+                              f"this env's grid has {cells} cells")
+        self.D = np.array(state["D"], dtype=np.float64)
+        self.I = np.array(state["I"], dtype=np.float64)
+        self.steps = int(state["steps"])
+        self.breached = float(state["breached"])
+        self.eliminated = float(state["eliminated"])
+        self._reset_done = bool(state["started"])
+        self.np_random.bit_generator.state = state["rng"]
+        self.engagements = int(state["engagements"])
+        self.estimated = int(state["estimated"])
 
     def _obs(self) -> np.ndarray:
         """The observation: (2 N^2,) float32 [D, I] clipped to [0, 1]."""

@@ -19,10 +19,26 @@ Config (RL-Zoo-style hyperparameters under `td3`):
                             # estimates: false, true or lattice (ServiceParams)
 
 A run folder holds model.zip, config.yaml, metrics.json, evaluations.npz (the
-training curve), checkpoints/ (with the replay buffer, for --resume), best/ and
-tb/ (TensorBoard). The algorithm is stable-baselines3's TD3 as it ships, on SB3's
-DummyVecEnv; metrics.json records the wall time of the gradient updates, timed by
-a callback (UpdateTimer), and the share of the run spent outside them.
+training curve), checkpoints/ (for --resume), best/ and tb/ (TensorBoard). The
+algorithm is stable-baselines3's TD3 as it ships, on SB3's DummyVecEnv; metrics.json
+records the wall time of the gradient updates, timed by a callback (UpdateTimer), and
+the share of the run spent outside them.
+
+Checkpoints and --resume. Each time the steps pass a multiple of `checkpoint_freq`, after
+that step's gradient update (Checkpointer), checkpoints/ gets rl_model_<n>_steps.zip (SB3's
+model: weights, optimisers, step count, last observation), rl_model_replay_buffer_<n>_steps.pkl
+and, last and atomically, rl_model_state_<n>_steps.pkl (RunState: the random generators, the
+training env's episode in progress, the eval env's generator and the evaluations so far, the
+timings so far); a checkpoint counts once its state file is there (latest_checkpoint).
+`--resume` goes on from the last one, and the run ends as an uninterrupted one does: the same
+weights, replay buffer, evaluations.npz, best/ and metrics.json but the timings (on the CPU,
+with the same threads; tests/test_train_resume.py). Only the length of training
+(td3.n_timesteps) and the threads may differ from the saved config: a run trained shorter and
+resumed to a longer length equals one trained to that length at once. metrics.json's
+resumed_from names the checkpoint's steps; its figures describe the whole run (the timings
+count the earlier parts up to their last checkpoint, not the time lost after it). A --resume
+finding no whole checkpoint (none yet, or only ones written before the state file existed)
+trains from step 0.
 
 A run that diverges (a loss, a parameter or an action not finite) stops with
 farm.errors.TrainingDiverged naming the step (a callback, DivergenceGuard): no
@@ -33,6 +49,7 @@ from __future__ import annotations
 
 import json
 import math
+import pickle
 import re
 import time
 from pathlib import Path
@@ -42,7 +59,7 @@ import numpy as np
 import yaml
 from pydantic import Field, field_validator, model_validator
 from stable_baselines3 import TD3
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import DummyVecEnv
@@ -221,14 +238,29 @@ def warm(client, config: TrainConfig, progress: bool = True) -> int:
 
 
 class UpdateTimer(BaseCallback):
-    """Times the gradient updates through SB3's public callback hooks: an off-policy
-    algorithm calls train() between a rollout's end and the next rollout's start (or the
-    end of training), so those intervals add up to the update time (`update_seconds`)."""
+    """Times the training and its gradient updates through SB3's public callback hooks: an
+    off-policy algorithm calls train() between a rollout's end and the next rollout's start
+    (or the end of training), so those intervals add up to the update time (`update_seconds`);
+    `wall_seconds` runs from the training's start to its end. A resumed run starts them at
+    its checkpoint's figures (RunState), so that both describe the whole run."""
 
     def __init__(self):
         super().__init__()
         self.update_seconds = 0.0
+        self.earlier_wall_seconds = 0.0  # a resumed run's parts before its checkpoint
         self._rollout_end: float | None = None
+        self._start: float | None = None
+        self._end: float | None = None
+
+    @property
+    def wall_seconds(self) -> float:
+        """The training's wall seconds so far (to its end once ended), earlier parts included."""
+        if self._start is None:
+            return self.earlier_wall_seconds
+        return self.earlier_wall_seconds + (self._end or time.perf_counter()) - self._start
+
+    def _on_training_start(self) -> None:
+        self._start, self._end = time.perf_counter(), None
 
     def _on_rollout_end(self) -> None:
         self._rollout_end = time.perf_counter()
@@ -238,6 +270,7 @@ class UpdateTimer(BaseCallback):
 
     def _on_training_end(self) -> None:
         self._close()
+        self._end = time.perf_counter()
 
     def _close(self) -> None:
         if self._rollout_end is not None:
@@ -314,17 +347,141 @@ class StepProgress(BaseCallback):
         self.bar.close()
 
 
+class RunState:
+    """What a checkpoint holds beside SB3's model (with its optimisers, step count and last
+    observation) and replay buffer, so that a run resumed from it goes on exactly as the run
+    would have without the stop (training on the CPU is deterministic):
+
+    - the random generators SB3 draws from, by their public getters: numpy's global one (the
+      action noise, the replay buffer's samples), torch's (TD3's target smoothing noise),
+      python's (SB3 seeds it) and the model's action space's (the warm-up's random actions).
+      Loading a model seeds them all again (SB3's set_random_seed), so they are set after;
+    - the training env's episode in progress, generator and counters
+      (SwarmAllocationEnv.get_state) and the Monitor's rewards of that episode (they only make
+      the episode's logged return whole);
+    - the eval env's state (evaluations go on drawing from its generator, seeded once at the
+      start), and the periodic evaluation's history (EvalCallback's public attributes: the
+      steps, returns and lengths of evaluations.npz, the best and the last mean return, and
+      its call count, which decides the steps it evaluates at);
+    - the wall and update seconds so far (UpdateTimer), so that metrics.json's timings
+      describe the whole run: the earlier parts up to the checkpoint and the resumed part.
+
+    train_env, monitor: the training env and the Monitor around it; eval_env: the periodic
+    evaluation's env; evaluation: its EvalCallback; timer: the run's UpdateTimer."""
+
+    def __init__(self, train_env: SwarmAllocationEnv, monitor: Monitor, eval_env: SwarmAllocationEnv,
+                 evaluation: EvalCallback, timer: UpdateTimer):
+        self.train_env, self.monitor, self.eval_env = train_env, monitor, eval_env
+        self.evaluation, self.timer = evaluation, timer
+
+    def capture(self, model: TD3) -> dict:
+        """The state now, as a picklable dict (restore's input)."""
+        import random
+
+        import torch
+
+        e = self.evaluation
+        return {
+            "steps": int(model.num_timesteps),
+            "numpy_rng": np.random.get_state(), "torch_rng": torch.get_rng_state(), "python_rng": random.getstate(),
+            "action_space_rng": model.action_space.np_random.bit_generator.state,
+            "train_env": self.train_env.get_state(), "episode_rewards": list(self.monitor.rewards),
+            "eval_env": self.eval_env.get_state(),
+            "evaluations": {"timesteps": list(e.evaluations_timesteps), "results": list(e.evaluations_results),
+                            "ep_lengths": list(e.evaluations_length), "best_mean_reward": e.best_mean_reward,
+                            "last_mean_reward": e.last_mean_reward},
+            "wall_seconds": self.timer.wall_seconds, "update_seconds": self.timer.update_seconds,
+        }
+
+    def restore(self, model: TD3, state: dict) -> None:
+        """Put a captured state back, into a model just loaded from the same checkpoint (its
+        training env reset: the Monitor accepts steps again); rewrites evaluations.npz with
+        the evaluations up to the checkpoint (removes it when there were none)."""
+        import random
+
+        import torch
+
+        self.train_env.set_state(state["train_env"])
+        self.monitor.rewards = list(state["episode_rewards"])
+        self.eval_env.set_state(state["eval_env"])
+        e, history = self.evaluation, state["evaluations"]
+        e.evaluations_timesteps = list(history["timesteps"])
+        e.evaluations_results = list(history["results"])
+        e.evaluations_length = list(history["ep_lengths"])
+        e.best_mean_reward, e.last_mean_reward = history["best_mean_reward"], history["last_mean_reward"]
+        e.n_calls = state["steps"]  # one env: a call per step, so it evaluates where an uninterrupted run does
+        if e.log_path is not None:  # the stopped part's later evaluations go: the resumed run redoes them
+            if e.evaluations_timesteps:  # EvalCallback's own layout
+                np.savez(e.log_path, timesteps=e.evaluations_timesteps, results=e.evaluations_results,
+                         ep_lengths=e.evaluations_length)
+            else:
+                Path(e.log_path + ".npz").unlink(missing_ok=True)
+        self.timer.earlier_wall_seconds = state["wall_seconds"]
+        self.timer.update_seconds = state["update_seconds"]
+        np.random.set_state(state["numpy_rng"])
+        torch.set_rng_state(state["torch_rng"])
+        random.setstate(state["python_rng"])
+        model.action_space.np_random.bit_generator.state = state["action_space_rng"]
+
+
+def checkpoint_files(run_dir: Path, steps: int) -> tuple[Path, Path, Path]:
+    """The files of a run folder's checkpoint at `steps`, in checkpoints/: (the model, SB3's
+    rl_model_<steps>_steps.zip; the replay buffer, rl_model_replay_buffer_<steps>_steps.pkl;
+    the RunState, rl_model_state_<steps>_steps.pkl, written last and whole)."""
+    folder = Path(run_dir) / "checkpoints"
+    return (folder / f"rl_model_{steps}_steps.zip", folder / f"rl_model_replay_buffer_{steps}_steps.pkl",
+            folder / f"rl_model_state_{steps}_steps.pkl")
+
+
+class Checkpointer(BaseCallback):
+    """Saves a checkpoint (checkpoint_files: the model, the replay buffer, then the RunState)
+    each time the steps pass a multiple of `every`: at the next rollout's start, or at the end
+    of training, so after that step's gradient update, a state an uninterrupted run goes on
+    from. (SB3's CheckpointCallback saves in on_step, before the step's update and before the
+    step's transition enters the replay buffer; a run resumed from it went on without them.)
+
+    run_dir: the run folder; every: steps between checkpoints; state: the run's RunState;
+    saved: the steps of the checkpoint the run resumed from (0 for a new run)."""
+
+    def __init__(self, run_dir: Path, every: int, state: RunState, saved: int = 0):
+        super().__init__()
+        self.run_dir, self.every, self.state, self.saved = Path(run_dir), every, state, saved
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_start(self) -> None:
+        self._save_when_due()
+
+    def _on_training_end(self) -> None:
+        self._save_when_due()
+
+    def _save_when_due(self) -> None:
+        from farm.output import atomic_write_bytes
+
+        steps = int(self.model.num_timesteps)
+        if steps // self.every <= self.saved // self.every:
+            return
+        model_file, buffer_file, state_file = checkpoint_files(self.run_dir, steps)
+        model_file.parent.mkdir(parents=True, exist_ok=True)
+        self.model.save(model_file)
+        self.model.save_replay_buffer(buffer_file)
+        atomic_write_bytes(state_file, pickle.dumps(self.state.capture(self.model)))
+        self.saved = steps
+
+
 def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
-    """(path, steps) of a run folder's last checkpoint, or None."""
+    """(model file, steps) of a run folder's last whole checkpoint (its RunState file, which
+    is written last, is there), or None."""
     found = []
-    for p in (run_dir / "checkpoints").glob("rl_model_*_steps.zip"):
-        m = re.match(r"rl_model_(\d+)_steps\.zip", p.name)
-        if m:
-            found.append((int(m.group(1)), p))
+    for p in (Path(run_dir) / "checkpoints").glob("rl_model_state_*_steps.pkl"):
+        m = re.fullmatch(r"rl_model_state_(\d+)_steps\.pkl", p.name)
+        if m and all(f.exists() for f in checkpoint_files(run_dir, int(m.group(1)))):
+            found.append(int(m.group(1)))
     if not found:
         return None
-    steps, path = max(found)
-    return path, steps
+    steps = max(found)
+    return checkpoint_files(run_dir, steps)[0], steps
 
 
 def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True,
@@ -333,8 +490,9 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     (farm.service.lookup.open_client: a local Ray or the cluster named, or in process);
     returns the metrics written to metrics.json.
 
-    callbacks: more SB3 callbacks, called after the run's own (so after a step's
-    evaluation and checkpoint): farm.experiments reports a trial's progress to Ray Tune so."""
+    callbacks: more SB3 callbacks, called after the run's own (so in on_step after the
+    step's evaluation, and at a rollout's start or the training's end after the checkpoint of
+    the steps so far): farm.experiments reports a trial's progress to Ray Tune so."""
     import torch
 
     run_dir = Path(run_dir)
@@ -373,23 +531,32 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
 def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list) -> dict:
     warm(client, config, progress=show_progress)
     train_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
-    env = DummyVecEnv([lambda: Monitor(train_env)])
-    eval_env = Monitor(SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates))
+    monitor = Monitor(train_env)
+    env = DummyVecEnv([lambda: monitor])
+    eval_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+    eval_monitor = Monitor(eval_env)
     # EvalCallback resets without a seed, which would leave the curve's episodes to OS entropy:
     # seeding once here makes evaluations.npz the same on every run of the same config.
-    eval_env.reset(seed=config.seed + EVAL_SEED_OFFSET)
+    eval_monitor.reset(seed=config.seed + EVAL_SEED_OFFSET)
     p = config.td3
     n_act = env.action_space.shape[0]
     noise = NormalActionNoise(np.zeros(n_act), p.noise_std * np.ones(n_act)) if p.noise_type == "normal" else None
+    timer = UpdateTimer()
+    evaluation = EvalCallback(eval_monitor, eval_freq=config.eval.freq, n_eval_episodes=config.eval.episodes,
+                              log_path=str(run_dir), best_model_save_path=str(run_dir / "best"), deterministic=True,
+                              verbose=0)
+    state = RunState(train_env, monitor, eval_env, evaluation, timer)
 
     done_steps = 0
     checkpoint = latest_checkpoint(run_dir) if resume else None
     if checkpoint:
         path, done_steps = checkpoint
-        model = TD3.load(path, env=env, tensorboard_log=str(run_dir / "tb"), device="cpu")
-        buffer = path.with_name(f"rl_model_replay_buffer_{done_steps}_steps.pkl")
-        if buffer.exists():
-            model.load_replay_buffer(buffer)
+        _, buffer, state_file = checkpoint_files(run_dir, done_steps)
+        # force_reset=False keeps the saved last observation: training goes on with the episode in progress
+        model = TD3.load(path, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
+        model.load_replay_buffer(buffer)
+        env.reset()  # through the wrappers (the Monitor refuses a step before a reset); the state replaces the episode
+        state.restore(model, pickle.loads(state_file.read_bytes()))
     else:
         model = TD3(
             p.policy, env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
@@ -399,19 +566,14 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
             seed=config.seed, verbose=0, device="cpu",
         )
     remaining = max(0, p.n_timesteps - done_steps)
-    timer = UpdateTimer()
     callbacks = CallbackList([
         timer,  # first: it times the updates alone
         DivergenceGuard(),  # next: no evaluation or checkpoint sees a step or an update it refuses
-        EvalCallback(eval_env, eval_freq=config.eval.freq, n_eval_episodes=config.eval.episodes,
-                     log_path=str(run_dir), best_model_save_path=str(run_dir / "best"), deterministic=True,
-                     verbose=0),
-        CheckpointCallback(save_freq=config.checkpoint_freq, save_path=str(run_dir / "checkpoints"),
-                           save_replay_buffer=True, verbose=0),
+        evaluation,
+        Checkpointer(run_dir, config.checkpoint_freq, state, done_steps),
         StepProgress(p.n_timesteps, done_steps, show_progress),
         *extra,
     ])
-    t0 = time.perf_counter()
     try:
         try:
             model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=not checkpoint,
@@ -422,7 +584,7 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
     except TrainingDiverged as e:  # the folder says so, for farm report and whoever looks
         (run_dir / DIVERGED).write_text(str(e) + "\n")
         raise
-    wall = time.perf_counter() - t0
+    wall = timer.wall_seconds  # the whole run's, as the other figures: a resumed run's earlier parts too
     model.save(run_dir / "model.zip")
     evals = np.load(run_dir / "evaluations.npz") if (run_dir / "evaluations.npz").exists() else None
     metrics = {
@@ -430,7 +592,7 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         "timesteps": int(model.num_timesteps),
         "resumed_from": done_steps if checkpoint else None,
         "wall_seconds": wall,
-        "steps_per_second": remaining / wall if wall > 0 else None,
+        "steps_per_second": model.num_timesteps / wall if wall > 0 else None,
         "update_seconds": timer.update_seconds,
         "outside_update_share": 1 - timer.update_seconds / wall if wall > 0 else None,
         "engagements": train_env.engagements,  # engaged cells of the training steps
