@@ -96,8 +96,9 @@ Written into DIR:
   evaluation episodes), then metrics.json's figures (timesteps, resumed_from,
   engagements, estimated_share, and the timings wall_seconds, steps_per_second,
   update_seconds, outside_update_share), then train_seconds and evaluate_seconds (the
-  trial's whole training call and its evaluation). Only the timings (TIMING_COLUMNS) differ
-  between runs of the same trial: the training is seeded and the evaluation episodes too;
+  trial's whole training call and its evaluation). Only the timings (TIMING_COLUMNS), and
+  resumed_from after a stop, differ between runs of the same trial: the training is seeded,
+  a resumed one goes on exactly, and the evaluation episodes are seeded too;
 - summary.csv: one row per point: the point's fields, seeds, then for td3's return and
   eliminated and for the final evaluation's return `<m>_mean` and `<m>_ci95` over seeds
   (farm.alloc.evaluate.mean_ci95; NaN half-width for one seed), then every baseline's and
@@ -118,7 +119,6 @@ import itertools
 import json
 import math
 import os
-import sys
 import threading
 import time
 import typing
