@@ -44,6 +44,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/service.py
 	$(PY) benchmarks/alloc.py
 	$(PY) benchmarks/planners.py
+	$(PY) benchmarks/experiments.py
 
 # The scenario suite (configs/suite.yaml): TD3 trained on each scenario (configs/train/suite_*.yaml,
 # into results/runs/suite_<scenario>), then the baselines, the planners and TD3 on one leaderboard.

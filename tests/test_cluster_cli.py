@@ -1,6 +1,6 @@
 """The farm as a user runs it: `farm sweep` subprocesses on real Ray clusters
 started with `ray start` on loopback, a driver killed by SIGKILL, a second node
-lost mid-sweep, and `ray job submit`."""
+lost mid-sweep, and `ray job submit` of a sweep and of an experiment."""
 
 import json
 import os
@@ -12,8 +12,10 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
+import yaml
 from conftest import free_port, write_sweep
 
 from farm.sweep import SweepRun, load_sweep_config, run_sweep
@@ -90,7 +92,7 @@ def ray_start(groups, *args):
     return proc.pid
 
 
-def start_head(groups, tmp_path, cpus, dashboard_port=None):
+def start_head(groups, cpus, dashboard_port=None):
     port = free_port()
     temp = tempfile.mkdtemp(prefix="rt", dir="/tmp")  # Unix socket paths must stay under 108 bytes
     groups.temp_dirs.append(temp)
@@ -124,7 +126,7 @@ def test_driver_sigkill_then_rerun_equals_uninterrupted(groups, config_path, tmp
 
 
 def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
-    address = start_head(groups, tmp_path, cpus=1)
+    address = start_head(groups, cpus=1)
     second = ray_start(groups, f"--address={address}", "--num-cpus=1")
     out = tmp_path / "out"
     driver = groups.popen([sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out),
@@ -143,35 +145,79 @@ def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
 RUNTIME_ENV = '{"excludes": ["workers/", "farm/"]}'  # the installed, precompiled package runs
 
 
-def test_ray_job_submit_smoke_sweep(groups, tmp_path):
-    dashboard = free_port()
-    start_head(groups, tmp_path, cpus=2, dashboard_port=dashboard)
-    out = tmp_path / "job-out"
-    url = f"http://127.0.0.1:{dashboard}"
-    job_id = f"smoke-{os.getpid()}"
+@pytest.fixture(scope="module")
+def job_head():
+    """A 2-CPU head with its dashboard (the job server) on loopback, shared by the `ray job
+    submit` tests (each job's actors end with it): the job server's URL."""
+    g = Groups()
+    try:
+        dashboard = free_port()
+        start_head(g, cpus=2, dashboard_port=dashboard)
+        yield f"http://127.0.0.1:{dashboard}"
+    finally:
+        g.close()
+
+
+def ray_job(url, *args, timeout=60):
+    """`ray job <args> --address url` (its stdout and stderr)."""
+    return subprocess.run([str(BIN / "ray"), "job", args[0], "--address", url, *args[1:]], cwd=REPO, env=ENV,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def submit_and_wait(url, job_id, *command, timeout=300) -> tuple[str, str]:
+    """`ray job submit` of `farm <command>` from the repository (--working-dir . with
+    RUNTIME_ENV), `ray job status` polled until it ends; returns (status, logs)."""
     deadline = time.time() + 120
     while True:  # the head's job agent may need a moment after `ray start` on a loaded machine
-        submit = subprocess.run(
-            [str(BIN / "ray"), "job", "submit", "--address", url, "--working-dir", ".", "--runtime-env-json", RUNTIME_ENV, "--submission-id", job_id,
-             "--no-wait", "--", "farm", "sweep", "configs/smoke.yaml", "--out", str(out), "--quiet"],
-            cwd=REPO, env=ENV, capture_output=True, text=True, timeout=300,
-        )
+        submit = ray_job(url, "submit", "--working-dir", ".", "--runtime-env-json", RUNTIME_ENV, "--submission-id",
+                         job_id, "--no-wait", "--", "farm", *command, timeout=300)
         if submit.returncode == 0 or "No available agent" not in submit.stderr or time.time() > deadline:
             break
         time.sleep(2)
     assert submit.returncode == 0, submit.stdout + submit.stderr
-    deadline, status = time.time() + 300, ""
+    deadline, status = time.time() + timeout, ""
     while time.time() < deadline:
-        status = subprocess.run([str(BIN / "ray"), "job", "status", "--address", url, job_id], env=ENV,
-                                capture_output=True, text=True, timeout=60).stdout.upper()
+        status = ray_job(url, "status", job_id).stdout.upper()
         if any(s in status for s in ("SUCCEEDED", "FAILED", "STOPPED")):
             break
         time.sleep(1)
-    logs = subprocess.run([str(BIN / "ray"), "job", "logs", "--address", url, job_id], env=ENV,
-                          capture_output=True, text=True, timeout=60).stdout
+    return status, ray_job(url, "logs", job_id).stdout
+
+
+def test_ray_job_submit_smoke_sweep(job_head, tmp_path):
+    out = tmp_path / "job-out"
+    status, logs = submit_and_wait(job_head, f"sweep-{os.getpid()}", "sweep", "configs/smoke.yaml", "--out", str(out),
+                                   "--quiet")
     assert "SUCCEEDED" in status, status + logs
     assert "smoke: 4 point(s), 160 games" in logs
     summary = pd.read_parquet(out / "summary.parquet")
     assert len(summary) == 4 and (summary["n_games"] == 40).all()
     run = json.loads((out / "runs.jsonl").read_text().splitlines()[-1])
     assert run["workers"] == 2 and run["done"] == 16
+
+
+def test_ray_job_submit_smoke_experiment(job_head, tmp_path):
+    """`farm experiments` as a job: the smoke experiment's first point (2 seeds of 300 steps),
+    its store in tmp_path, its base config read from the job's working dir; the driver joins
+    the head ($RAY_ADDRESS) and its service actor and trials run there."""
+    from ray.util.state import list_actors
+
+    from farm.service.actor import SERVICE_NAME
+
+    raw = yaml.safe_load((REPO / "configs" / "experiments" / "smoke.yaml").read_text())
+    raw.update(name="job-smoke", grid={"env.c_capture": [1.5]}, store=str(tmp_path / "store.sqlite"))
+    config = tmp_path / "experiment.yaml"
+    config.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "job-out"
+    status, logs = submit_and_wait(job_head, f"experiment-{os.getpid()}", "experiments", str(config), "--out",
+                                   str(out), "--quiet")
+    assert "SUCCEEDED" in status, status + logs
+    assert "job-smoke: 2/2 trial(s) finished (0 before this run), 2 at once at 0.5 CPU each on 2 CPUs" in logs
+    assert f"wrote {out / 'trials.csv'}" in logs
+    trials = pd.read_csv(out / "trials.csv")
+    assert trials["trial"].tolist() == ["p0_s0", "p0_s1"] and trials["seed"].tolist() == [0, 1]
+    assert np.isfinite(trials["td3_return"]).all() and (trials["timesteps"] == 300).all()
+    summary = pd.read_csv(out / "summary.csv")
+    assert summary["seeds"].tolist() == [2] and np.isfinite(summary["return_mean"]).all()
+    services = list_actors(address=job_head, filters=[("name", "=", SERVICE_NAME)], raise_on_missing_output=False)
+    assert len(services) == 1, services  # the experiment's service ran on the head, not on a Ray of its own

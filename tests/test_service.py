@@ -49,6 +49,22 @@ def test_miss_computes_stores_and_reloads(tmp_path):
     assert same(b.get(2, 1), v) and b.stats()["computations"] == {}
 
 
+def test_stats_count_the_distinct_keys_asked(tmp_path):
+    """`asked`: the distinct keys asked, however often, computed or found in the store."""
+    path = tmp_path / "s.sqlite"
+    k21, k31 = FAST.key(2, 1), FAST.key(3, 1)
+    cold = LocalBackend(path)
+    cold.get_many([k21, k21, k31])
+    cold.get_many([k21])
+    stats = cold.stats()
+    assert stats["asked"] == 2 and stats["misses"] == 3 and stats["computations"] == {k21.digest(): 1, k31.digest(): 1}
+    cold.close()
+    warm = LocalBackend(path)
+    warm.get_many([k31])
+    assert warm.stats()["asked"] == 1 and warm.stats()["computations"] == {}
+    warm.close()
+
+
 def test_keys_differing_in_any_parameter_never_collide():
     base = FAST.key(3, 2)
     variants = [
@@ -216,7 +232,7 @@ def test_actor_miss_restart_and_single_flight(ray_local, tmp_path):
         t.join(timeout=600)
     stats = ray.get(service.stats.remote())
     new = {FAST.key(*p).digest() for p in pairs} - {FAST.key(2, 2).digest()}
-    assert stats["computations"] == {d: 1 for d in new}
+    assert stats["computations"] == {d: 1 for d in new} and stats["asked"] == len(pairs) + 1  # and (2, 2)
     for p in pairs:
         assert all(same(r[p], results[0][p]) for r in results)
 

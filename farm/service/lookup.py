@@ -72,7 +72,8 @@ class StatsBackend(Protocol):
         """Have every key computed (in parallel where the backend can), calling progress(1) per key done."""
 
     def stats(self) -> dict:
-        """Counts: hits, misses, computations {digest: n}, inflight, stored, compute_seconds, corrupt_rows, store."""
+        """Counts: hits, misses, asked, computations {digest: n}, inflight, stored, compute_seconds, corrupt_rows,
+        store."""
 
     def close(self) -> None:
         """Release what the backend holds (the store's connection, for an in-process one)."""
@@ -195,6 +196,7 @@ class Lookup:
         self.index = NeighbourIndex(rows) if store is not None else None
         self.inflight: dict[str, Future] = {}
         self.counts: Counter = Counter(hits=0, misses=0)
+        self.asked: set[str] = set()  # the digests of every key asked (stats' `asked` is their number)
         self.computations: Counter = Counter()
         self.compute_seconds = 0.0
         self._lock = threading.Lock()
@@ -211,6 +213,7 @@ class Lookup:
                     mine.append((i, key, Future()))
                     continue
                 digest = key.digest()
+                self.asked.add(digest)
                 value = self.cache.get(digest) or self._from_store(key, digest)
                 if value is not None:
                     out[i] = value
@@ -297,11 +300,13 @@ class Lookup:
                 self.metrics.inflight(len(self.inflight))
 
     def stats(self) -> dict:
-        """hits, misses, computations {digest: times computed}, inflight, stored, compute_seconds,
-        corrupt_rows and the store's path."""
+        """hits, misses, asked (the distinct keys ever asked), computations {digest: times
+        computed}, inflight, stored, compute_seconds, corrupt_rows and the store's path (a
+        lookup without a store counts none of them). From a cold store, every key asked was
+        computed exactly once when computations holds `asked` digests, each counted once."""
         with self._lock:
-            return {**self.counts, "computations": dict(self.computations), "inflight": len(self.inflight),
-                    "stored": len(self.cache), "compute_seconds": self.compute_seconds,
+            return {**self.counts, "asked": len(self.asked), "computations": dict(self.computations),
+                    "inflight": len(self.inflight), "stored": len(self.cache), "compute_seconds": self.compute_seconds,
                     "corrupt_rows": sorted(self.store.corrupt_rows) if self.store is not None else [],
                     "store": str(self.store.path) if self.store is not None else None}
 
