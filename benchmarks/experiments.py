@@ -26,7 +26,6 @@ Usage: python benchmarks/experiments.py [--steps 3000] [--quick]   (about 3 min 
 from __future__ import annotations
 
 import argparse
-import logging
 import os
 import sys
 import tempfile
@@ -72,7 +71,6 @@ def main() -> None:
     from farm.experiments import plan, run_experiment
     from farm.runtime import ray_cluster
 
-    logging.getLogger("ray.tune.utils.callback").setLevel(logging.ERROR)  # Tune's "no TensorboardX" warning
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="farm-bench-experiments-") as tmp, \
             ray_cluster(num_cpus=2, dashboard=False):

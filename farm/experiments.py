@@ -660,18 +660,28 @@ def _fit(plan: Plan, out: Path, workers: int, share: float):
 
 # Ray Tune's own output, off while an experiment runs (its progress is farm's bar): the new
 # output engine prints a configuration box whatever the verbosity, the legacy one is silent at
-# verbose=0; the warning that saving the experiment's state took long is meant for remote storage.
+# verbose=0; the warning that saving the experiment's state took long is meant for remote storage;
+# the warning that TensorboardX is missing is about Tune's own result logger (each trial's
+# TensorBoard logs are SB3's, in its run folder).
 _TUNE_QUIET = {"RAY_AIR_NEW_OUTPUT": "0", "TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S": "0"}
+_TUNE_QUIET_LOGGER = "ray.tune.utils.callback"
 
 
 @contextmanager
 def _quiet_tune():
-    """Set _TUNE_QUIET's variables that are not set, for the block."""
+    """Set _TUNE_QUIET's variables that are not set, and _TUNE_QUIET_LOGGER's level to errors
+    only, for the block."""
+    import logging
+
     added = [name for name in _TUNE_QUIET if name not in os.environ]
     os.environ.update({name: _TUNE_QUIET[name] for name in added})
+    quiet = logging.getLogger(_TUNE_QUIET_LOGGER)
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
     try:
         yield
     finally:
+        quiet.setLevel(level)
         for name in added:
             os.environ.pop(name, None)
 
