@@ -23,7 +23,7 @@ from workers import GAME_FIELDS, Case, InputError
 
 from farm.errors import ConfigError
 
-__all__ = ["Strict", "ConfigError", "case_from", "check_game_names", "first_line", "load_yaml_model",
+__all__ = ["Strict", "refuse_unknown_keys", "ConfigError", "case_from", "check_game_names", "first_line", "load_yaml_model",
            "GAME_FIELDS", "SETTING_FIELDS", "CASE_TYPES", "NUMERIC_FIELDS", "find_bool", "find_non_finite"]
 
 # A game's settings: every Case field but the team sizes (which a table's or env's cells set).
@@ -96,6 +96,18 @@ def _takes_bool(annotation) -> bool:
     if typing.get_origin(annotation) is typing.Literal:
         return any(isinstance(v, bool) for v in typing.get_args(annotation))
     return any(_takes_bool(arg) for arg in typing.get_args(annotation) if arg is not Ellipsis)
+
+
+def refuse_unknown_keys(model: type[BaseModel], data, what: str):
+    """A `mode="before"` model validator's body: data unchanged, or ValueError naming the first
+    key of a mapping that is not one of model's fields, its value and the fields to choose from
+    (`what`: the config's kind, "a suite" or "an experiments")."""
+    if isinstance(data, dict):
+        for key in data:
+            if key not in model.model_fields:
+                raise ValueError(f"{key}: not {what} field, got {key!r} = {data[key]!r} "
+                                 f"(choose from {', '.join(model.model_fields) or 'none'})")
+    return data
 
 
 class Strict(BaseModel):

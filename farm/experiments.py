@@ -131,7 +131,7 @@ import pandas as pd
 import yaml
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
-from farm.config import ConfigError, Strict, first_line, load_yaml_model
+from farm.config import ConfigError, Strict, first_line, load_yaml_model, refuse_unknown_keys
 from farm.errors import ClusterError, SwarmFarmError
 
 __all__ = ["ExperimentConfig", "load_experiment_config", "Trial", "Plan", "plan", "trial_cpus", "run_experiment",
@@ -170,12 +170,7 @@ class ExperimentConfig(Strict):
     @model_validator(mode="before")
     @classmethod
     def _known_keys(cls, data):
-        if isinstance(data, dict):
-            for key in data:
-                if key not in cls.model_fields:
-                    raise ValueError(f"{key}: not an experiments field, got {key!r} "
-                                     f"(choose from {', '.join(cls.model_fields)})")
-        return data
+        return refuse_unknown_keys(cls, data, "an experiments")
 
     @field_validator("seeds")
     @classmethod

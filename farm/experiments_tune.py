@@ -14,45 +14,32 @@ import tempfile
 from pathlib import Path
 
 from ray import tune
-from stable_baselines3.common.callbacks import BaseCallback
+
+from farm.alloc.train import AfterUpdates
 
 __all__ = ["TuneReport", "Progress"]
 
 
-class TuneReport(BaseCallback):
+class TuneReport(AfterUpdates):
     """An SB3 callback reporting a trial's steps to Ray Tune each time they pass a multiple
-    of `every` ({"timesteps": n, "phase": "train"}), after the step's update (at the next
-    rollout's start or at the end of training), with a Tune checkpoint when the run's
-    Checkpointer (called before it) has just saved one: a marker folder holding progress.json
+    of `every` ({"timesteps": n, "phase": "train"}), after the step's update (AfterUpdates),
+    with a Tune checkpoint when the run's Checkpointer (called before it) has just saved one: a marker folder holding progress.json
     (the steps and the SB3 checkpoint's path), the weights, the replay buffer and the run's
     state staying in the run folder (farm.experiments' module doc says why).
 
     run_dir: the trial's run folder; every: steps between reports."""
 
     def __init__(self, run_dir, every: int):
-        super().__init__()
-        self.run_dir, self.every = Path(run_dir), max(1, int(every))
-        self.reported = 0
+        super().__init__(every)
+        self.run_dir = Path(run_dir)
 
     def _on_training_start(self) -> None:
-        self.reported = int(self.model.num_timesteps)  # a resumed run reported its checkpoint's steps before
+        self.last = int(self.model.num_timesteps)  # a resumed run reported its checkpoint's steps before
 
-    def _on_step(self) -> bool:
-        return True
-
-    def _on_rollout_start(self) -> None:
-        self._report_when_due()
-
-    def _on_training_end(self) -> None:
-        self._report_when_due()
-
-    def _report_when_due(self) -> None:
+    def due(self, steps: int) -> None:
+        """Report `steps`, with the checkpoint of `steps` when there is one."""
         from farm.alloc.train import latest_checkpoint
 
-        steps = int(self.model.num_timesteps)
-        if steps // self.every <= self.reported // self.every:
-            return
-        self.reported = steps
         metrics = {"timesteps": steps, "phase": "train"}
         last = latest_checkpoint(self.run_dir)
         if last is None or last[1] != steps:

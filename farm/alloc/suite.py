@@ -83,7 +83,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from farm.alloc.baselines import BASELINES
 from farm.alloc.config import AllocConfig
 from farm.alloc.scenarios import SCENARIOS
-from farm.config import ConfigError, Strict, first_line, load_yaml_model
+from farm.config import ConfigError, Strict, first_line, load_yaml_model, refuse_unknown_keys
 
 __all__ = ["SuiteConfig", "load_suite_config", "available_policies", "PolicySpec", "build_policy", "evaluate_cell",
            "run_suite", "leaderboard", "plot_leaderboard", "format_leaderboard", "MEASURES", "TD3"]
@@ -126,12 +126,7 @@ class SuiteConfig(Strict):
     @model_validator(mode="before")
     @classmethod
     def _known_keys(cls, data):
-        if isinstance(data, dict):
-            for key in data:
-                if key not in cls.model_fields:
-                    raise ValueError(f"{key}: not a suite field, got {key!r} = {data[key]!r} "
-                                     f"(choose from {_choices(cls.model_fields)})")
-        return data
+        return refuse_unknown_keys(cls, data, "a suite")
 
     @field_validator("scenarios")
     @classmethod

@@ -433,41 +433,59 @@ def checkpoint_files(run_dir: Path, steps: int) -> tuple[Path, Path, Path]:
             folder / f"rl_model_state_{steps}_steps.pkl")
 
 
-class Checkpointer(BaseCallback):
-    """Saves a checkpoint (checkpoint_files: the model, the replay buffer, then the RunState)
-    each time the steps pass a multiple of `every`: at the next rollout's start, or at the end
-    of training, so after that step's gradient update, a state an uninterrupted run goes on
-    from. (SB3's CheckpointCallback saves in on_step, before the step's update and before the
-    step's transition enters the replay buffer; a run resumed from it went on without them.)
+class AfterUpdates(BaseCallback):
+    """An SB3 callback acting each time the steps pass a multiple of `every`, after that step's
+    gradient update: an off-policy algorithm updates between a rollout's end and the next
+    rollout's start, so it acts at a rollout's start and at the end of training (`due(steps)`,
+    the subclass's action). last: the steps it last acted at (a resumed run's checkpoint)."""
 
-    run_dir: the run folder; every: steps between checkpoints; state: the run's RunState;
-    saved: the steps of the checkpoint the run resumed from (0 for a new run)."""
-
-    def __init__(self, run_dir: Path, every: int, state: RunState, saved: int = 0):
+    def __init__(self, every: int, last: int = 0):
         super().__init__()
-        self.run_dir, self.every, self.state, self.saved = Path(run_dir), every, state, saved
+        self.every, self.last = max(1, int(every)), int(last)
+
+    def due(self, steps: int) -> None:
+        """Act at `steps` (a subclass's)."""
+        raise NotImplementedError
 
     def _on_step(self) -> bool:
         return True
 
     def _on_rollout_start(self) -> None:
-        self._save_when_due()
+        self._act_when_due()
 
     def _on_training_end(self) -> None:
-        self._save_when_due()
+        self._act_when_due()
 
-    def _save_when_due(self) -> None:
+    def _act_when_due(self) -> None:
+        steps = int(self.model.num_timesteps)
+        if steps // self.every > self.last // self.every:
+            self.due(steps)
+            self.last = steps
+
+
+class Checkpointer(AfterUpdates):
+    """Saves a checkpoint (checkpoint_files: the model, the replay buffer, then the RunState)
+    each time the steps pass a multiple of `every`, after that step's gradient update
+    (AfterUpdates), a state an uninterrupted run goes on from. (SB3's CheckpointCallback saves
+    in on_step, before the step's update and before the step's transition enters the replay
+    buffer; a run resumed from it went on without them.)
+
+    run_dir: the run folder; every: steps between checkpoints; state: the run's RunState;
+    saved: the steps of the checkpoint the run resumed from (0 for a new run)."""
+
+    def __init__(self, run_dir: Path, every: int, state: RunState, saved: int = 0):
+        super().__init__(every, saved)
+        self.run_dir, self.state = Path(run_dir), state
+
+    def due(self, steps: int) -> None:
+        """Save the checkpoint of `steps`."""
         from farm.output import atomic_write_bytes
 
-        steps = int(self.model.num_timesteps)
-        if steps // self.every <= self.saved // self.every:
-            return
         model_file, buffer_file, state_file = checkpoint_files(self.run_dir, steps)
         model_file.parent.mkdir(parents=True, exist_ok=True)
         self.model.save(model_file)
         self.model.save_replay_buffer(buffer_file)
         atomic_write_bytes(state_file, pickle.dumps(self.state.capture(self.model)))
-        self.saved = steps
 
 
 def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
