@@ -6,8 +6,11 @@
    after another (workers=1: 1 CPU), each into its own folder; target: 2 at once in
    <= 0.6 x the wall time of one after another. The store is warmed over the lattice
    first, so neither timed run computes a game (checked: the service's computations do
-   not change). The default 3000 steps train about 30 s per trial on an idle core (about
-   10 ms of CPU a step), so a run's fixed costs are not the whole time.
+   not change). The default 6000 steps train about 80 s per trial on an idle core (about
+   14 ms of CPU a step), so a run's fixed costs (Tune's start, a trial actor's imports,
+   the tables: about 8 s a run) are a small part of it, as they are of a real trial of
+   20,000 steps; measured on 2 idle cores: 178.6 s one after another, 91.2 s 2 at once,
+   ratio 0.51 (at 3000 steps the fixed costs weigh more: 84.2 s against 51.6 s, 0.61).
 2. single flight, cold store: 2 trials at once (tiny's 300 steps) on a new store without
    the lattice warm-up (run_experiment(warm=False)), so both trials ask the service for
    the same keys as they meet them; target: every distinct key asked (the service's
@@ -20,7 +23,7 @@ as long as a handle to it, so this script holds the service's handle: the actor 
 counts outlive each run_experiment, and neither timed run pays Ray's start nor the
 actor's. A timed run is a whole Tune experiment: its trials' actors start, train,
 evaluate, and the tables are written.
-Usage: python benchmarks/experiments.py [--steps 3000] [--quick]   (about 3 min on 2 idle cores)
+Usage: python benchmarks/experiments.py [--steps 6000] [--quick]   (about 5 min on 2 idle cores)
 """
 
 from __future__ import annotations
@@ -59,8 +62,8 @@ def computed(stats: dict) -> int:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=3000,
-                    help="TD3 steps per trial of the timed runs (3000: about 30 s of training on an idle core)")
+    ap.add_argument("--steps", type=int, default=6000,
+                    help="TD3 steps per trial of the timed runs (6000: about 80 s of training on an idle core)")
     ap.add_argument("--quick", action="store_true", help="1000 steps per trial: checks the script, not the target")
     a = ap.parse_args()
     steps = 1000 if a.quick else a.steps
