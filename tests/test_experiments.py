@@ -289,8 +289,10 @@ def test_a_trials_worker_killed_mid_training_goes_on_from_its_checkpoint(cold, t
 
     def kill_after_the_checkpoint():
         try:
-            wait_for("checkpoint of step 150", lambda: checkpointed(run, 150))
+            # The worker first (a scan of /proc takes a while), so that the kill follows the
+            # checkpoint at once, well before the training's end at 300 steps.
             pid = wait_for("trial worker", lambda: holder(run))
+            wait_for("checkpoint of step 150", lambda: checkpointed(run, 150))
             os.kill(pid, signal.SIGKILL)
             killed.append(pid)
         except AssertionError as e:
