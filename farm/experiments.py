@@ -508,6 +508,11 @@ def _check_out(out: Path, plan: Plan) -> None:
         raise ConfigError(f"out: {out} is not empty and holds no experiment ({MANIFEST}); choose another folder")
 
 
+def _manifest_trials(plan: Plan) -> list[dict]:
+    """experiment.json's list of trials: {key, point, seed, values} each, in grid order."""
+    return [{"key": t.key, "point": t.point, "seed": t.seed, "values": t.values} for t in plan.trials]
+
+
 def _write_manifest(config: ExperimentConfig, plan: Plan, out: Path) -> None:
     if (out / MANIFEST).exists():
         return
@@ -515,7 +520,7 @@ def _write_manifest(config: ExperimentConfig, plan: Plan, out: Path) -> None:
     _write_json(out / MANIFEST, {
         "name": plan.name, "digest": plan.digest, "config": config.model_dump(mode="json", exclude_unset=True),
         "store": plan.store, "fields": plan.fields,
-        "trials": [{"key": t.key, "point": t.point, "seed": t.seed, "values": t.values} for t in plan.trials]})
+        "trials": _manifest_trials(plan)})
 
 
 def _warm(plan: Plan, actor, show_progress: bool) -> int:
@@ -685,12 +690,9 @@ def _quiet_tune():
 def trials_table(plan: Plan, out: Path) -> pd.DataFrame:
     """trials.csv (see the module doc) from the trials' result.json files, in grid order; a
     trial without one (not finished) is left out."""
-    rows = []
-    for t in plan.trials:
-        path = Path(out) / "trials" / t.key / RESULT
-        if path.exists():
-            rows.append(json.loads(path.read_text()))
-    return pd.DataFrame(rows)
+    from farm.experiments_results import finished_trials
+
+    return pd.DataFrame([t["result"] for t in finished_trials(out, {"trials": _manifest_trials(plan)})])
 
 
 def summary_table(fields: list[str], trials: pd.DataFrame) -> pd.DataFrame:
