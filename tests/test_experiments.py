@@ -225,19 +225,62 @@ def kill_config(tmp: Path, store: Path, **changes) -> Path:
                         overrides={"env.team_sizes": "lattice", "checkpoint_freq": 50}, **changes)
 
 
-def holder(folder: Path) -> int | None:
-    """The pid of a process other than this one holding a file under folder open (Linux's
-    /proc; a trial's worker holds its run's TensorBoard file while it trains), or None."""
-    prefix = str(folder) + os.sep
+def ray_workers() -> list[int]:
+    """The pids of this machine's Ray worker processes (their title starts with "ray::")."""
+    pids = []
     for proc in Path("/proc").iterdir():
-        if not proc.name.isdigit() or int(proc.name) == os.getpid():
-            continue
-        try:
-            if any(os.readlink(fd).startswith(prefix) for fd in (proc / "fd").iterdir()):
-                return int(proc.name)
-        except OSError:  # gone, or not ours to look into
-            continue
+        if proc.name.isdigit():
+            with contextlib.suppress(OSError):
+                if (proc / "cmdline").read_bytes().startswith(b"ray::"):
+                    pids.append(int(proc.name))
+    return pids
+
+
+def holder(folder: Path) -> int | None:
+    """The pid of a Ray worker holding a file under folder open (Linux's /proc; a trial's
+    worker holds its run's TensorBoard file while it trains), or None."""
+    prefix = str(folder) + os.sep
+    for pid in ray_workers():
+        with contextlib.suppress(OSError):  # gone, or not ours to look into
+            if any(os.readlink(fd).startswith(prefix) for fd in Path(f"/proc/{pid}/fd").iterdir()):
+                return pid
     return None
+
+
+def session(sid: int) -> list[int]:
+    """The pids of the processes in session sid (a driver started with start_new_session: it,
+    its local Ray and the Ray's workers, which have process groups of their own)."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            with contextlib.suppress(OSError, IndexError, ValueError):
+                # /proc/PID/stat: "pid (comm) state ppid pgrp session ...", comm may hold spaces
+                if int((proc / "stat").read_text().rsplit(")", 1)[1].split()[3]) == sid:
+                    pids.append(int(proc.name))
+    return pids
+
+
+def signal_all(pids, signum: int) -> None:
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signum)
+
+
+def stopped_when(what: str, ready, stop, resume, run_for: float = 0.02):
+    """Let processes run in slices of run_for seconds, stopped (stop()) between them, until
+    ready(), checked while they are stopped, returns something true; returns it with the
+    processes left stopped. However fast the machine, they have gone on at most one slice past
+    the moment ready() first held (a poll of running processes races them: an idle machine
+    trained on from the checkpoint of step 150 to the end at 300 before a kill landed)."""
+    deadline = time.monotonic() + DEADLINE
+    while time.monotonic() < deadline:
+        stop()
+        value = ready()
+        if value:
+            return value
+        resume()
+        time.sleep(run_for)
+    raise AssertionError(f"no {what} within {DEADLINE} s")
 
 
 def wait_for(what: str, ready, alive=lambda: True):
@@ -253,10 +296,12 @@ def wait_for(what: str, ready, alive=lambda: True):
     raise AssertionError(f"no {what} within {DEADLINE} s")
 
 
-def kill_group(process: subprocess.Popen) -> None:
-    """SIGKILL a process started in a session of its own, and its process group."""
+def kill_session(process: subprocess.Popen) -> None:
+    """SIGKILL a process started in a session of its own and every process of the session
+    (its local Ray and the Ray's workers, in process groups of their own)."""
+    signal_all(session(process.pid), signal.SIGKILL)
     with contextlib.suppress(ProcessLookupError):
-        os.killpg(process.pid, signal.SIGKILL)
+        os.kill(process.pid, signal.SIGKILL)
     process.wait(timeout=60)
 
 
@@ -289,14 +334,13 @@ def test_a_trials_worker_killed_mid_training_goes_on_from_its_checkpoint(cold, t
 
     def kill_after_the_checkpoint():
         try:
-            # The worker first (a scan of /proc takes a while), so that the kill follows the
-            # checkpoint at once, well before the training's end at 300 steps.
             pid = wait_for("trial worker", lambda: holder(run))
-            wait_for("checkpoint of step 150", lambda: checkpointed(run, 150))
+            stopped_when("checkpoint of step 150", lambda: checkpointed(run, 150),
+                         lambda: os.kill(pid, signal.SIGSTOP), lambda: os.kill(pid, signal.SIGCONT))
             os.kill(pid, signal.SIGKILL)
             killed.append(pid)
-        except AssertionError as e:
-            killed.append(str(e))
+        except (AssertionError, ProcessLookupError) as e:
+            killed.append(repr(e))
 
     killer = threading.Thread(target=kill_after_the_checkpoint, daemon=True)
     killer.start()
@@ -310,7 +354,7 @@ def test_a_trials_worker_killed_mid_training_goes_on_from_its_checkpoint(cold, t
 
 
 def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, tmp_path):
-    """`farm experiments --workers 1` (its own local Ray) SIGKILLed with its process group
+    """`farm experiments --workers 1` (its own local Ray) SIGKILLed with its session
     once one trial has finished and the other has a checkpoint past learning_starts; the same
     command again leaves the finished trial untouched, resumes the other from its checkpoint,
     and both rows equal the uninterrupted run's."""
@@ -333,10 +377,13 @@ def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, t
     with open(tmp_path / "driver.log", "w") as log:
         driver = subprocess.Popen(command, env=env, start_new_session=True, stdout=log, stderr=subprocess.STDOUT)
         try:
-            [finished] = wait_for("one trial finished and the other checkpointed", finished_and_checkpointed,
-                                  alive=lambda: driver.poll() is None)
+            wait_for("one trial finished", lambda: any((out / "trials" / key / RESULT).exists() for key in runs),
+                     alive=lambda: driver.poll() is None)
+            [finished] = stopped_when("the other trial checkpointed", finished_and_checkpointed,
+                                      lambda: signal_all(session(driver.pid), signal.SIGSTOP),
+                                      lambda: signal_all(session(driver.pid), signal.SIGCONT))
         finally:
-            kill_group(driver)  # the driver, the local Ray it started and its workers
+            kill_session(driver)
     [unfinished] = [key for key in runs if key != finished]
     wait_for("the killed workers gone", lambda: all(holder(run) is None for run in runs.values()))
     result = out / "trials" / finished / RESULT
@@ -348,7 +395,7 @@ def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, t
     try:
         _, stderr = rerun.communicate(timeout=600)
     finally:
-        kill_group(rerun)  # whatever of its Ray is left
+        kill_session(rerun)  # whatever of its Ray is left
     assert rerun.returncode == 0, stderr[-3000:]
     assert (result.read_bytes(), result.stat().st_mtime_ns, (runs[finished] / "model.zip").stat().st_mtime_ns) == before
     resumed_from = json.loads((runs[unfinished] / "metrics.json").read_text())["resumed_from"]
