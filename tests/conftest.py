@@ -1,5 +1,7 @@
+import contextlib
 import os
 import socket
+from pathlib import Path
 
 # Every local Ray of the tests binds 127.0.0.1 (farm.runtime's module doc): Ray reads this when imported.
 os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
@@ -58,3 +60,22 @@ def write_sweep(path, **changes):
               "vary": {"grid": {"n_pursuers": [2, 4], "evader_policy": ["centroid", "constant_area"]}}}
     path.write_text(yaml.safe_dump({**config, **changes}, sort_keys=False))
     return path
+
+
+def session(sid: int) -> list[int]:
+    """The pids of the processes in session sid (a driver started with start_new_session: it,
+    its local Ray and the Ray's workers, which have process groups of their own)."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            with contextlib.suppress(OSError, IndexError, ValueError):
+                # /proc/PID/stat: "pid (comm) state ppid pgrp session ...", comm may hold spaces
+                if int((proc / "stat").read_text().rsplit(")", 1)[1].split()[3]) == sid:
+                    pids.append(int(proc.name))
+    return pids
+
+
+def signal_all(pids, signum: int) -> None:
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signum)

@@ -2,6 +2,7 @@
 started with `ray start` on loopback, a driver killed by SIGKILL, a second node
 lost mid-sweep, and `ray job submit` of a sweep and of an experiment."""
 
+import contextlib
 import json
 import os
 import shutil
@@ -16,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from conftest import free_port, write_sweep
+from conftest import free_port, session, signal_all, write_sweep
 
 from farm.sweep import SweepRun, load_sweep_config, run_sweep
 
@@ -92,6 +93,15 @@ def ray_start(groups, *args):
     return proc.pid
 
 
+def titles(pids) -> list[bytes]:
+    """The processes' titles (their command lines; a Ray worker's is "ray::<task>" while it runs one)."""
+    found = []
+    for pid in pids:
+        with contextlib.suppress(OSError):
+            found.append(Path(f"/proc/{pid}/cmdline").read_bytes())
+    return found
+
+
 def start_head(groups, cpus, dashboard_port=None):
     port = free_port()
     temp = tempfile.mkdtemp(prefix="rt", dir="/tmp")  # Unix socket paths must stay under 108 bytes
@@ -126,18 +136,24 @@ def test_driver_sigkill_then_rerun_equals_uninterrupted(groups, config_path, tmp
 
 
 def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
+    """A sweep on a head and a second node (1 CPU each); the second node SIGKILLed while one of
+    its workers plays a shard: the sweep finishes, every shard once, with the in-process games.
+    (Whether the second node also stored shards before it died depends on how soon its worker
+    started, so it is not asserted: on a loaded machine the head stored all 32.)"""
     address = start_head(groups, cpus=1)
     second = ray_start(groups, f"--address={address}", "--num-cpus=1")
     out = tmp_path / "out"
     driver = groups.popen([sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out),
                            "--address", address, "--workers", "2", "--quiet"])
-    wait_for_shards(out, 6, driver)
-    groups.kill(second)  # the second node: its raylet and its workers
+    deadline = time.time() + 180
+    while not any(title.startswith(b"ray::_remote_shard") for title in titles(session(second))):
+        assert time.time() < deadline and driver.poll() is None, "the second node ran no shard"
+        time.sleep(0.02)
+    signal_all(session(second), signal.SIGKILL)  # the second node (its raylet and workers) mid-shard
     text, _ = driver.communicate(timeout=600)
     assert driver.returncode == 0, text
     run = json.loads((out / "runs.jsonl").read_text().splitlines()[-1])
-    assert len(run["nodes"]) == 2, run  # both nodes stored shards
-    assert run["done"] == 32
+    assert run["done"] == 32 and sum(run["nodes"].values()) == 32
     got = SweepRun(load_sweep_config(config_path), out).read_games()
     pd.testing.assert_frame_equal(got, in_process_games(config_path, tmp_path))
 
@@ -197,7 +213,7 @@ def test_ray_job_submit_smoke_sweep(job_head, tmp_path):
 
 
 def test_ray_job_submit_smoke_experiment(job_head, tmp_path):
-    """`farm experiments` as a job: the smoke experiment's first point (2 seeds of 300 steps),
+    """`farm experiments` as a job: the smoke experiment's second point, one seed of 300 steps,
     its store in tmp_path, its base config read from the job's working dir; the driver joins
     the head ($RAY_ADDRESS) and its service actor and trials run there."""
     from ray.util.state import list_actors
@@ -205,19 +221,19 @@ def test_ray_job_submit_smoke_experiment(job_head, tmp_path):
     from farm.service.actor import SERVICE_NAME
 
     raw = yaml.safe_load((REPO / "configs" / "experiments" / "smoke.yaml").read_text())
-    raw.update(name="job-smoke", grid={"env.c_capture": [1.5]}, store=str(tmp_path / "store.sqlite"))
+    raw.update(name="job-smoke", grid={"env.c_capture": [1.5]}, seeds=[0], store=str(tmp_path / "store.sqlite"))
     config = tmp_path / "experiment.yaml"
     config.write_text(yaml.safe_dump(raw))
     out = tmp_path / "job-out"
     status, logs = submit_and_wait(job_head, f"experiment-{os.getpid()}", "experiments", str(config), "--out",
                                    str(out), "--quiet")
     assert "SUCCEEDED" in status, status + logs
-    assert "job-smoke: 2/2 trial(s) finished (0 before this run), 2 at once at 0.5 CPU each on 2 CPUs" in logs
+    assert "job-smoke: 1/1 trial(s) finished (0 before this run), 1 at once at 1 CPU each on 2 CPUs" in logs
     assert f"wrote {out / 'trials.csv'}" in logs
     trials = pd.read_csv(out / "trials.csv")
-    assert trials["trial"].tolist() == ["p0_s0", "p0_s1"] and trials["seed"].tolist() == [0, 1]
+    assert trials["trial"].tolist() == ["p0_s0"] and trials["seed"].tolist() == [0]
     assert np.isfinite(trials["td3_return"]).all() and (trials["timesteps"] == 300).all()
     summary = pd.read_csv(out / "summary.csv")
-    assert summary["seeds"].tolist() == [2] and np.isfinite(summary["return_mean"]).all()
+    assert summary["seeds"].tolist() == [1] and np.isfinite(summary["return_mean"]).all()
     services = list_actors(address=job_head, filters=[("name", "=", SERVICE_NAME)], raise_on_missing_output=False)
     assert len(services) == 1, services  # the experiment's service ran on the head, not on a Ray of its own

@@ -16,6 +16,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
+from conftest import session, signal_all
 
 from farm.errors import ClusterError, ConfigError
 from farm.experiments import RESULT
@@ -157,50 +158,46 @@ def _mtimes(out: Path) -> dict:
 
 @pytest.fixture(scope="module")
 def cold(ray_local, tmp_path_factory):
-    """Point 0 of the smoke grid (C_capture 0, seeds 0 and 1) on a cold store without warm-up:
-    (folder, trials, info, store)."""
+    """The smoke grid (C_capture 0 and 1.5, seeds 0 and 1) on a cold store without warm-up:
+    (folder, trials, info, store, config path, experiment folder)."""
     from farm.experiments import load_experiment_config, run_experiment
 
     tmp = tmp_path_factory.mktemp("cold")
     store = tmp / "store.sqlite"
-    path = smoke_config(tmp / "cold.yaml", store, grid={"env.c_capture": [0.0]})
-    trials, _, info = run_experiment(load_experiment_config(path), tmp / "exp", show_progress=False, warm=False)
-    return tmp, trials, info, store
+    path = smoke_config(tmp / "smoke.yaml", store)
+    out = tmp / "exp"
+    trials, _, info = run_experiment(load_experiment_config(path), out, show_progress=False, warm=False)
+    return tmp, trials, info, store, path, out
 
 
 def test_two_trials_on_two_cpus_with_a_cold_store(cold):
     """2 trials at once on 2 CPUs, a cold store and no warm-up: every game a trial meets is
     computed while both trials wait, on the CPU the trials leave free (trial_cpus)."""
-    _, trials, info, store = cold
+    _, trials, info, store, _, out = cold
     assert info["workers"] == 2 and info["trial_cpus"] == 0.5 and info["cluster_cpus"] == 2
-    assert info["started"] == 2 and info["warmed_cases"] == 0
-    assert trials["trial"].tolist() == ["p0_s0", "p0_s1"] and (trials["engagements"] > 0).all()
-    assert info["claims"] == [] and info["learning_curves"].name == "learning_curves.png"  # C_capture 0 only: no pair
-
-
-def test_smoke_grid_then_a_rerun_trains_nothing(cold, tmp_path):
-    """The smoke grid: trials.csv and summary.csv; the trials it shares with the cold run give
-    the same rows but for the timings (seeded evaluations); the same command again trains nothing."""
-    from farm.experiments import TIMING_COLUMNS, load_experiment_config, run_experiment
-
-    _, cold_trials, _, store = cold
-    config = load_experiment_config(smoke_config(tmp_path / "smoke.yaml", store))
-    out = tmp_path / "exp"
-    trials, summary, info = run_experiment(config, out, show_progress=False)
-    assert info["started"] == 4
+    assert info["started"] == 4 and info["warmed_cases"] == 0
+    assert trials["trial"].tolist() == ["p0_s0", "p0_s1", "p1_s0", "p1_s1"] and (trials["engagements"] > 0).all()
     assert len(pd.read_csv(out / "trials.csv")) == 4 and len(pd.read_csv(out / "summary.csv")) == 2
+
+
+def test_smoke_grid_then_a_rerun_trains_nothing(cold):
+    """The smoke grid's trials.csv, summary.csv, claims and learning curves; the same command
+    again (the lattice warmed this time) trains nothing and gives the same rows. (The same trial
+    trained twice gives the same row: the kill tests' finished trials against these.)"""
+    from farm.experiments import load_experiment_config, run_experiment
+
+    _, trials, info, _, path, out = cold
+    summary = pd.read_csv(out / "summary.csv")
     for policy in ("td3", "stay_at_base", "intercept", "receding_horizon"):
         assert trials[f"{policy}_eliminated"].between(0, 1).all()
     assert summary["seeds"].tolist() == [2, 2] and summary["env.c_capture"].tolist() == [0.0, 1.5]
     assert [p.name for p in info["claims"]] == ["claims.csv", "claims_seeds.csv"] and info["learning_curves"].exists()
     claims = pd.read_csv(out / "claims.csv")  # the pair: points 0 and 1, seeds 0 and 1
     assert [c[:3] for c in claims["claim"]] == ["(a)", "(b)", "(c)"] and "of 2 seeds" in claims["verdict"][0]
-    keep = [c for c in cold_trials.columns if c not in TIMING_COLUMNS]
-    pd.testing.assert_frame_equal(trials[keep].iloc[:2], cold_trials[keep])
     before = _mtimes(out)
     assert len(before) == 4
 
-    trials2, _, info2 = run_experiment(config, out, show_progress=False)
+    trials2, _, info2 = run_experiment(load_experiment_config(path), out, show_progress=False)
     assert _mtimes(out) == before
     assert info2["started"] == 0 and info2["finished_before"] == 4 and info2["tune_finished"] == 4
     pd.testing.assert_frame_equal(trials2, trials)
@@ -245,25 +242,6 @@ def holder(folder: Path) -> int | None:
             if any(os.readlink(fd).startswith(prefix) for fd in Path(f"/proc/{pid}/fd").iterdir()):
                 return pid
     return None
-
-
-def session(sid: int) -> list[int]:
-    """The pids of the processes in session sid (a driver started with start_new_session: it,
-    its local Ray and the Ray's workers, which have process groups of their own)."""
-    pids = []
-    for proc in Path("/proc").iterdir():
-        if proc.name.isdigit():
-            with contextlib.suppress(OSError, IndexError, ValueError):
-                # /proc/PID/stat: "pid (comm) state ppid pgrp session ...", comm may hold spaces
-                if int((proc / "stat").read_text().rsplit(")", 1)[1].split()[3]) == sid:
-                    pids.append(int(proc.name))
-    return pids
-
-
-def signal_all(pids, signum: int) -> None:
-    for pid in pids:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signum)
 
 
 def stopped_when(what: str, ready, stop, resume, run_for: float = 0.02):
@@ -326,7 +304,7 @@ def test_a_trials_worker_killed_mid_training_goes_on_from_its_checkpoint(cold, t
     uninterrupted run's."""
     from farm.experiments import load_experiment_config, run_experiment
 
-    _, cold_trials, _, store = cold
+    _, cold_trials, _, store, _, _ = cold
     config = load_experiment_config(kill_config(tmp_path, store, seeds=[0]))
     out = tmp_path / "exp"
     run = out / "trials" / "p0_s0" / "run"
@@ -354,37 +332,37 @@ def test_a_trials_worker_killed_mid_training_goes_on_from_its_checkpoint(cold, t
 
 
 def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, tmp_path):
-    """`farm experiments --workers 1` (its own local Ray) SIGKILLed with its session
-    once one trial has finished and the other has a checkpoint past learning_starts; the same
-    command again leaves the finished trial untouched, resumes the other from its checkpoint,
-    and both rows equal the uninterrupted run's."""
+    """`farm experiments --address` (the module's Ray, 2 trials at once) SIGKILLed, with its
+    trials' workers, once p0_s0 has finished while p0_s1, held stopped since its checkpoint of
+    step 150, has not; the same command again leaves the finished trial untouched, resumes the
+    other from its checkpoint, and both rows equal the uninterrupted run's. (A driver killed with
+    the local Ray it started is tests/test_cluster_cli.py's sweep case: Tune's restore is the
+    same either way, and joining the running Ray spares two Ray starts.)"""
+    import ray
+
     from farm.experiments import load_experiment_config, plan, trials_table
 
-    _, cold_trials, _, store = cold
+    _, cold_trials, _, store, _, _ = cold
     path = kill_config(tmp_path, store)
     out = tmp_path / "exp"
-    command = [sys.executable, "-m", "farm.cli", "experiments", str(path), "--out", str(out), "--workers", "1",
-               "--quiet"]
+    command = [sys.executable, "-m", "farm.cli", "experiments", str(path), "--out", str(out), "--quiet",
+               "--address", ray.get_runtime_context().gcs_address]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     env.pop("RAY_ADDRESS", None)
     runs = {key: out / "trials" / key / "run" for key in ("p0_s0", "p0_s1")}
-
-    def finished_and_checkpointed():
-        done = [key for key in runs if (out / "trials" / key / RESULT).exists()]
-        return done if len(done) == 1 and any(checkpointed(run, 150) for key, run in runs.items()
-                                              if key not in done) else None
+    finished, unfinished = "p0_s0", "p0_s1"
 
     with open(tmp_path / "driver.log", "w") as log:
         driver = subprocess.Popen(command, env=env, start_new_session=True, stdout=log, stderr=subprocess.STDOUT)
+        running = lambda: driver.poll() is None  # noqa: E731
         try:
-            wait_for("one trial finished", lambda: any((out / "trials" / key / RESULT).exists() for key in runs),
-                     alive=lambda: driver.poll() is None)
-            [finished] = stopped_when("the other trial checkpointed", finished_and_checkpointed,
-                                      lambda: signal_all(session(driver.pid), signal.SIGSTOP),
-                                      lambda: signal_all(session(driver.pid), signal.SIGCONT))
+            pid = wait_for(f"{unfinished}'s worker", lambda: holder(runs[unfinished]), alive=running)
+            stopped_when(f"{unfinished}'s checkpoint of step 150", lambda: checkpointed(runs[unfinished], 150),
+                         lambda: os.kill(pid, signal.SIGSTOP), lambda: os.kill(pid, signal.SIGCONT))
+            wait_for(f"{finished} finished", lambda: (out / "trials" / finished / RESULT).exists(), alive=running)
         finally:
             kill_session(driver)
-    [unfinished] = [key for key in runs if key != finished]
+            signal_all([p for p in (holder(run) for run in runs.values()) if p], signal.SIGKILL)  # its trials
     wait_for("the killed workers gone", lambda: all(holder(run) is None for run in runs.values()))
     result = out / "trials" / finished / RESULT
     before = (result.read_bytes(), result.stat().st_mtime_ns, (runs[finished] / "model.zip").stat().st_mtime_ns)

@@ -74,9 +74,11 @@ def scrape(port) -> str:
 
 
 def test_worker_killed_mid_sweep_every_shard_exactly_once(ray_local, tmp_path, reference):
-    # Bigger shards (about a second each) so that a worker is caught mid-shard.
+    # Bigger shards (about a second each) so that a worker is caught mid-shard; 2 points, 2
+    # shards each: the 2 workers are busy until the last shard.
     config = load_sweep_config(write_sweep(tmp_path / "kill.yaml", games_per_point=2400, shard_games=1200,
-                                           base={"n_evaders": 2, "t_max": 40}))
+                                           base={"n_evaders": 2, "t_max": 40, "evader_policy": "centroid"},
+                                           vary={"grid": {"n_pursuers": [2, 4]}}))
     out = tmp_path / "out"
     result = {}
     thread = threading.Thread(target=lambda: result.update(info=run_sweep(config, out, show_progress=False)[1]))
@@ -114,7 +116,7 @@ def test_worker_killed_mid_sweep_every_shard_exactly_once(ray_local, tmp_path, r
     assert 'sweep="ray-test"' in text
 
     got = read_games(config, out)
-    assert not got.duplicated(["point", "game"]).any() and len(got) == 4 * 2400
+    assert not got.duplicated(["point", "game"]).any() and len(got) == 2 * 2400
     pd.testing.assert_frame_equal(got, reference(config))
 
 
