@@ -346,7 +346,7 @@ def cmd_eval(a) -> int:
         raise CliError(f"--episodes: must be >= 1, got {a.episodes}")
     policies = {"td3": load_policy(run_dir), **baselines(config.env.grid_size)}
     settings = config.env.service_settings()
-    mode = "ray" if a.fidelity == "games" else config.service.mode  # the games are Ray tasks
+    mode = config.service.mode  # local: the service and --fidelity games' games in this process, no Ray
     with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
         policies.update(planners(config.env, client))
         table, per, steps = evaluate_policies(config.env, policies, client, a.episodes, a.seed, out=run_dir)
@@ -356,7 +356,8 @@ def cmd_eval(a) -> int:
         plot_behaviour_steps(steps, table, run_dir / "behaviour_steps.png")
         print(table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
         if a.fidelity == "games":
-            gtable, diffs = evaluate_fidelity(config.env, policies, client, a.episodes, a.seed)
+            gtable, diffs = evaluate_fidelity(config.env, policies, client, a.episodes, a.seed,
+                                              in_process=mode == "local")
             write_table(gtable, run_dir / "eval_table_games", "csv")
             write_table(diffs, run_dir / "fidelity_differences", "csv")
             print("\n--fidelity games (every engaged cell's game simulated each step):")

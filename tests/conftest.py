@@ -22,6 +22,36 @@ def points_in(arena_vertices, shape, rng):
     return make_arena(arena_vertices).sample_uniform(rng, shape)
 
 
+# `make test` runs the suite on 2 pytest-xdist workers (--dist loadgroup). The modules below
+# start no Ray (their `farm` commands run in process: --no-ray, service.mode local): each is a
+# group of its own (its module fixtures made once), spread over both workers. Every other
+# module starts or joins Ray, in this process or through `farm` and `ray` subprocesses; they
+# form one group and so run one after another on one worker, as without xdist: two Rays
+# starting at once on 2 cores can miss Ray's 30 s start deadline.
+WITHOUT_RAY = {"test_alloc_env", "test_alloc_td3", "test_alloc_train", "test_alloc_v2", "test_capture_score",
+               "test_claims", "test_cli", "test_compiled", "test_docstrings", "test_engine", "test_env_api",
+               "test_escapes", "test_estimates_rule", "test_geometry", "test_global_state", "test_montecarlo",
+               "test_planners", "test_policy_registry", "test_reference_selfcheck", "test_refuses_configs",
+               "test_refuses_training", "test_refuses_workers", "test_sweep_config", "test_train_resume",
+               "test_workers_layout"}
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's hook, which reads the groups
+def pytest_collection_modifyitems(items):
+    for item in items:
+        module = Path(str(item.fspath)).stem
+        item.add_marker(pytest.mark.xdist_group(module if module in WITHOUT_RAY else "ray"))
+
+
+@pytest.fixture(autouse=True)
+def _without_ray_means_without_ray(request, monkeypatch):
+    """A test of a WITHOUT_RAY module that would start or join Ray fails instead of running
+    beside the Ray group: $RAY_ADDRESS names a closed port, which every `farm` command and
+    farm.runtime.ray_cluster would try to join."""
+    if Path(str(request.node.fspath)).stem in WITHOUT_RAY:
+        monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(20261123)

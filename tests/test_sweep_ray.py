@@ -122,8 +122,8 @@ def test_worker_killed_mid_sweep_every_shard_exactly_once(ray_local, tmp_path, r
 
 def test_one_seeding_every_path_plays_the_same_games(ray_local, tmp_path):
     """Games 0..7 of one case with seed 5, through run_case, a 1-worker and a 2-worker sweep,
-    the capture-time service and `farm eval --fidelity games`' client: the same capture and
-    escape times, bit for bit."""
+    the capture-time service and `farm eval --fidelity games`' client (its games as Ray tasks and
+    in process): the same capture and escape times, bit for bit."""
     import ray
 
     from farm.alloc.evaluate import FreshGames
@@ -161,11 +161,12 @@ def test_one_seeding_every_path_plays_the_same_games(ray_local, tmp_path):
     value = CaptureTimeClient(settings, service=service).get(2, 3)
     np.testing.assert_equal(value.flat(), stats.flat())
 
-    games_backend = FreshGames(CaptureTimeClient(settings, service=service), first_game=0)
-    fidelity = CaptureTimeClient(settings, backend=games_backend)
-    for _ in range(8):
-        fidelity.get_many([(2, 3)])
-    assert [d["game"] for d in games_backend.differences] == list(range(8))
-    np.testing.assert_array_equal(np.array([d["capture_times"] for d in games_backend.differences]),
-                                  games.capture_times)
-    assert isinstance(fidelity.get_many([(2, 3)])[0], CaptureStats) and games_backend.differences[-1]["game"] == 8
+    for in_process in (False, True):  # as Ray tasks, and in this process (a run of service.mode local)
+        games_backend = FreshGames(CaptureTimeClient(settings, service=service), first_game=0, in_process=in_process)
+        fidelity = CaptureTimeClient(settings, backend=games_backend)
+        for _ in range(8):
+            fidelity.get_many([(2, 3)])
+        assert [d["game"] for d in games_backend.differences] == list(range(8))
+        np.testing.assert_array_equal(np.array([d["capture_times"] for d in games_backend.differences]),
+                                      games.capture_times)
+        assert isinstance(fidelity.get_many([(2, 3)])[0], CaptureStats) and games_backend.differences[-1]["game"] == 8
