@@ -92,16 +92,29 @@ def write_sweep(path, **changes):
     return path
 
 
+def processes() -> list[int]:
+    """The pids of this machine's processes (Linux's /proc)."""
+    return [int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit()]
+
+
+def cmdline(pid: int) -> bytes:
+    """A process's title (its command line; a Ray worker's is "ray::<task>" while it runs
+    one), b"" for a process gone or not ours to look into."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
 def session(sid: int) -> list[int]:
     """The pids of the processes in session sid (a driver started with start_new_session: it,
     its local Ray and the Ray's workers, which have process groups of their own)."""
     pids = []
-    for proc in Path("/proc").iterdir():
-        if proc.name.isdigit():
-            with contextlib.suppress(OSError, IndexError, ValueError):
-                # /proc/PID/stat: "pid (comm) state ppid pgrp session ...", comm may hold spaces
-                if int((proc / "stat").read_text().rsplit(")", 1)[1].split()[3]) == sid:
-                    pids.append(int(proc.name))
+    for pid in processes():
+        with contextlib.suppress(OSError, IndexError, ValueError):
+            # /proc/PID/stat: "pid (comm) state ppid pgrp session ...", comm may hold spaces
+            if int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[3]) == sid:
+                pids.append(pid)
     return pids
 
 

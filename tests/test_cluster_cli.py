@@ -2,7 +2,6 @@
 started with `ray start` on loopback, a driver killed by SIGKILL, a second node
 lost mid-sweep, and `ray job submit` of a sweep and of an experiment."""
 
-import contextlib
 import json
 import os
 import shutil
@@ -17,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from conftest import free_port, session, signal_all, write_sweep
+from conftest import cmdline, free_port, session, signal_all, write_sweep
 
 from farm.sweep import SweepRun, load_sweep_config, run_sweep
 
@@ -93,15 +92,6 @@ def ray_start(groups, *args):
     return proc.pid
 
 
-def titles(pids) -> list[bytes]:
-    """The processes' titles (their command lines; a Ray worker's is "ray::<task>" while it runs one)."""
-    found = []
-    for pid in pids:
-        with contextlib.suppress(OSError):
-            found.append(Path(f"/proc/{pid}/cmdline").read_bytes())
-    return found
-
-
 def start_head(groups, cpus, dashboard_port=None):
     port = free_port()
     temp = tempfile.mkdtemp(prefix="rt", dir="/tmp")  # Unix socket paths must stay under 108 bytes
@@ -146,7 +136,7 @@ def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
     driver = groups.popen([sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out),
                            "--address", address, "--workers", "2", "--quiet"])
     deadline = time.time() + 180
-    while not any(title.startswith(b"ray::_remote_shard") for title in titles(session(second))):
+    while not any(cmdline(pid).startswith(b"ray::_remote_shard") for pid in session(second)):
         assert time.time() < deadline and driver.poll() is None, "the second node ran no shard"
         time.sleep(0.02)
     signal_all(session(second), signal.SIGKILL)  # the second node (its raylet and workers) mid-shard

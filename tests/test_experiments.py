@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import session, signal_all
+from conftest import cmdline, processes, session, signal_all
 
 from farm.errors import ClusterError, ConfigError
 from farm.experiments import RESULT
@@ -222,22 +222,11 @@ def kill_config(tmp: Path, store: Path, **changes) -> Path:
                         overrides={"env.team_sizes": "lattice", "checkpoint_freq": 50}, **changes)
 
 
-def ray_workers() -> list[int]:
-    """The pids of this machine's Ray worker processes (their title starts with "ray::")."""
-    pids = []
-    for proc in Path("/proc").iterdir():
-        if proc.name.isdigit():
-            with contextlib.suppress(OSError):
-                if (proc / "cmdline").read_bytes().startswith(b"ray::"):
-                    pids.append(int(proc.name))
-    return pids
-
-
 def holder(folder: Path) -> int | None:
     """The pid of a Ray worker holding a file under folder open (Linux's /proc; a trial's
     worker holds its run's TensorBoard file while it trains), or None."""
     prefix = str(folder) + os.sep
-    for pid in ray_workers():
+    for pid in (p for p in processes() if cmdline(p).startswith(b"ray::")):
         with contextlib.suppress(OSError):  # gone, or not ours to look into
             if any(os.readlink(fd).startswith(prefix) for fd in Path(f"/proc/{pid}/fd").iterdir()):
                 return pid
@@ -277,9 +266,7 @@ def wait_for(what: str, ready, alive=lambda: True):
 def kill_session(process: subprocess.Popen) -> None:
     """SIGKILL a process started in a session of its own and every process of the session
     (its local Ray and the Ray's workers, in process groups of their own)."""
-    signal_all(session(process.pid), signal.SIGKILL)
-    with contextlib.suppress(ProcessLookupError):
-        os.kill(process.pid, signal.SIGKILL)
+    signal_all(session(process.pid), signal.SIGKILL)  # the process itself among them
     process.wait(timeout=60)
 
 
