@@ -1,4 +1,4 @@
-"""`farm experiments` (farm.experiments.run_experiment): trials side by side, and one service for all.
+"""`farm experiments` (farm.studies.experiments.run_experiment): trials side by side, and one service for all.
 
 1. speed-up, warm store: the same 2 trials (1 point x 2 seeds on the smoke grid's 3x3
    settings, configs/train/tiny.yaml with `team_sizes: lattice` and --steps TD3 steps,
@@ -46,7 +46,7 @@ COLD_STEPS = 300  # configs/train/tiny.yaml's
 def experiment(name: str, store: Path, steps: int):
     """1 point (C_capture 1.5) x 2 seeds of `steps` TD3 steps on tiny's 3x3 settings, team sizes
     on the lattice, a periodic evaluation and a checkpoint halfway, 3 evaluation episodes."""
-    from farm.experiments import ExperimentConfig
+    from farm.studies.experiments import ExperimentConfig
 
     every = max(1, steps // 2)
     return ExperimentConfig(name=name, base=str(ROOT / "configs" / "train" / "tiny.yaml"),
@@ -70,8 +70,8 @@ def main() -> None:
     if steps < 1:
         ap.error(f"--steps: must be >= 1, got {steps}")
     from farm.alloc.config import AllocConfig
-    from farm.alloc.train import lattice_pairs
-    from farm.experiments import plan, run_experiment
+    from farm.alloc.training import lattice_pairs
+    from farm.studies.experiments import plan, run_experiment
     from farm.runtime import ray_cluster
 
     t_start = time.perf_counter()

@@ -18,8 +18,8 @@ import pandas as pd
 from workers import GAME_FIELDS, SwarmFarmError, sample_initial_positions, simulate_case
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
-from farm.config import case_from
-from farm.errors import CliError
+from farm.core.config import case_from
+from farm.core.errors import CliError
 
 # Flags of the game's settings: one per workers.Case field, default None (Case's default).
 GAME_FLAG_HELP = {
@@ -45,16 +45,17 @@ class _Parser(argparse.ArgumentParser):
 @contextmanager
 def flags(*names: str, **renamed: str):
     """Re-raise a library error about a field the command has a flag for as that flag's error:
-    "out: ..." becomes "--out: ...". names: fields named as their flags; renamed: flag=field
-    where the library's field is named otherwise (workers="num_cpus")."""
-    fields = {**{n: n for n in names}, **{field: flag for flag, field in renamed.items()}}
+    an error with field "out" becomes "--out: <its problem>". names: fields named as their
+    flags; renamed: flag=field where the library's field is named otherwise. A dotted field
+    (law.kind) maps through its first part (--law: kind: ...)."""
+    to_flag = {**{n: n for n in names}, **{field: flag for flag, field in renamed.items()}}
     try:
         yield
     except SwarmFarmError as e:
-        field, sep, problem = str(e).partition(": ")
-        name, _, sub = field.partition(".")  # law.kind: the --law flag's `kind`
-        if sep and name in fields:
-            raise CliError(f"--{fields[name].replace('_', '-')}: {sub + ': ' if sub else ''}{problem}") from None
+        field = getattr(e, "field", None)
+        name, _, sub = (field or "").partition(".")
+        if name in to_flag:
+            raise CliError(f"--{to_flag[name].replace('_', '-')}: {sub + ': ' if sub else ''}{e.problem}") from None
         raise
 
 
@@ -70,20 +71,20 @@ def _contradictions(a, pairs) -> None:
 def _floats(text: str, field: str, n: int | None = None) -> list[float]:
     entries = text.replace(";", ",").split(",")
     if text.strip() and any(not x.strip() for x in entries):
-        raise CliError(f"{field}: an empty entry in {text!r}")
+        raise CliError(f"{field}: an empty entry in {text!r}", field=field)
     try:
         values = [float(x) for x in entries if x.strip()]
     except ValueError:
-        raise CliError(f"{field}: expected comma-separated numbers, got {text!r}") from None
+        raise CliError(f"{field}: expected comma-separated numbers, got {text!r}", field=field) from None
     if n is not None and len(values) != n:
-        raise CliError(f"{field}: expected {n} numbers, got {text!r}")
+        raise CliError(f"{field}: expected {n} numbers, got {text!r}", field=field)
     return values
 
 
 def _points(text: str, field: str) -> np.ndarray:
     v = _floats(text, field)
     if len(v) == 0 or len(v) % 2:
-        raise CliError(f"{field}: expected x,y pairs like '4,5;8,5', got {text!r}")
+        raise CliError(f"{field}: expected x,y pairs like '4,5;8,5', got {text!r}", field=field)
     return np.array(v).reshape(-1, 2)
 
 
@@ -91,11 +92,11 @@ def _load_json(path: str, field: str):
     try:
         return json.loads(Path(path).read_text())
     except FileNotFoundError:
-        raise CliError(f"{field}: no such file {path!r}") from None
+        raise CliError(f"{field}: no such file {path!r}", field=field) from None
     except OSError as e:
-        raise CliError(f"{field}: cannot read {path!r} ({e.strerror or type(e).__name__})") from None
+        raise CliError(f"{field}: cannot read {path!r} ({e.strerror or type(e).__name__})", field=field) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise CliError(f"{field}: {path!r} is not valid JSON ({e.__class__.__name__})") from None
+        raise CliError(f"{field}: {path!r} is not valid JSON ({e.__class__.__name__})", field=field) from None
 
 
 def _add_game_options(p: argparse.ArgumentParser, names=GAME_FLAGS) -> None:
@@ -110,7 +111,7 @@ def _add_game_options(p: argparse.ArgumentParser, names=GAME_FLAGS) -> None:
 
 
 def _game_settings(a, names=GAME_FLAGS) -> dict:
-    """The game flags given, as plain values for farm.config.case_from."""
+    """The game flags given, as plain values for farm.core.config.case_from."""
     out = {}
     for name in names:
         text = getattr(a, name)
@@ -164,9 +165,9 @@ def cmd_game(a) -> int:
         p = np.array(pursuers, dtype=np.float64)[None]
         e = np.array(evaders, dtype=np.float64)[None]
     except (TypeError, ValueError):
-        raise CliError("positions: expected lists of [x, y] pairs") from None
+        raise CliError("positions: expected lists of [x, y] pairs", field="positions") from None
     if p.ndim != 3 or e.ndim != 3 or p.shape[1] == 0 or e.shape[1] == 0:
-        raise CliError("positions: expected non-empty lists of [x, y] pairs")
+        raise CliError("positions: expected non-empty lists of [x, y] pairs", field="positions")
     if a.positions or a.pursuers:  # the start is given: no initial-position law applies
         settings = {**settings, "law": {"kind": "uniform"}}
     case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
@@ -187,7 +188,7 @@ def cmd_game(a) -> int:
             shown = f"not captured by t_max = {case.t_max:g} s" + (", not escaped" if exit_point is not None else "")
         print(f"  evader {i} at ({e[0, i, 0]:.2f}, {e[0, i, 1]:.2f}): {shown}")
     if a.plot:
-        from farm.plots import default_frames, plot_game
+        from farm.core.plots import default_frames, plot_game
 
         frames = None
         if a.plot_times:
@@ -204,10 +205,10 @@ def cmd_game(a) -> int:
 
 def cmd_pe_table(a) -> int:
     """`farm pe-table`: the paper's Tables 1 and 2 (Monte Carlo), with figures."""
-    from farm.pe_table import format_tables, speeds_text, write_pe_tables
+    from farm.games.pe_table import format_tables, speeds_text, write_pe_tables
 
-    from farm.pe_table import pe_size
-    from farm.sizes import check_size
+    from farm.games.pe_table import pe_size
+    from farm.games.sizes import check_size
 
     if a.games < 2:
         raise CliError(f"--games: need at least 2 games per case for a CI, got {a.games}")
@@ -236,10 +237,8 @@ def cmd_pe_table(a) -> int:
 
 def cmd_sweep(a) -> int:
     """`farm sweep CONFIG`: run or resume a parametric Monte Carlo sweep; prints its summary."""
-    from farm.sweep import format_summary, load_sweep_config, print_info, run_sweep
+    from farm.games.sweep import format_summary, load_sweep_config, print_info, run_sweep
 
-    if a.workers is not None and a.workers < 1:
-        raise CliError(f"--workers: must be >= 1, got {a.workers}")
     no_ray = True if a.no_ray else None
     _contradictions(argparse.Namespace(no_ray=no_ray, address=a.address, workers=a.workers,
                                        metrics_port=a.metrics_port),
@@ -249,7 +248,7 @@ def cmd_sweep(a) -> int:
         raise CliError("--metrics-port: is for a local Ray, but RAY_ADDRESS names a cluster to join")
     config = load_sweep_config(a.config)
     out = Path(a.out) if a.out else Path("results") / "sweeps" / config.name
-    with flags("out", "address", "metrics_port", "rebuild", workers="num_cpus"):
+    with flags("out", "address", "metrics_port", "rebuild", "workers", workers="num_cpus"):
         summary, info = run_sweep(config, out, address=a.address, workers=a.workers, use_ray=not a.no_ray,
                                   show_progress=not a.quiet, metrics_port=a.metrics_port, yes=a.yes,
                                   rebuild=a.rebuild)
@@ -269,19 +268,19 @@ def cmd_table(a) -> int:
     if show:
         args = args[1:]
     if len(args) != 1:
-        raise CliError("table: usage: farm table CONFIG | farm table show CONFIG")
+        raise CliError("table: usage: farm table CONFIG | farm table show CONFIG", field="table")
     if show:
         for flag in ("address", "workers", "yes"):
             if getattr(a, flag) not in (None, False):
                 raise CliError(f"--{flag}: `farm table show` only reads the store; --{flag} is for `farm table`")
     _contradictions(a, [("address", "workers")])
     config = load_table_config(args[0])
-    if a.workers is not None and a.workers < 1:
-        raise CliError(f"--workers: must be >= 1, got {a.workers}")
     if not show:
-        from farm.sizes import check_size
+        from farm.games.sizes import check_size
+        from farm.runtime import check_workers
 
-        with flags("store", "address", workers="num_cpus"):
+        with flags("store", "address", "workers", workers="num_cpus"):
+            check_workers(a.workers)
             check_size(config.size(), yes=a.yes, cpus=a.workers or 2)
             info = fill_table(config, store=a.store, address=a.address, workers=a.workers,
                               show_progress=not a.quiet)
@@ -309,7 +308,7 @@ def cmd_report(a) -> int:
 
 def cmd_train(a) -> int:
     """`farm train CONFIG`: train the TD3 allocator into a run folder; prints its metrics."""
-    from farm.alloc.train import load_train_config, train
+    from farm.alloc.training import load_train_config, train
 
     config = load_train_config(a.config)
     if a.timesteps is not None:
@@ -332,46 +331,19 @@ def cmd_train(a) -> int:
 
 def cmd_eval(a) -> int:
     """`farm eval RUN_DIR`: the trained policy, the baselines and the planners on the same seeded episodes."""
-    from farm.alloc.evaluate import (baselines, evaluate_fidelity, evaluate_policies, load_policy, mean_ci95,
-                                     planners, plot_behaviour_steps, steps_table)
-    from farm.alloc.train import load_train_config, store_of
-    from farm.output import write_table
-    from farm.service.lookup import open_client
+    from farm.alloc.evaluation import evaluate_run, fidelity_lines
 
     run_dir = Path(a.run_dir)
     if not (run_dir / "config.yaml").exists():
         raise CliError(f"{run_dir}: not a training run (no config.yaml)")
-    config = load_train_config(run_dir / "config.yaml")
-    if a.episodes < 1:
-        raise CliError(f"--episodes: must be >= 1, got {a.episodes}")
-    policies = {"td3": load_policy(run_dir), **baselines(config.env.grid_size)}
-    settings = config.env.service_settings()
-    mode = config.service.mode  # local: the service and --fidelity games' games in this process, no Ray
-    with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
-        policies.update(planners(config.env, client))
-        table, per, steps = evaluate_policies(config.env, policies, client, a.episodes, a.seed, out=run_dir)
-        write_table(table, run_dir / "eval_table", "csv")
-        write_table(per, run_dir / "eval_episodes", "csv")
-        write_table(steps_table(steps), run_dir / "eval_steps", "csv")
-        plot_behaviour_steps(steps, table, run_dir / "behaviour_steps.png")
-        print(table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
-        if a.fidelity == "games":
-            gtable, diffs = evaluate_fidelity(config.env, policies, client, a.episodes, a.seed,
-                                              in_process=mode == "local")
-            write_table(gtable, run_dir / "eval_table_games", "csv")
-            write_table(diffs, run_dir / "fidelity_differences", "csv")
-            print("\n--fidelity games (every engaged cell's game simulated each step):")
-            print(gtable.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
-            merged = table.merge(gtable, on="policy", suffixes=("_service", "_games"))
-            print("return, games minus service: " + ", ".join(
-                f"{r.policy} {r.return_mean_games - r.return_mean_service:+.3f}" for r in merged.itertuples()))
-            if len(diffs):
-                d = (diffs["game_frac_tau"] - diffs["service_frac_tau"]).to_numpy(dtype=float)
-                m, h = mean_ci95(d)
-                print(f"fraction captured within tau over {len(d)} engagements, game - service: "
-                      f"mean {m:+.3f} ± {h:.3f} (95% CI over engagements, the service's values taken as fixed; "
-                      f"they carry the sampling error of {settings.games} games per case), "
-                      f"mean |game - service| {np.abs(d).mean():.3f} (one game per engagement: mostly noise)")
+    with flags("episodes", "seed", "fidelity"):
+        result = evaluate_run(run_dir, episodes=a.episodes, seed=a.seed, fidelity=a.fidelity)
+    print(result.table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+    if result.games_table is not None:
+        print("\n--fidelity games (every engaged cell's game simulated each step):")
+        print(result.games_table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+        for line in fidelity_lines(result):
+            print(line)
     print(f"wrote {run_dir / 'eval_table.csv'}, eval_episodes.csv, eval_steps.csv, behaviour_steps.png and density maps "
           f"density_<policy>.png")
     return 0
@@ -380,9 +352,9 @@ def cmd_eval(a) -> int:
 def cmd_claims(a) -> int:
     """`farm claims RUNS_DIR`: the paper's claims (a)-(c), measured on evaluated runs; on an
     experiment folder (its experiment.json), over its seeds."""
-    from farm.alloc.claims import claims
-    from farm.experiments_results import is_experiment
-    from farm.output import write_table
+    from farm.studies.claims import claims
+    from farm.studies.experiments.results import is_experiment
+    from farm.core.output import write_table
 
     runs = Path(a.runs_dir)
     if not runs.is_dir():
@@ -403,7 +375,7 @@ def cmd_claims(a) -> int:
 
 def _claims_over_seeds(folder: Path, points) -> int:
     """`farm claims EXPERIMENT_DIR`: the claims over the experiment's seeds; claims.csv and claims_seeds.csv."""
-    from farm.alloc.claims import claims_over_seeds, write_claims_over_seeds
+    from farm.studies.claims import claims_over_seeds, write_claims_over_seeds
 
     found = claims_over_seeds(folder, None if points is None else tuple(points))
     print(found.note)
@@ -417,9 +389,9 @@ def _claims_over_seeds(folder: Path, points) -> int:
 
 def cmd_suite(a) -> int:
     """`farm suite CONFIG --out DIR`: every policy on every scenario, on the same seeded episodes; a leaderboard."""
-    from farm.alloc.suite import format_leaderboard, load_suite_config, run_suite
+    from farm.studies.suite import format_leaderboard, load_suite_config, run_suite
 
-    for flag, least in (("episodes", 1), ("workers", 1), ("games", 2)):
+    for flag, least in (("episodes", 1), ("games", 2)):
         value = getattr(a, flag)
         if value is not None and value < least:
             raise CliError(f"--{flag}: must be >= {least}, got {value}")
@@ -427,7 +399,7 @@ def cmd_suite(a) -> int:
     if a.games is not None:
         config = config.model_copy(update={"env": {**config.env, "games": a.games}})
     out = Path(a.out)
-    with flags("out", "address", "episodes", workers="num_cpus"):
+    with flags("out", "address", "episodes", "workers", workers="num_cpus"):
         board, info = run_suite(config, out, episodes=a.episodes, address=a.address, workers=a.workers,
                                 show_progress=not a.quiet)
     print(format_leaderboard(board))
@@ -441,13 +413,11 @@ def cmd_suite(a) -> int:
 def cmd_experiments(a) -> int:
     """`farm experiments CONFIG --out DIR`: TD3 trainings over a grid and seeds as Ray Tune trials
     on one capture-time service; trials.csv and summary.csv (resumable)."""
-    from farm.experiments import format_summary, load_experiment_config, run_experiment
+    from farm.studies.experiments import format_summary, load_experiment_config, run_experiment
 
-    if a.workers is not None and a.workers < 1:
-        raise CliError(f"--workers: must be >= 1, got {a.workers}")
     config = load_experiment_config(a.config)
     out = Path(a.out)
-    with flags("out", "address", "workers"):
+    with flags("out", "address", "workers", workers="num_cpus"):
         trials, summary, info = run_experiment(config, out, source=str(a.config), address=a.address,
                                                workers=a.workers, show_progress=not a.quiet)
     print(format_summary(summary))
@@ -458,6 +428,13 @@ def cmd_experiments(a) -> int:
     written = [out / "trials.csv", out / "summary.csv", *info["claims"], info["learning_curves"]]
     print(f"wrote {', '.join(str(p) for p in written if p is not None)}, trials/<trial>/run")
     return 0
+
+
+def _cluster_options(p: argparse.ArgumentParser, workers_help: str) -> None:
+    """--address, --workers and --quiet of a command that runs on Ray."""
+    p.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
+    p.add_argument("--workers", type=int, help=workers_help)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -487,7 +464,7 @@ def build_parser() -> argparse.ArgumentParser:
                                  "results/pe-table-speeds-P-E)")
     t.add_argument("--format", choices=["csv", "parquet"], default="csv")
     t.add_argument("--no-figures", action="store_true")
-    t.add_argument("--yes", action="store_true", help="run over the size limits (farm/sizes.py) anyway")
+    t.add_argument("--yes", action="store_true", help="run over the size limits (farm/games/sizes.py) anyway")
     _add_game_options(t, SPEED_FLAGS)
     t.set_defaults(func=cmd_pe_table)
 
@@ -499,7 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--metrics-port", type=int, help="local Ray only: Prometheus export port")
     s.add_argument("--no-ray", action="store_true", help="run the shards in this process, without Ray")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
-    s.add_argument("--yes", action="store_true", help="run a sweep over the size limits (farm/sizes.py) anyway")
+    s.add_argument("--yes", action="store_true", help="run a sweep over the size limits (farm/games/sizes.py) anyway")
     s.add_argument("--rebuild", action="store_true",
                    help="write a damaged or missing OUT/sweep.json again from CONFIG (its shards' sweep id is checked)")
     s.set_defaults(func=cmd_sweep)
@@ -511,7 +488,7 @@ def build_parser() -> argparse.ArgumentParser:
     tb.add_argument("--workers", type=int, help="local Ray only: CPUs")
     tb.add_argument("--plot-dir", help="where heatmaps go (default: next to the store, tables/)")
     tb.add_argument("--quiet", action="store_true")
-    tb.add_argument("--yes", action="store_true", help="fill a table over the size limits (farm/sizes.py) anyway")
+    tb.add_argument("--yes", action="store_true", help="fill a table over the size limits (farm/games/sizes.py) anyway")
     tb.set_defaults(func=cmd_table)
 
     r = sub.add_parser("report", help="one self-contained HTML page of everything in a results folder")
@@ -543,20 +520,14 @@ def build_parser() -> argparse.ArgumentParser:
     su.add_argument("--episodes", type=int, help="override episodes (seeded seed .. seed+episodes-1)")
     su.add_argument("--games", type=int, help="override the capture-time service's games per case of every "
                                               "scenario (env: {games: N}; quick runs)")
-    su.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
-    su.add_argument("--workers", type=int, help="evaluations running at once (default: the cluster's CPUs; "
-                                                "a local Ray's CPUs)")
-    su.add_argument("--quiet", action="store_true", help="no progress bars")
+    _cluster_options(su, "evaluations running at once (default: the cluster's CPUs; a local Ray's CPUs)")
     su.set_defaults(func=cmd_suite)
 
     ex = sub.add_parser("experiments", help="TD3 over a grid of settings and seeds as Ray Tune trials on one "
                                             "capture-time service (resumable)")
     ex.add_argument("config", help="experiments YAML, e.g. configs/experiments/smoke.yaml")
     ex.add_argument("--out", required=True, help="results folder (trials.csv, summary.csv, trials/, tune/)")
-    ex.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
-    ex.add_argument("--workers", type=int, help="trials at once (default: the cluster's CPUs; a local Ray gets "
-                                                "max(2, WORKERS) CPUs)")
-    ex.add_argument("--quiet", action="store_true", help="no progress bars")
+    _cluster_options(ex, "trials at once (default: the cluster's CPUs; a local Ray gets max(2, WORKERS) CPUs)")
     ex.set_defaults(func=cmd_experiments)
 
     cl = sub.add_parser("claims", help="the paper's claims (a)-(c), measured on evaluated runs, or over an "

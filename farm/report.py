@@ -13,15 +13,13 @@ import html
 import json
 import sqlite3
 import time
-import zipfile
-import zlib
 from pathlib import Path
 
 import pandas as pd
 
 from workers import ENGINE_VERSION
 
-from farm.errors import NotAStoreError, ReportError, StoreCorruptError
+from farm.core.errors import NotAStoreError, ReportError, StoreCorruptError
 
 __all__ = ["ReportError", "build_report", "write_report"]
 
@@ -61,19 +59,24 @@ def _img(data: bytes, alt: str) -> str:
 
 
 def _fig_bytes(fig) -> bytes:
-    from farm.plots import figure_png
+    from farm.core.plots import figure_png
 
     return figure_png(fig, dpi=90)
 
 
 def _heatmap(grid: pd.DataFrame, title: str, alt: str) -> str:
     """An n_pursuers x n_evaders heatmap as an <img>."""
-    from farm.plots import draw_heatmap, new_figure
+    from farm.core.plots import draw_heatmap, new_figure
 
     fig, axes = new_figure(figsize=(5.5, 4))
     draw_heatmap(fig, axes[0, 0], grid, title)
     fig.tight_layout()
     return _img(_fig_bytes(fig), alt)
+
+
+def _grid(parts) -> str:
+    """Figures side by side, wrapping."""
+    return "<div class=grid>" + "".join(parts) + "</div>"
 
 
 def _table(df: pd.DataFrame) -> str:
@@ -83,7 +86,7 @@ def _table(df: pd.DataFrame) -> str:
 
 def _axes(figsize):
     """(Figure, Axes) of a one-panel chart."""
-    from farm.plots import new_figure
+    from farm.core.plots import new_figure
 
     fig, axes = new_figure(figsize=figsize)
     return fig, axes[0, 0]
@@ -129,10 +132,8 @@ def _game_figures(root: Path, used: set[Path]) -> str | None:
     if not pngs:
         return None
     used.update(pngs)
-    return "<div class=grid>" + "".join(
-        f"<figure>{_img(_png(p), p.name)}<figcaption>{html.escape(str(p.relative_to(root)))}</figcaption></figure>"
-        for p in pngs
-    ) + "</div>"
+    return _grid(f"<figure>{_img(_png(p), p.name)}<figcaption>{html.escape(str(p.relative_to(root)))}</figcaption>"
+                 "</figure>" for p in pngs)
 
 
 def _sweep_section(root: Path) -> str | None:
@@ -151,7 +152,7 @@ def _sweep_section(root: Path) -> str | None:
                          "<p>No summary yet: rerun <code>farm sweep</code> on this folder to finish it.</p>")
             continue
         summary = _read_table(summary_path)
-        from farm.sweep import summary_view, varied_names
+        from farm.games.sweep import summary_view, varied_names
 
         changed = varied_names(doc["config"].get("vary") or {})
         view = summary_view(summary, changed)
@@ -243,32 +244,24 @@ def _training_section(root: Path) -> str | None:
     return "".join(map(_curve_html, sorted(root.rglob("evaluations.npz")))) or None
 
 
-# What a damaged or unreadable evaluations.npz raises on np.load and reading its arrays:
-# OSError (missing, a folder, unreadable), EOFError (empty), zipfile.BadZipFile (cut short,
-# a bad CRC), zlib.error (a damaged compressed member), ValueError (not an .npz: numpy
-# refuses it as pickled data; object arrays), LookupError (KeyError: no such array in the
-# archive; IndexError: a plain .npy array indexed by name).
-_NPZ_DAMAGE = (OSError, EOFError, zipfile.BadZipFile, zlib.error, ValueError, LookupError)
-
-
 def _curve_html(path: Path) -> str:
-    """One run's training curve, with its metrics.json's numbers when present."""
-    import numpy as np
-
+    """One run's training curve (path: its evaluations.npz), with its metrics.json's numbers when present."""
     from farm.alloc.plots import training_curve_figure
+    from farm.alloc.runs import RunFolder
+    from farm.core.errors import ResultsError
 
+    run = RunFolder(path.parent)
     try:
-        data = np.load(path)
-        steps, results = data["timesteps"], data["results"]
-    except _NPZ_DAMAGE as e:
-        raise ReportError(f"{path}: unreadable results file ({type(e).__name__})") from None
+        steps, results = run.evaluations()
+        m = run.read_metrics()
+    except ResultsError as e:
+        raise ReportError(str(e)) from None
     out = f"<p class=src>{html.escape(str(path))}</p>{_img(_fig_bytes(training_curve_figure(steps, results)), 'training curve')}"
-    diverged = path.with_name("DIVERGED")
-    if diverged.exists():
-        out += f"<p><b>Not a result:</b> {html.escape(diverged.read_text(errors='replace').strip())}</p>"
-    metrics = path.with_name("metrics.json")
-    m = _read_json(metrics) if metrics.exists() else None
-    if isinstance(m, dict):
+    diverged = run.diverged()
+    if diverged is not None:
+        out += f"<p><b>Not a result:</b> {html.escape(diverged)}</p>"
+    if m is not None:
+        m = m.model_dump()
         shown = {"timesteps": "steps", "wall_seconds": "wall (s)", "steps_per_second": "steps/s",
                  "update_seconds": "update (s)", "outside_update_share": "share outside updates",
                  "final_eval_mean_return": "final eval return", "best_eval_mean_return": "best eval return"}
@@ -295,7 +288,7 @@ def _density_section(root: Path) -> str | None:
     pngs = sorted(root.rglob("density_*.png"))
     if not pngs:
         return None
-    return "<div class=grid>" + "".join(_img(_png(p), p.name) for p in pngs) + "</div>"
+    return _grid(_img(_png(p), p.name) for p in pngs)
 
 
 def _leaderboard_section(root: Path) -> str | None:
@@ -311,14 +304,9 @@ def _leaderboard_section(root: Path) -> str | None:
         if not need <= set(board.columns):
             raise ReportError(f"{path}: not a leaderboard (missing {', '.join(sorted(need - set(board.columns)))})")
 
-        def pm(col: str) -> list[str]:
-            return [f"{m:.3f} ± {h:.3f}" if pd.notna(h) else f"{m:.3f}"
-                    for m, h in zip(board[f"{col}_mean"], board[f"{col}_ci95"])]
+        from farm.studies.suite import leaderboard_view
 
-        view = pd.DataFrame({"scenario": board["scenario"], "policy": board["policy"], "episodes": board["episodes"],
-                             "eliminated": pm("eliminated"), "breached": pm("breached"), "return": pm("return"),
-                             "coverage": pm("coverage"),
-                             "ms per step": [f"{1000 * x:.2f}" for x in board["seconds_per_step"]]})
+        view = leaderboard_view(board, coverage=True, ms_label="ms per step")
         chart = path.with_name("leaderboard.png")
         manifest = path.with_name("suite.json")
         doc = _read_json(manifest) if manifest.exists() else None
@@ -353,10 +341,10 @@ LEARNING_CURVES_CAPTION = (
 
 def _experiment_html(folder: Path) -> str:
     """One experiment folder's part of the Experiments section."""
-    from farm.alloc.plots import learning_curves_figure
-    from farm.errors import ResultsError
-    from farm.experiments import summary_table, summary_view
-    from farm.experiments_results import finished_trials, point_curves, read_manifest
+    from farm.core.errors import ResultsError
+    from farm.studies.experiments import summary_table, summary_view
+    from farm.studies.experiments.folder import finished_trials, read_manifest
+    from farm.studies.experiments.results import learning_curves_figure, point_curves
 
     try:
         manifest = read_manifest(folder)
@@ -483,7 +471,7 @@ def write_report(results_dir, out=None) -> Path:
     out: the page's path (default results_dir/report.html). Bad input raises ReportError
     and leaves no file.
     """
-    from farm.output import atomic_write_bytes
+    from farm.core.output import atomic_write_bytes
 
     page = build_report(results_dir)
     path = Path(out) if out else Path(results_dir) / "report.html"

@@ -13,7 +13,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
 from farm.alloc.model import LATTICE, snap, snap_many
-from farm.alloc.train import UpdateTimer
+from farm.alloc.training import UpdateTimer
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, c_capture=1.5)
 NET = {"net_arch": [400, 300]}
@@ -71,7 +71,7 @@ def test_update_timer_measures_the_updates_and_changes_nothing(store):
 
 def test_training_leaves_the_thread_setting_as_it_was(tmp_path):
     """`threads` applies while a run trains; the caller's torch setting is back afterwards."""
-    from farm.alloc.train import TrainConfig, train
+    from farm.alloc.training import TrainConfig, train
 
     config = TrainConfig(name="threads", env=AllocConfig(**SMALL), threads=1,
                          td3={"n_timesteps": 40, "learning_starts": 20, "batch_size": 16,
@@ -96,7 +96,7 @@ def test_saved_config_round_trips_nulls(tmp_path):
 
     import yaml
 
-    from farm.alloc.train import TrainConfig, load_train_config
+    from farm.alloc.training import TrainConfig, load_train_config
 
     config = TrainConfig(name="nulls", env=AllocConfig(exit_point=None), threads=None)
     path = tmp_path / "config.yaml"
@@ -109,7 +109,7 @@ def test_saved_config_round_trips_nulls(tmp_path):
 def test_the_training_curve_is_the_same_on_every_run(tmp_path):
     """The periodic evaluation's episodes are seeded from the config's seed (SB3's EvalCallback
     resets without one): two runs of one config write the same evaluations.npz."""
-    from farm.alloc.train import TrainConfig, train
+    from farm.alloc.training import TrainConfig, train
 
     config = TrainConfig(name="curve", env=AllocConfig(**SMALL), threads=1,
                          td3={"n_timesteps": 60, "learning_starts": 20, "batch_size": 16,

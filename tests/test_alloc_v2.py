@@ -6,8 +6,8 @@ import pytest
 from pydantic import ValidationError
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.baselines import BASELINES
-from farm.alloc.evaluate import run_episode, step_means
+from farm.alloc.policies.baselines import StayAtBase
+from farm.alloc.rollout import run_episode, step_means
 from farm.service import CaptureTimeClient
 from workers import Case, InitialLaw
 
@@ -97,10 +97,11 @@ def test_behaviour_measures_on_a_known_episode(store):
     """Stay at base: step 1 the intruders reach the middle column (no defenders), step 2 the
     left column, where the base cell (row 1) holds all 10 defenders, step 3 they breach."""
     env = SwarmAllocationEnv(AllocConfig(**SMALL), store=store)
-    policy = BASELINES["stay_at_base"](3)
+    policy = StayAtBase(3)
     env.reset(seed=4)
     start = env.I.reshape(3, 3)[:, 2].copy()  # the right column's masses, rows 0..2
-    summary, _, per_step = run_episode(env, policy, seed=4)
+    episode = run_episode(env, policy, seed=4)
+    summary, per_step = episode.summary, episode.steps
     assert summary["length"] == 3
     assert per_step[0].tolist()[:2] == [0.0, 0.0] and np.isnan(per_step[0][2])
     assert per_step[1][0] == pytest.approx(start[1] / start.sum()) and per_step[1][1:].tolist() == [1, 10]
@@ -129,7 +130,7 @@ def test_service_keys_are_those_of_version_0_1_and_old_run_configs_load():
 def test_game_settings_come_from_case():
     """Every workers.Case setting but the team sizes is an AllocConfig field, none other is
     declared twice, and Case's checks apply."""
-    from farm.config import SETTING_FIELDS
+    from farm.core.config import SETTING_FIELDS
 
     assert set(SETTING_FIELDS) <= set(AllocConfig.model_fields)
     assert AllocConfig(capture_radius=0.5).service_settings().game.capture_radius == 0.5

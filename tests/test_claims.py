@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from farm.alloc.claims import claims, plateau_minutes
+from farm.studies.claims import claims, plateau_minutes
 
 
 def make_run(root, name, steps_rows, returns, wall=600.0, total=20000):
@@ -129,7 +129,7 @@ T975_2 = 4.302652729911275  # scipy.stats.t.ppf(0.975, 2): of 3 values
 def test_claims_over_seeds_on_a_known_experiment(tmp_path):
     """Seed 0 confirms (a) and (b), seed 1 neither: both mixed; seed 2 (its 1.5 trial unfinished)
     is left out of (a) and (b); (c) over the 5 finished trials, one of them 30 minutes."""
-    from farm.alloc.claims import claims_over_seeds
+    from farm.studies.claims import claims_over_seeds
 
     found = claims_over_seeds(make_experiment(tmp_path))
     assert found.pair == (0, 1) and found.note.startswith("(a), (b): points 0 (C_capture 0) and 1 (C_capture 1.5)")
@@ -163,7 +163,7 @@ def test_claims_over_seeds_on_a_known_experiment(tmp_path):
 def test_claims_over_seeds_partly_confirmed_and_without_a_pair(tmp_path):
     """(b) with more defenders per cell in every seed and fewer cells in none: partly confirmed.
     Point 1 with other defenders than point 0: no pair, only (c), said in one line."""
-    from farm.alloc.claims import claims_over_seeds
+    from farm.studies.claims import claims_over_seeds
 
     more_only = spread_rows((2, 3), (90.0, 100.0), 0.5)  # seed 1: the same cells as its 0 run, more defenders
     folder = make_experiment(tmp_path / "a", seed1_b=more_only)
@@ -196,8 +196,8 @@ def test_cli_claims_on_an_experiment_folder(tmp_path):
 
 
 def test_a_damaged_manifest_is_one_line(tmp_path):
-    from farm.alloc.claims import claims_over_seeds
-    from farm.errors import ResultsError
+    from farm.studies.claims import claims_over_seeds
+    from farm.core.errors import ResultsError
 
     (tmp_path / "experiment.json").write_text("{not json")
     with pytest.raises(ResultsError, match="experiment.json: unreadable experiment manifest") as e:

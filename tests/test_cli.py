@@ -63,7 +63,7 @@ def test_pe_table_at_another_speed_ratio(tmp_path):
     assert "sensitivity check, not a fit" in r.stdout
     df = pd.read_csv(tmp_path / "pe_tables.csv")
     assert (df["pursuer_speed"] == 2.0).all() and (df["evader_speed"] == 1.0).all()
-    from farm.pe_table import PAPER_CASES, paper_case
+    from farm.games.pe_table import PAPER_CASES, paper_case
     from workers import Case
 
     keys = lambda base: {paper_case(base, n, pp, ep).key() for _, n, pp, ep, _ in PAPER_CASES}  # noqa: E731

@@ -18,7 +18,7 @@ import pytest
 import yaml
 from conftest import cmdline, free_port, session, signal_all, write_sweep
 
-from farm.sweep import SweepRun, load_sweep_config, run_sweep
+from farm.games.sweep import SweepRun, load_sweep_config, run_sweep
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

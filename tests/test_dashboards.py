@@ -1,6 +1,6 @@
 """The Grafana dashboard and Prometheus config in dashboards/: what they query exists.
 
-Farm metric names are checked against the metrics farm/ defines (farm.metrics.EXPORTED and
+Farm metric names are checked against the metrics farm/ defines (farm.runtime.metrics.EXPORTED and
 the Counter/Gauge calls themselves), Ray's metric and label names against a live local Ray's
 Prometheus endpoint, label values against Ray's task states and farm's functions, the
 service-discovery file against Ray's constant. No literal of the files is pinned.
@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from farm.metrics import EXPORTED
+from farm.runtime.metrics import EXPORTED
 
 ROOT = Path(__file__).resolve().parent.parent
 DASHBOARDS = ROOT / "dashboards"
@@ -116,7 +116,7 @@ def grouping_labels(expr: str) -> set[str]:
 def defined_metrics() -> dict[str, tuple[str, tuple[str, ...]]]:
     """Prometheus name -> (kind, tag keys) of every Counter / Gauge / Histogram farm/ creates
     (Ray prefixes `ray_`; a Counter is exported as `<name>_total`), read from the source."""
-    import farm.metrics
+    import farm.runtime.metrics
 
     out = {}
     for path in (ROOT / "farm").rglob("*.py"):
@@ -128,7 +128,7 @@ def defined_metrics() -> dict[str, tuple[str, tuple[str, ...]]]:
             tags: tuple[str, ...] = ()
             for kw in node.keywords:
                 if kw.arg == "tag_keys":
-                    tags = (getattr(farm.metrics, kw.value.id) if isinstance(kw.value, ast.Name)
+                    tags = (getattr(farm.runtime.metrics, kw.value.id) if isinstance(kw.value, ast.Name)
                             else tuple(ast.literal_eval(kw.value)))
             name = "ray_" + node.args[0].value + ("_total" if node.func.id == "Counter" else "")
             out[name] = (node.func.id, tuple(tags))
@@ -219,7 +219,7 @@ def test_panels_do_not_overlap():
 
 
 def test_exported_are_the_metrics_the_code_creates_with_their_labels():
-    """farm.metrics.EXPORTED lists exactly the metrics farm/ creates, and the split the
+    """farm.runtime.metrics.EXPORTED lists exactly the metrics farm/ creates, and the split the
     dashboard relies on holds in the code: sweep metrics carry the `sweep` tag, service
     metrics carry none."""
     code = defined_metrics()
@@ -246,9 +246,9 @@ def test_farm_panels_filter_by_sweep():
 def test_farm_metric_names_match_exported():
     used = dashboard_metric_names()
     unknown = used - set(EXPORTED)
-    assert not unknown, f"dashboard queries farm metrics not in farm.metrics.EXPORTED: {sorted(unknown)}"
+    assert not unknown, f"dashboard queries farm metrics not in farm.runtime.metrics.EXPORTED: {sorted(unknown)}"
     unused = set(EXPORTED) - used
-    assert not unused, f"farm.metrics.EXPORTED names no panel queries: {sorted(unused)}"
+    assert not unused, f"farm.runtime.metrics.EXPORTED names no panel queries: {sorted(unused)}"
 
 
 def test_label_values_matched_exist():

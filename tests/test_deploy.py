@@ -132,7 +132,7 @@ def farm_cli(argv: list[str]):
     except SystemExit as e:  # argparse reports and exits on a bad command line
         raise AssertionError(f"`{shlex.join(argv)}` does not parse: exit {e.code}") from None
     if args.command == "sweep":
-        from farm.sweep import load_sweep_config
+        from farm.games.sweep import load_sweep_config
 
         load_sweep_config(ROOT / args.config)
     return args

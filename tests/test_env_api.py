@@ -10,7 +10,7 @@ import pytest
 from gymnasium.error import ResetNeeded
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.errors import ConfigError
+from farm.core.errors import ConfigError
 from farm.service import CaptureTimeClient, StatsStore
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.train import TrainConfig
-from farm.config import ConfigError
+from farm.alloc.training import TrainConfig
+from farm.core.config import ConfigError
 from farm.service import CaptureTimeClient
 from farm.service.keys import LATTICE, lattice_anchors
 from farm.service.lookup import estimate

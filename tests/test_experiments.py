@@ -1,5 +1,5 @@
 """`farm experiments`: a grid of TD3 trainings as Ray Tune trials on one capture-time service
-(farm/experiments.py): the smoke grid on a real 2-CPU Ray with a cold store, resuming, the
+(farm/studies/experiments/): the smoke grid on a real 2-CPU Ray with a cold store, resuming, the
 same trial twice, a trial's worker and the driver SIGKILLed mid-training (the trials go on
 from their checkpoints, to the uninterrupted run's rows), and bad configs in one line."""
 
@@ -18,8 +18,8 @@ import pytest
 import yaml
 from conftest import cmdline, processes, session, signal_all
 
-from farm.errors import ClusterError, ConfigError
-from farm.experiments import RESULT
+from farm.core.errors import ClusterError, ConfigError
+from farm.studies.experiments import RESULT
 
 ROOT = Path(__file__).resolve().parent.parent
 SMOKE = ROOT / "configs" / "experiments" / "smoke.yaml"
@@ -37,7 +37,7 @@ def smoke_config(path: Path, store: Path, **changes) -> Path:
 
 
 def one_line_error(path: Path) -> str:
-    from farm.experiments import load_experiment_config, plan
+    from farm.studies.experiments import load_experiment_config, plan
 
     with pytest.raises(ConfigError) as e:
         plan(load_experiment_config(path), str(path))
@@ -75,7 +75,7 @@ def test_the_cli_refuses_a_bad_config_in_one_line(tmp_path, capsys):
 
 
 def test_the_smoke_plan_is_2_points_by_2_seeds(tmp_path):
-    from farm.experiments import load_experiment_config, plan
+    from farm.studies.experiments import load_experiment_config, plan
 
     p = plan(load_experiment_config(smoke_config(tmp_path / "s.yaml", tmp_path / "store.sqlite")))
     assert [t.key for t in p.trials] == ["p0_s0", "p0_s1", "p1_s0", "p1_s1"]
@@ -86,7 +86,7 @@ def test_the_smoke_plan_is_2_points_by_2_seeds(tmp_path):
 
 def test_a_scenario_is_a_base_and_the_grid_overrides_its_env(tmp_path):
     from farm.alloc.scenarios import SCENARIOS
-    from farm.experiments import load_experiment_config, plan
+    from farm.studies.experiments import load_experiment_config, plan
 
     path = tmp_path / "s.yaml"
     path.write_text(yaml.safe_dump({"name": "sc", "scenario": "outnumbered_3x3", "seeds": [3],
@@ -103,7 +103,7 @@ def test_a_scenario_is_a_base_and_the_grid_overrides_its_env(tmp_path):
 
 def test_a_grid_over_scenarios_needs_no_base():
     from farm.alloc.scenarios import SCENARIOS
-    from farm.experiments import load_experiment_config, plan
+    from farm.studies.experiments import load_experiment_config, plan
 
     config = load_experiment_config(ROOT / "configs" / "experiments" / "paper.yaml")
     trials = plan(config).trials
@@ -127,7 +127,7 @@ def test_the_cli_refuses_a_folder_of_other_files_in_one_line(tmp_path, capsys):
 
 
 def test_trials_leave_one_cpu_to_the_games():
-    from farm.experiments import trial_cpus
+    from farm.studies.experiments import trial_cpus
 
     assert trial_cpus(2, 2) == 0.5  # 2 trials on 2 CPUs: 1 CPU left for the service's game tasks
     assert trial_cpus(2, 1) == 1.0
@@ -137,7 +137,7 @@ def test_trials_leave_one_cpu_to_the_games():
 
 
 def test_a_folder_of_another_experiment_is_refused_before_ray(tmp_path):
-    from farm.experiments import _write_manifest, load_experiment_config, plan, run_experiment
+    from farm.studies.experiments import _write_manifest, load_experiment_config, plan, run_experiment
 
     config = load_experiment_config(smoke_config(tmp_path / "s.yaml", tmp_path / "store.sqlite"))
     out = tmp_path / "exp"
@@ -160,7 +160,7 @@ def _mtimes(out: Path) -> dict:
 def cold(ray_local, tmp_path_factory):
     """The smoke grid (C_capture 0 and 1.5, seeds 0 and 1) on a cold store without warm-up:
     (folder, trials, info, store, config path, experiment folder)."""
-    from farm.experiments import load_experiment_config, run_experiment
+    from farm.studies.experiments import load_experiment_config, run_experiment
 
     tmp = tmp_path_factory.mktemp("cold")
     store = tmp / "store.sqlite"
@@ -184,7 +184,7 @@ def test_smoke_grid_then_a_rerun_trains_nothing(cold):
     """The smoke grid's trials.csv, summary.csv, claims and learning curves; the same command
     again (the lattice warmed this time) trains nothing and gives the same rows. (The same trial
     trained twice gives the same row: the kill tests' finished trials against these.)"""
-    from farm.experiments import load_experiment_config, run_experiment
+    from farm.studies.experiments import load_experiment_config, run_experiment
 
     _, trials, info, _, path, out = cold
     summary = pd.read_csv(out / "summary.csv")
@@ -271,14 +271,14 @@ def kill_session(process: subprocess.Popen) -> None:
 
 
 def checkpointed(run: Path, at_least: int) -> bool:
-    from farm.alloc.train import latest_checkpoint
+    from farm.alloc.training import latest_checkpoint
 
     last = latest_checkpoint(run)
     return last is not None and last[1] >= at_least
 
 
 def assert_rows_equal_cold(trials: pd.DataFrame, cold_trials: pd.DataFrame) -> None:
-    from farm.experiments import TIMING_COLUMNS
+    from farm.studies.experiments import TIMING_COLUMNS
 
     keep = [c for c in cold_trials.columns if c not in TIMING_COLUMNS and c != "resumed_from"]
     expected = cold_trials.set_index("trial").loc[trials["trial"]].reset_index()
@@ -289,7 +289,7 @@ def test_a_trials_worker_killed_mid_training_goes_on_from_its_checkpoint(cold, t
     """The trial's worker SIGKILLed after its checkpoint of step 150 (past learning_starts):
     FailureConfig restarts the trial, which resumes from the checkpoint; its row equals the
     uninterrupted run's."""
-    from farm.experiments import load_experiment_config, run_experiment
+    from farm.studies.experiments import load_experiment_config, run_experiment
 
     _, cold_trials, _, store, _, _ = cold
     config = load_experiment_config(kill_config(tmp_path, store, seeds=[0]))
@@ -327,7 +327,7 @@ def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, t
     same either way, and joining the running Ray spares two Ray starts.)"""
     import ray
 
-    from farm.experiments import load_experiment_config, plan, trials_table
+    from farm.studies.experiments import load_experiment_config, plan, trials_table
 
     _, cold_trials, _, store, _, _ = cold
     path = kill_config(tmp_path, store)

@@ -16,8 +16,8 @@ import matplotlib, numba, torch
 os.umask(0o027)
 before = {"umask": os.umask(0o027), "backend": matplotlib.rcParams["backend"], "threads": torch.get_num_threads(),
           "numba_cache": numba.config.CACHE_DIR}
-import workers, farm, farm.cli, farm.config, farm.output, farm.plots, farm.report, farm.runtime, farm.sweep
-import farm.service, farm.service.table, farm.alloc, farm.alloc.train, farm.alloc.evaluate, farm.alloc.plots
+import workers, farm, farm.cli, farm.core.config, farm.core.output, farm.core.plots, farm.report, farm.runtime, farm.games.sweep
+import farm.service, farm.service.table, farm.alloc, farm.alloc.training, farm.alloc.rollout, farm.alloc.plots
 after = {"umask": os.umask(0o027), "backend": matplotlib.rcParams["backend"], "threads": torch.get_num_threads(),
          "numba_cache": numba.config.CACHE_DIR}
 print(json.dumps({"before": before, "after": after, "pyplot": "matplotlib.pyplot" in sys.modules}))
@@ -37,7 +37,7 @@ def test_imports_change_no_process_setting(tmp_path):
 
 def test_written_files_keep_the_users_umask(tmp_path):
     """Files get mode 0666 less the caller's umask, as open() would give them."""
-    from farm.output import atomic_write_bytes
+    from farm.core.output import atomic_write_bytes
 
     old = os.umask(0o027)
     try:

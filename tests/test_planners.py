@@ -1,4 +1,4 @@
-"""The planners (farm.alloc.planners, docs/model.md section 7) on hand-made states whose best move is known.
+"""The planners (farm.alloc.policies.planners, docs/model.md section 7) on hand-made states whose best move is known.
 
 Most cases use a client over a hand-made capture curve (Curve: every game's statistics
 chosen by a function of its team sizes), so that the expected moves can be worked out by
@@ -18,11 +18,12 @@ from scipy.optimize import linprog
 from workers import CaptureStats, game_statistics
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.baselines import GreedyNearestIntruder
+from farm.alloc.policies.baselines import GreedyNearestIntruder
 from farm.alloc.model import advance_intruders, team_sizes
-from farm.alloc.planners import (PLANNERS, Intercept, MaxMarginalReturn, RecedingHorizon, action_from_probabilities,
+from farm.alloc.policies import make_policy, policy_entry, policy_names
+from farm.alloc.policies.planners import (Intercept, MaxMarginalReturn, RecedingHorizon, action_from_probabilities,
                                  levels)
-from farm.errors import ConfigError, InputError
+from farm.core.errors import ConfigError, InputError
 from farm.service import CaptureTimeClient
 from farm.service.lookup import Lookup
 
@@ -103,7 +104,7 @@ def as_observed(D, I):
     return D.astype(np.float32).astype(np.float64), I.astype(np.float32).astype(np.float64)
 
 
-ALL = list(PLANNERS)
+ALL = policy_names("planner")
 
 
 @pytest.fixture(scope="module")
@@ -165,7 +166,7 @@ def test_a_single_reachable_intruder_cell_gets_the_mass(name):
     cfg = cfg_of()
     client = curve_client(cfg)
     D, I = density(3, c4=1.0), density(3, c2=0.4)
-    planner = PLANNERS[name](cfg, client)
+    planner = make_policy(name, cfg, client)
     env = env_at(cfg, client, D, I)
     action, _ = planner.predict(obs_of(D, I))
     D1 = realised(env, action)
@@ -186,7 +187,7 @@ def test_no_swap(name, where):
     d = cells(3, where)[0]
     D, I = density(3), density(3)
     D[d], I[d + 1] = 1.0, 0.5
-    action, _ = PLANNERS[name](cfg, client).predict(obs_of(D, I))
+    action, _ = make_policy(name, cfg, client).predict(obs_of(D, I))
     env = env_at(cfg, client, D, I)
     assert realised(env, action)[d] > 0.95
     _, _, _, _, info = env.step(action)
@@ -391,7 +392,7 @@ def test_moves_are_feasible(name, n, seed, action_map, drift):
                       vertical_drift=drift)
     client = curve_client(cfg)
     D, I = random_state(rng, n)
-    planner = PLANNERS[name](cfg, client)
+    planner = make_policy(name, cfg, client)
     p = planner.probabilities(D, I)
     assert np.all(p >= 0) and np.allclose(np.add.reduceat(p, planner.start), 1.0)
     action, _ = planner.predict(obs_of(D, I))
@@ -411,11 +412,11 @@ def test_deterministic(name, real_client):
     cfg = cfg_of(c_capture=1.5)
     env = SwarmAllocationEnv(cfg, client=real_client)
     obs, _ = env.reset(seed=3)
-    first = PLANNERS[name](cfg, real_client)
+    first = make_policy(name, cfg, real_client)
     for _ in range(3):
         a1, _ = first.predict(obs)
         a2, _ = first.predict(obs)
-        a3, _ = PLANNERS[name](cfg, real_client).predict(obs)
+        a3, _ = make_policy(name, cfg, real_client).predict(obs)
         assert np.array_equal(a1, a2) and np.array_equal(a1, a3)
         obs, _, term, trunc, _ = env.step(a1)
         if term or trunc:
@@ -428,7 +429,7 @@ def test_planners_beat_the_swap_on_real_games(real_client):
     cfg = cfg_of(c_capture=1.5)
     env = SwarmAllocationEnv(cfg, client=real_client)
     for name in ALL:
-        planner = PLANNERS[name](cfg, real_client)
+        planner = make_policy(name, cfg, real_client)
         obs, _ = env.reset(seed=5)
         while True:
             obs, _, term, trunc, info = env.step(planner.predict(obs)[0])
@@ -457,24 +458,24 @@ def test_planners_beat_the_swap_on_real_games(real_client):
 def test_bad_options_are_one_line(name, options, field):
     cfg = cfg_of()
     with pytest.raises(ConfigError) as e:
-        PLANNERS[name](cfg, curve_client(cfg), **options)
+        make_policy(name, cfg, curve_client(cfg), **options)
     message = str(e.value)
     assert "\n" not in message and message.startswith(name) and field in message
 
 
 @pytest.mark.parametrize("name", ALL)
 def test_the_suite_check_refuses_unknown_options(name):
-    """farm.alloc.suite binds planner_options to the class's signature: an unknown one fails there."""
+    """farm.studies.suite binds planner_options to the class's signature: an unknown one fails there."""
     with pytest.raises(TypeError, match="bogus"):
-        inspect.signature(PLANNERS[name]).bind(None, None, bogus=1)
-    inspect.signature(PLANNERS[name]).bind(None, None)
+        inspect.signature(policy_entry(name).make).bind(None, None, bogus=1)
+    inspect.signature(policy_entry(name).make).bind(None, None)
 
 
 def test_clients_and_observations_refused():
     cfg = cfg_of()
     for name in ("mmr", "receding_horizon"):
         with pytest.raises(ConfigError, match=f"^{name}: needs a capture-time client"):
-            PLANNERS[name](cfg, None)
+            make_policy(name, cfg, None)
     Intercept(cfg, None)  # needs none
     with pytest.raises(InputError, match=r"obs: expected shape \(18,\)"):
         Intercept(cfg).predict(np.zeros(17, dtype=np.float32))

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from farm.sizes import JobSize, check_size
+from farm.games.sizes import JobSize, check_size
 
 
 def farm(*args, timeout=300):

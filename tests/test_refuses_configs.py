@@ -1,5 +1,5 @@
 """Issue 17, configs: bad input never becomes a wrong result. Every number in every config
-is finite (allow_inf_nan=False on farm.config.Strict, and case_from's checks of nested game
+is finite (allow_inf_nan=False on farm.core.config.Strict, and case_from's checks of nested game
 values), a boolean is never a number (top level, nested lists, game fields), and
 `gradient_steps: 0` (a model never updated) is refused; each with one line naming the field.
 
@@ -22,11 +22,11 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from farm.alloc import AllocConfig
-from farm.alloc.train import EvalParams, ServiceParams, TD3Params, TrainConfig, load_train_config
-from farm.config import GAME_FIELDS, SETTING_FIELDS, ConfigError, case_from, first_line
+from farm.alloc.training import EvalParams, ServiceParams, TD3Params, TrainConfig, load_train_config
+from farm.core.config import GAME_FIELDS, SETTING_FIELDS, ConfigError, case_from, first_line
 from farm.service.table import TableConfig, load_table_config
-from farm.sweep import load_sweep_config
-from farm.sweep.config import SweepConfig, VARIABLE_FIELDS
+from farm.games.sweep import load_sweep_config
+from farm.games.sweep.config import SweepConfig, VARIABLE_FIELDS
 from workers import SwarmFarmError
 
 

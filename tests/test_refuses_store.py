@@ -19,9 +19,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from farm.errors import ConfigError, StoreCorruptError
+from farm.core.errors import ConfigError, StoreCorruptError
 from farm.service import CaptureTimeClient, ServiceSettings, StatsStore
-from farm.service.lookup import compute_in_process, estimate, open_client
+from farm.service.client import open_client
+from farm.service.lookup import compute_in_process, estimate
 from farm.service.store import _checksum, check_store, check_store_path
 from workers import CaptureStats
 
@@ -302,11 +303,11 @@ def test_project_error_of_rebuilds_the_error_ray_wraps():
     msg = "/x/s.sqlite: the capture-time store is damaged (file is not a database); move it aside"
     text = (f"The actor died because of an error raised in its creation task, ray::svc:ServiceLookup.__init__()\n"
             f"  File \"/work/farm/service/store.py\", line 93, in __init__\n    raise StoreCorruptError(\n"
-            f"farm.errors.StoreCorruptError: {msg}\n")
+            f"farm.core.errors.StoreCorruptError: {msg}\n")
     e = project_error_of(ray.exceptions.RayActorError("abc", text, actor_init_failed=True))
     assert type(e) is StoreCorruptError and str(e) == msg
     assert project_error_of(ray.exceptions.RayActorError("abc", text, actor_init_failed=False)) is None
-    other = text.replace("farm.errors.StoreCorruptError", "sqlite3.OperationalError")
+    other = text.replace("farm.core.errors.StoreCorruptError", "sqlite3.OperationalError")
     assert project_error_of(ray.exceptions.RayActorError("abc", other, actor_init_failed=True)) is None
     assert project_error_of(ValueError(text)) is None
 

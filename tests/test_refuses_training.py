@@ -31,9 +31,9 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.evaluate import load_policy
-from farm.alloc.train import DivergenceGuard, TrainConfig, train
-from farm.errors import ActionError, ModelError, TrainingDiverged
+from farm.alloc.policies.learned import load_model
+from farm.alloc.training import DivergenceGuard, TrainConfig, train
+from farm.core.errors import ActionError, ModelError, TrainingDiverged
 from workers import InputError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -277,14 +277,14 @@ def damaged(run_folder, tmp_path, how):
 
 
 def test_a_sound_model_loads(run_folder):
-    assert load_policy(run_folder).policy is not None
+    assert load_model(run_folder).policy is not None
 
 
 @pytest.mark.parametrize("how", ["truncated", "empty", "text", "member", "no data"])
 def test_a_damaged_model_zip_is_one_error_naming_the_file(run_folder, tmp_path, how):
     run = damaged(run_folder, tmp_path, how)
     with pytest.raises(ModelError) as err:
-        load_policy(run)
+        load_model(run)
     message = str(err.value)
     assert message.startswith(f"{run / 'model.zip'}: not a loadable stable-baselines3 model (")
     assert len(message.splitlines()) == 1
@@ -298,7 +298,7 @@ def test_a_model_with_nan_parameters_is_refused(run_folder, tmp_path):
         next(model.policy.parameters()).fill_(float("nan"))
     model.save(run / "model.zip")
     with pytest.raises(ModelError, match=r"model\.zip: the policy's .* is not finite"):
-        load_policy(run)
+        load_model(run)
 
 
 def test_farm_eval_of_a_truncated_model_is_one_line(run_folder, tmp_path):

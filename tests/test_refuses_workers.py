@@ -162,7 +162,7 @@ def test_a_dict_is_not_a_case(call):
     """run_case({...}) raised AttributeError: 'dict' object has no attribute 'validate'."""
     text = refused(lambda: call({"n_pursuers": 2, "n_evaders": 1}), "case: expected a workers.Case, got dict")
     assert text == ("case: expected a workers.Case, got dict; build one with Case(n_p, n_e, ...) "
-                    "or farm.config.case_from(mapping)")
+                    "or farm.core.config.case_from(mapping)")
 
 
 # ---------------------------------------------------------------- 4. physical sanity

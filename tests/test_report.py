@@ -103,7 +103,7 @@ T975_2 = 4.302652729911275  # scipy.stats.t.ppf(0.975, 2): the 95% t interval of
 
 
 def test_the_band_over_seeds_by_hand():
-    from farm.experiments_results import seed_band
+    from farm.studies.experiments.results import seed_band
 
     returns = np.array([[0.0, 1.0], [2.0, 3.0], [4.0, 8.0]])  # 3 seeds x 2 evaluations
     mean, low, high, kind = seed_band(returns)
@@ -120,7 +120,7 @@ def test_the_band_over_seeds_by_hand():
 def test_learning_curves_take_finished_trials_on_common_timesteps(tmp_path):
     """Point 0: 3 finished seeds, one evaluated at 3 of the 5 timesteps (aligned on those 3);
     point 1: its seed 2 unfinished (2 evaluations, no result.json) is left out."""
-    from farm.experiments_results import point_curves, read_manifest
+    from farm.studies.experiments.results import point_curves, read_manifest
 
     folder = make_experiment(tmp_path)
     p0, p1 = point_curves(folder, read_manifest(folder))
@@ -134,8 +134,8 @@ def test_the_report_shows_an_experiment(tmp_path):
     """The Experiments section: the summary over seeds, the claims over seeds and the learning
     curves (inline; learning_curves.png beside the experiment is not shown again as a game
     figure); the page's images load in Chromium."""
-    from farm.alloc.claims import claims_over_seeds, write_claims_over_seeds
-    from farm.experiments_results import write_learning_curves
+    from farm.studies.claims import claims_over_seeds, write_claims_over_seeds
+    from farm.studies.experiments.results import write_learning_curves
     from farm.report import build_report
 
     folder = make_experiment(tmp_path / "results" / "experiments")

@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from farm.errors import ClusterError, ConfigError
+from farm.core.errors import ClusterError, ConfigError
 from farm.runtime import bounded, ray_cluster
 
 
@@ -103,8 +103,8 @@ def test_debug_shows_the_traceback_else_one_line(tmp_path):
 
 
 def test_library_errors_name_fields_and_the_cli_names_flags(tmp_path):
-    from farm.sweep import load_sweep_config
-    from farm.sweep.run import SweepRun
+    from farm.games.sweep import load_sweep_config
+    from farm.games.sweep.run import SweepRun
 
     config = tmp_path / "s.yaml"
     config.write_text("name: s\ngames_per_point: 4\nbase: {n_pursuers: 1, n_evaders: 1, t_max: 2}\n")

@@ -245,7 +245,7 @@ def test_actor_miss_restart_and_single_flight(ray_local, tmp_path):
     assert CaptureTimeClient(FAST, service=service).get(4, 1).estimate is None
 
     # hits, misses, in-flight and compute seconds reach Prometheus.
-    from farm.metrics import EXPORTED
+    from farm.runtime.metrics import EXPORTED
 
     wanted = {m for m in EXPORTED if "_service_" in m}
     deadline, missing = time.time() + 60, wanted

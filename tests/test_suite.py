@@ -18,10 +18,10 @@ import yaml
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
 from farm.alloc.scenarios import PAPER_SCENARIOS, SCENARIOS
-from farm.alloc.suite import (MEASURES, SuiteConfig, available_policies, evaluate_cell, load_suite_config,
+from farm.studies.suite import (MEASURES, SuiteConfig, available_policies, evaluate_cell, load_suite_config,
                               run_suite)
-from farm.alloc.train import TrainConfig, load_train_config
-from farm.config import ConfigError
+from farm.alloc.training import TrainConfig, load_train_config
+from farm.core.config import ConfigError
 from test_refuses_cli import farm, one_line_error  # the command line's one-line refusals, checked alike
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -312,7 +312,7 @@ def test_a_cold_store_without_warming_cannot_deadlock_on_two_cpus(ray_local, dem
 
 
 def test_evaluate_cell_in_process_times_predict_and_records_the_start(tmp_path):
-    from farm.service.lookup import CaptureTimeClient
+    from farm.service.client import CaptureTimeClient
 
     config = SCENARIOS["paper_3x3_c1_0"].config(games=2)
     client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
@@ -328,7 +328,7 @@ def test_evaluate_cell_in_process_times_predict_and_records_the_start(tmp_path):
 
 def test_the_report_takes_a_bare_leaderboard_and_refuses_a_damaged_one(tmp_path):
     from farm.report import build_report
-    from farm.errors import ReportError
+    from farm.core.errors import ReportError
 
     board = pd.DataFrame([{"scenario": "s", "policy": "p", "episodes": 1,
                            **{f"{m}_{k}": (0.5 if k == "mean" else np.nan) for m in MEASURES for k in ("mean", "ci95")},

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from farm.config import ConfigError
-from farm.sweep import load_sweep_config
+from farm.core.config import ConfigError
+from farm.games.sweep import load_sweep_config
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -126,7 +126,7 @@ def test_nan_target_is_rejected_before_anything_runs(tmp_path):
 
 
 def test_point_numbers_do_not_depend_on_their_place(tmp_path):
-    from farm.sweep import run_sweep, SweepRun
+    from farm.games.sweep import run_sweep, SweepRun
 
     a = load_sweep_config(write(tmp_path, "name: t\ngames_per_point: 3\nbase: {n_evaders: 1, t_max: 10}\nvary: {grid: {n_pursuers: [2, 3]}}\n"))
     b_path = tmp_path / "b.yaml"
@@ -141,7 +141,7 @@ def test_point_numbers_do_not_depend_on_their_place(tmp_path):
 
 
 def test_exit_point_and_speeds_can_be_set_and_varied(tmp_path):
-    from farm.sweep import VARIABLE_FIELDS
+    from farm.games.sweep import VARIABLE_FIELDS
 
     assert {"exit_point", "pursuer_speed", "evader_speed"} <= set(VARIABLE_FIELDS)
     default = load_sweep_config(write(tmp_path, "name: t\nbase: {n_pursuers: 3, n_evaders: 1}\n")).points()[0].case
@@ -168,7 +168,7 @@ def test_exit_point_and_speeds_can_be_set_and_varied(tmp_path):
 def test_default_shard_size_follows_the_engines_cost_model():
     """About half a second of work per shard by the engine's cost model: more games of
     cheap cases, fewer of dear ones (more agents, cells, slower pursuers, longer t_max)."""
-    from farm.shards import SHARD_SECONDS, games_per_shard as default_shard_games
+    from farm.games.shards import SHARD_SECONDS, games_per_shard as default_shard_games
     from workers import Case
     from workers.engine import estimated_game_seconds
 

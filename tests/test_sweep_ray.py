@@ -15,8 +15,8 @@ from conftest import write_sweep
 
 import numpy as np
 
-from farm.metrics import EXPORTED
-from farm.sweep import SweepRun, load_sweep_config, run_sweep
+from farm.runtime.metrics import EXPORTED
+from farm.games.sweep import SweepRun, load_sweep_config, run_sweep
 
 @pytest.fixture
 def config(tmp_path):
@@ -126,9 +126,9 @@ def test_one_seeding_every_path_plays_the_same_games(ray_local, tmp_path):
     in process): the same capture and escape times, bit for bit."""
     import ray
 
-    from farm.alloc.evaluate import FreshGames
+    from farm.alloc.rollout import FreshGames
     from farm.service import CaptureTimeClient, ServiceSettings, get_service
-    from farm.tasks import _remote_shard
+    from farm.games.tasks import _remote_shard
     from workers import CaptureStats, run_case, run_games
 
     settings = ServiceSettings.of(games=8, seed=5, t_max=20.0, tau=8.0, pursuer_policy="pure_pursuit",

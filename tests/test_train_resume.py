@@ -1,4 +1,4 @@
-"""A resumed training equals an uninterrupted one (farm.alloc.train: Checkpointer, RunState,
+"""A resumed training equals an uninterrupted one (farm.alloc.training: Checkpointer, RunState,
 SwarmAllocationEnv.get_state): the same weights, optimiser states, replay buffer,
 evaluations.npz, best/ model and metrics, whether the run was stopped after a checkpoint or
 trained shorter and then resumed to the full length. In process (`service.mode: local`), no Ray."""
@@ -13,7 +13,7 @@ import torch
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
-from farm.errors import ConfigError
+from farm.core.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 STEPS, CHECKPOINT_FREQ, EVAL_FREQ, LEARNING_STARTS = 300, 70, 50, 100
@@ -24,7 +24,7 @@ def tiny(store: Path, **td3):
     """configs/train/tiny.yaml on the team-size lattice (35 cases, computed at the start), in
     process on `store`: checkpoints every 70 steps (not a multiple of the evaluations' 50, so a
     resumed run must evaluate at the steps an uninterrupted one does), td3 fields replaced."""
-    from farm.alloc.train import TrainConfig
+    from farm.alloc.training import TrainConfig
 
     raw = yaml.safe_load((ROOT / "configs" / "train" / "tiny.yaml").read_text())
     raw["env"]["team_sizes"] = "lattice"
@@ -37,7 +37,7 @@ def tiny(store: Path, **td3):
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
     """An uninterrupted run: (its folder, its config)."""
-    from farm.alloc.train import train
+    from farm.alloc.training import train
 
     tmp = tmp_path_factory.mktemp("resume")
     config = tiny(tmp / "store.sqlite")
@@ -103,7 +103,7 @@ def assert_same_run(a: Path, b: Path) -> None:
 def test_a_run_stopped_after_a_checkpoint_and_resumed_equals_an_uninterrupted_one(reference, tmp_path):
     """Stopped at step 260: after the checkpoint of step 210 (past learning_starts, so the
     update's random draws matter) and the evaluation of step 250, which the resumed run redoes."""
-    from farm.alloc.train import checkpoint_files, latest_checkpoint, train
+    from farm.alloc.training import checkpoint_files, latest_checkpoint, train
 
     uninterrupted, config = reference
     run = tmp_path / "run"
@@ -121,7 +121,7 @@ def test_a_run_stopped_after_a_checkpoint_and_resumed_equals_an_uninterrupted_on
 def test_a_shorter_run_resumed_to_the_full_length_equals_an_uninterrupted_one(reference, tmp_path):
     """Trained 70 steps (before learning_starts: the warm-up's random actions come from the
     action space's generator), then resumed to 300."""
-    from farm.alloc.train import train
+    from farm.alloc.training import train
 
     uninterrupted, config = reference
     run = tmp_path / "run"
@@ -133,7 +133,7 @@ def test_a_shorter_run_resumed_to_the_full_length_equals_an_uninterrupted_one(re
 
 def test_latest_checkpoint_is_the_last_whole_one(tmp_path):
     """A checkpoint counts once its RunState file (written last) is there."""
-    from farm.alloc.train import checkpoint_files, latest_checkpoint
+    from farm.alloc.training import checkpoint_files, latest_checkpoint
 
     assert latest_checkpoint(tmp_path) is None
     for steps, files in ((100, 3), (200, 3), (300, 2)):  # 300: stopped before its state was written

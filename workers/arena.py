@@ -118,35 +118,35 @@ def make_arena(vertices=None) -> Arena:
             raise TypeError
         v = np.array(vertices, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise InputError(f"arena: vertices must be numbers of shape (k, 2){not_a_number_hint(vertices)}") from None
+        raise InputError(f"arena: vertices must be numbers of shape (k, 2){not_a_number_hint(vertices)}", field="arena") from None
     if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
-        raise InputError(f"arena: vertices must have shape (k, 2) with k >= 3, got {v.shape}")
+        raise InputError(f"arena: vertices must have shape (k, 2) with k >= 3, got {v.shape}", field="arena")
     if not np.all(np.isfinite(v)):
-        raise InputError("arena: vertices must be finite")
+        raise InputError("arena: vertices must be finite", field="arena")
     w = np.roll(v, -1, axis=0)
     with np.errstate(over="ignore", invalid="ignore"):
         signed_area = 0.5 * float(np.sum(v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]))
         diagonal2 = float(np.sum((v.max(axis=0) - v.min(axis=0)) ** 2))
     if not (math.isfinite(signed_area) and math.isfinite(diagonal2)):
-        raise InputError("arena: vertices are too large (the polygon's area overflows a float)")
+        raise InputError("arena: vertices are too large (the polygon's area overflows a float)", field="arena")
     scale = float(np.max(np.abs(v))) or 1.0
     if not abs(signed_area) > _MIN_AREA_RATIO * diagonal2:
         raise InputError(f"arena: polygon is degenerate (area {abs(signed_area):.3g} is below "
-                         f"{_MIN_AREA_RATIO:g} x its bounding box's diagonal squared, {diagonal2:.3g})")
+                         f"{_MIN_AREA_RATIO:g} x its bounding box's diagonal squared, {diagonal2:.3g})", field="arena")
     if signed_area < 0:
         v = v[::-1].copy()
     e = np.roll(v, -1, axis=0) - v
     lengths = np.hypot(e[:, 0], e[:, 1])
     if np.any(lengths <= 1e-12 * scale):
-        raise InputError("arena: polygon has repeated vertices")
+        raise InputError("arena: polygon has repeated vertices", field="arena")
     e_next = np.roll(e, -1, axis=0)
     turn = (e[:, 0] * e_next[:, 1] - e[:, 1] * e_next[:, 0]) / (lengths * np.roll(lengths, -1))
     if np.any(turn <= 1e-12):
-        raise InputError("arena: polygon must be strictly convex (no reflex or collinear vertices)")
+        raise InputError("arena: polygon must be strictly convex (no reflex or collinear vertices)", field="arena")
     # A star polygon turns left everywhere yet winds more than once.
     total_turn = np.sum(np.arctan2(turn, (e * e_next).sum(axis=1) / (lengths * np.roll(lengths, -1))))
     if total_turn > 2 * np.pi + 1e-6:
-        raise InputError("arena: polygon is self-intersecting")
+        raise InputError("arena: polygon is self-intersecting", field="arena")
     normals = np.stack([e[:, 1], -e[:, 0]], axis=1) / lengths[:, None]
     offsets = normals[:, 0] * v[:, 0] + normals[:, 1] * v[:, 1]
     for a in (v, normals, offsets):

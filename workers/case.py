@@ -53,7 +53,7 @@ class Case:
     """A game's parameters: everything that changes a Monte Carlo case's numbers.
 
     docs/model.md section 4; the engine's version is included. Build with Case(n_p, n_e,
-    **settings) from code, or with farm.config.case_from(mapping) from config values.
+    **settings) from code, or with farm.core.config.case_from(mapping) from config values.
     Numbers are normalised on construction (60 and 60.0 give the same Case and key);
     `validate` checks them."""
 
@@ -114,9 +114,9 @@ class Case:
         for name in ("n_pursuers", "n_evaders"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise InputError(f"{name}: must be a whole number >= 1, got {shown(v)}")
+                raise InputError(f"{name}: must be a whole number >= 1, got {shown(v)}", field=name)
             if v > MAX_TEAM:
-                raise InputError(f"{name}: {shown(v)} agents is more than the engine's limit of {MAX_TEAM}")
+                raise InputError(f"{name}: {shown(v)} agents is more than the engine's limit of {MAX_TEAM}", field=name)
         get_pursuer_policy(self.pursuer_policy)
         get_evader_policy(self.evader_policy)
         for name in _POSITIVE_FIELDS:
@@ -128,9 +128,9 @@ class Case:
         if self.exit_point is not None:
             check_exit_point(point("exit_point", self.exit_point), arena)
         if not isinstance(self.law, InitialLaw):
-            raise InputError(f"law: expected a workers.InitialLaw, got {type(self.law).__name__}")
+            raise InputError(f"law: expected a workers.InitialLaw, got {type(self.law).__name__}", field="law")
         if not isinstance(self.law.kind, str) or self.law.kind not in ("boxes", "uniform"):
-            raise InputError(f"law.kind: must be 'boxes' or 'uniform', got {shown(self.law.kind)}")
+            raise InputError(f"law.kind: must be 'boxes' or 'uniform', got {shown(self.law.kind)}", field="law.kind")
         for name in ("pursuer_box", "evader_box"):
             box = getattr(self.law, name)
             if not _is_box(box):
@@ -171,7 +171,7 @@ def check_exit_point(exit_xy: np.ndarray, arena) -> None:
     """InputError unless the exit point (2,) float64 is in the arena (or on its boundary):
     no evader could reach one outside. The message prints the coordinates exactly."""
     if not arena.contains(exit_xy):
-        raise InputError(f"exit_point: ({exact(exit_xy[0])}, {exact(exit_xy[1])}) is outside the arena")
+        raise InputError(f"exit_point: ({exact(exit_xy[0])}, {exact(exit_xy[1])}) is outside the arena", field="exit_point")
 
 
 # The game settings a config may name (the engine's version is not a setting).

@@ -92,7 +92,7 @@ class GameResults:
         (n_cells,) int64 of each, evaders numbered from n_p.
         """
         if self.pursuer_paths is None:
-            raise InputError("cells_at: the games were simulated without record=True")
+            raise InputError("cells_at: the games were simulated without record=True", field="cells_at")
         frame = min(frame, len(self.pursuer_paths) - 1)
         pursuers = self.pursuer_paths[frame, game]
         evaders = self.evader_paths[frame, game]
@@ -362,19 +362,19 @@ def _positions(name: str, value, arena: Arena) -> np.ndarray:
             raise TypeError
         a = np.array(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise InputError(f"{name}: positions must be numbers of shape (B, n, 2){not_a_number_hint(value)}") from None
+        raise InputError(f"{name}: positions must be numbers of shape (B, n, 2){not_a_number_hint(value)}", field=name) from None
     if a.ndim != 3 or a.shape[2] != 2:
-        raise InputError(f"{name}: positions must have shape (B, n, 2), got {a.shape}")
+        raise InputError(f"{name}: positions must have shape (B, n, 2), got {a.shape}", field=name)
     if a.shape[1] == 0:
-        raise InputError(f"{name}: the team is empty (n = 0)")
+        raise InputError(f"{name}: the team is empty (n = 0)", field=name)
     if not np.all(np.isfinite(a)):
-        raise InputError(f"{name}: positions must be finite (found NaN or inf)")
+        raise InputError(f"{name}: positions must be finite (found NaN or inf)", field=name)
     outside = ~arena.contains(a)
     if outside.any():
         b, i = np.argwhere(outside)[0]
         # Exact coordinates: rounded ones (10.0000001 as 10) may print a point inside the arena.
         raise InputError(f"{name}: agent {i} of game {b} at ({exact(a[b, i, 0])}, {exact(a[b, i, 1])}) "
-                         "is outside the arena")
+                         "is outside the arena", field=name)
     return a
 
 
@@ -432,14 +432,14 @@ def checked_games(pursuers, evaders, arena, capture_radius, dt, t_max, target):
     p = _positions("pursuers", pursuers, arena)
     e = _positions("evaders", evaders, arena)
     if p.shape[0] != e.shape[0]:
-        raise InputError(f"evaders: batch size {e.shape[0]} differs from pursuers' {p.shape[0]}")
+        raise InputError(f"evaders: batch size {e.shape[0]} differs from pursuers' {p.shape[0]}", field="evaders")
     r_c = positive("capture_radius", capture_radius)
     dt = positive("dt", dt)
     t_max = positive("t_max", t_max)
     goal = point("target", target)
     steps = t_max / dt + 1e-9  # inf when t_max / dt overflows
     if steps < 1:
-        raise InputError(f"t_max: {t_max} is shorter than one step dt={dt}")
+        raise InputError(f"t_max: {t_max} is shorter than one step dt={dt}", field="t_max")
     if not steps < MAX_STEPS + 1:
         raise InputError(f"t_max/dt: {steps:.4g} steps is more than the engine's limit of {MAX_STEPS}")
     n_steps = math.floor(steps)

@@ -22,7 +22,21 @@ __all__ = ["SwarmFarmError", "InputError", "CoarseStepWarning", "positive", "poi
 
 
 class SwarmFarmError(Exception):
-    """Base of every error the user can cause; str(e) is one line."""
+    """Base of every error the user can cause; str(e) is one line.
+
+    field: the setting the error is about, when the raiser names one (the CLI maps it to
+    its flag); the message then starts with `<field>: `, and `problem` is the rest."""
+
+    def __init__(self, *args, field: str | None = None):
+        super().__init__(*args)
+        if field is not None and not str(self).startswith(f"{field}: "):
+            raise ValueError(f"an error about {field!r} must start with '{field}: ', got {str(self)!r}")
+        self.field = field
+
+    @property
+    def problem(self) -> str:
+        """The message without its `<field>: ` (the whole message without a field)."""
+        return str(self)[len(self.field) + 2:] if self.field is not None else str(self)
 
 
 class InputError(SwarmFarmError, ValueError):
@@ -85,7 +99,7 @@ def positive(name: str, value) -> float:
     except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float's range
         x = math.nan
     if not math.isfinite(x) or x <= 0:
-        raise InputError(f"{name}: must be positive and finite, got {shown(value)}{not_a_number_hint(value)}")
+        raise InputError(f"{name}: must be positive and finite, got {shown(value)}{not_a_number_hint(value)}", field=name)
     return x
 
 
@@ -97,7 +111,7 @@ def point(name: str, value) -> np.ndarray:
         p = np.array(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
         hint = not_a_number_hint(value)
-        raise InputError(f"{name}: must be a finite point (x, y), got {shown(value)}{hint}") from None
+        raise InputError(f"{name}: must be a finite point (x, y), got {shown(value)}{hint}", field=name) from None
     if p.shape != (2,) or not np.all(np.isfinite(p)):
-        raise InputError(f"{name}: must be a finite point (x, y), got {shown(value)}")
+        raise InputError(f"{name}: must be a finite point (x, y), got {shown(value)}", field=name)
     return p

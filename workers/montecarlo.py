@@ -28,14 +28,14 @@ def _checked_case(case) -> Case:
     """The Case validated; a one-line InputError when it is not a Case (a dict, say) or is invalid."""
     if not isinstance(case, Case):
         raise InputError(f"case: expected a workers.Case, got {type(case).__name__}; build one with "
-                         "Case(n_p, n_e, ...) or farm.config.case_from(mapping)")
+                         "Case(n_p, n_e, ...) or farm.core.config.case_from(mapping)", field="case")
     return case.validate()
 
 
 def _whole(name: str, value, least: int) -> int:
     """value as an int; InputError unless it is a whole number >= least (never a bool)."""
     if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
-        raise InputError(f"{name}: must be a whole number >= {least}, got {shown(value)}")
+        raise InputError(f"{name}: must be a whole number >= {least}, got {shown(value)}", field=name)
     return int(value)
 
 
@@ -43,7 +43,7 @@ def _seed_words(seed) -> list[int]:
     words = list(seed) if isinstance(seed, (tuple, list)) else [seed]
     for w in words:
         if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 0:
-            raise InputError(f"seed: must be a whole number >= 0 (or a tuple of them), got {shown(seed)}")
+            raise InputError(f"seed: must be a whole number >= 0 (or a tuple of them), got {shown(seed)}", field="seed")
     return [int(w) for w in words]
 
 
@@ -132,7 +132,7 @@ def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024,
     batch_size = _whole("batch_size", batch_size, 1)
     _seed_words(seed)
     if progress is not None and not callable(progress):
-        raise InputError(f"progress: must be a callable or None, got {type(progress).__name__}")
+        raise InputError(f"progress: must be a callable or None, got {type(progress).__name__}", field="progress")
     frames = []
     for start in range(0, n_games, batch_size):
         stop = min(n_games, start + batch_size)

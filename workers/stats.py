@@ -26,6 +26,7 @@ import pandas as pd
 from workers.errors import InputError
 
 __all__ = [
+    "mean_ci95",
     "game_statistics",
     "results_statistics",
     "TimeSummary",
@@ -57,7 +58,7 @@ def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0,
     ct = np.asarray(capture_times, dtype=np.float64)
     et = np.full(ct.shape, np.nan) if escape_times is None else np.asarray(escape_times, dtype=np.float64)
     if et.shape != ct.shape:
-        raise InputError(f"escape_times: must have the shape of capture_times {ct.shape}, got {et.shape}")
+        raise InputError(f"escape_times: must have the shape of capture_times {ct.shape}, got {et.shape}", field="escape_times")
     n_e = ct.shape[1]
     captured = _event_stats(ct, tau)
     escaped = _event_stats(et, tau)
@@ -125,18 +126,26 @@ class TimeSummary:
     @classmethod
     def of(cls, times: np.ndarray) -> "TimeSummary":
         """The summary of times: (B,) float64 per game, NaN = censored."""
-        from scipy import stats  # slow to import; only summaries need it
-
         x = times[np.isfinite(times)]
         n = len(x)
         if n == 0:
             return cls(*[math.nan] * 11, n_censored=len(times))
-        mean = float(np.mean(x))
+        mean, half = mean_ci95(x)
         std = float(np.std(x, ddof=1)) if n > 1 else math.nan
-        half = float(stats.t.ppf(0.975, n - 1) * std / math.sqrt(n)) if n > 1 else math.nan
         q = [float(v) for v in np.quantile(x, QUANTILES)]
         return cls(mean, std, mean - half, mean + half, float(np.min(x)), float(np.max(x)), *q,
                    n_censored=int(len(times) - n))
+
+
+def mean_ci95(x: np.ndarray) -> tuple[float, float]:
+    """(mean, half-width of the 95% Student t interval) of x: (n,) float64, n >= 1; the
+    half-width is NaN for n < 2. The one t interval of swarm-farm (TimeSummary's, and every
+    table of farm's with a `_ci95` column)."""
+    from scipy import stats  # slow to import; only summaries need it
+
+    if len(x) < 2:
+        return float(np.mean(x)), math.nan
+    return float(np.mean(x)), float(stats.t.ppf(0.975, len(x) - 1) * np.std(x, ddof=1) / math.sqrt(len(x)))
 
 
 # CaptureStats' fractions: the per-game column each averages, and its name in the flat layout
@@ -210,7 +219,7 @@ class CaptureStats:
         guessed value (the store leaves such rows out and recomputes them)."""
         unknown = set(row) - set(cls.flat_names()) - _FORMER_KEYS
         if unknown:
-            raise InputError(f"CaptureStats: unknown fields {', '.join(sorted(unknown))}")
+            raise InputError(f"CaptureStats: unknown fields {', '.join(sorted(unknown))}", field="CaptureStats")
         times = {m: TimeSummary(**{s: row[f"{m}_{s}"] for s in TIME_STATS}) for m in TIME_METRICS}
         fractions = {name: row[flat] for name, (_, flat) in _FRACTIONS.items()}
         return cls(n_games=int(row["n_games"]), **fractions, **times, estimate=estimate)

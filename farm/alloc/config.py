@@ -30,7 +30,7 @@ from pydantic import Field, create_model, model_validator
 from workers import Case
 from workers.engine import case_defaults
 
-from farm.config import CASE_TYPES, SETTING_FIELDS, Strict, case_from
+from farm.core.config import CASE_TYPES, SETTING_FIELDS, Strict, case_from
 from farm.service.keys import ServiceSettings
 
 CELL_SIDE = 10.0  # each cell is one PE arena, the square [0, 10]^2

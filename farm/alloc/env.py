@@ -19,7 +19,7 @@ from gymnasium.error import ResetNeeded
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.model import EngagementModel, advance_intruders
-from farm.errors import ActionError, ConfigError
+from farm.core.errors import ActionError, ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -90,7 +90,7 @@ class SwarmAllocationEnv(gym.Env):
     A `Box(-1, 1, (A,), float32)`, A = n_actions(N) (49 for N = 3): one number per
     feasible move (stay or one of the 8 neighbours inside the grid), cell by cell in cell
     order, moves in row-major (d_row, d_col) order (moves(N) gives src, dst and start).
-    Values are clipped to [-1, 1]. step() refuses (farm.errors.ActionError, a
+    Values are clipped to [-1, 1]. step() refuses (farm.core.errors.ActionError, a
     workers.InputError and ValueError) an action of another shape, of no real numbers
     (booleans, complex numbers, text or objects) or with NaN or an infinity, before it
     changes anything. Each cell's slice maps to a probability row
@@ -178,7 +178,7 @@ class SwarmAllocationEnv(gym.Env):
       client's life (timing-independent, so reproducible); False: wait for the exact value.
     - `**kwargs`: AllocConfig fields (e.g. grid_size: int, n_defenders: int,
       c_capture: float), the settings when config is None; given with a config they
-      are a farm.errors.ConfigError.
+      are a farm.core.errors.ConfigError.
 
     close() closes the client (and its store) when the env made it, and leaves a client
     it was given open for its owner. get_state() and set_state() save and restore the
@@ -200,9 +200,9 @@ class SwarmAllocationEnv(gym.Env):
         """Make the env; the class docstring's Arguments section describes each argument."""
         if config is not None and kwargs:
             raise ConfigError(f"SwarmAllocationEnv: give a config or AllocConfig keyword arguments, not both "
-                              f"(got a config and {', '.join(sorted(kwargs))})")
+                              f"(got a config and {', '.join(sorted(kwargs))})", field="SwarmAllocationEnv")
         if estimates not in (False, True, "lattice") or estimates.__class__ not in (bool, str):
-            raise ConfigError(f"estimates: must be false, true or 'lattice', got {estimates!r}")
+            raise ConfigError(f"estimates: must be false, true or 'lattice', got {estimates!r}", field="estimates")
         self.estimates = estimates
         self.engagements = 0  # engaged cells answered by the service, over the env's lifetime
         self.estimated = 0  # of which by an interpolation (estimates=True)
@@ -329,7 +329,7 @@ class SwarmAllocationEnv(gym.Env):
         action: (A,) finite numbers, clipped to [-1, 1]; obs: (2 N^2,) float32 [D, I];
         reward: float; terminated, truncated: bool (see Episode End); info: see Info.
         Raises gymnasium.error.ResetNeeded before the first reset(), and
-        farm.errors.ActionError for an action of another shape, not of real numbers, or
+        farm.core.errors.ActionError for an action of another shape, not of real numbers, or
         not finite (check_action), leaving the env as it was.
         """
         if not self._reset_done:
@@ -369,10 +369,10 @@ class SwarmAllocationEnv(gym.Env):
         missing = sorted({"D", "I", "steps", "breached", "eliminated", "started", "rng", "engagements",
                           "estimated"} - set(state))
         if missing:
-            raise ConfigError(f"set_state: the state has no {missing[0]!r}")
+            raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
         if np.shape(state["D"]) != (cells,) or np.shape(state["I"]) != (cells,):
             raise ConfigError(f"set_state: the state's densities are of shape {np.shape(state['D'])}, "
-                              f"this env's grid has {cells} cells")
+                              f"this env's grid has {cells} cells", field="set_state")
         self.D = np.array(state["D"], dtype=np.float64)
         self.I = np.array(state["I"], dtype=np.float64)
         self.steps = int(state["steps"])

@@ -1,7 +1,7 @@
 """The allocation MDP's model, as functions: what the env does and what planners predict.
 
 The env (farm.alloc.env) steps through these functions, and the planners
-(farm.alloc.planners) call the same ones to look ahead, so a planner's model of a
+(farm.alloc.policies.planners) call the same ones to look ahead, so a planner's model of a
 step is the env's step and never a copy that could drift from it:
 
 - advance_intruders: the intruders' vertical drift and one-column advance (known in

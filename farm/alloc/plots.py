@@ -1,4 +1,4 @@
-"""Density maps of an allocation episode (paper figures 6-9): defenders blue, intruders red."""
+"""Figures of allocation: density maps of an episode (paper figures 6-9: defenders blue, intruders red),\nthe training curve, and the behaviour measures step by step."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def plot_episode(frames: list[tuple[np.ndarray, np.ndarray]], path: str | Path, 
     frames: one (D, I) pair per step, each (N, N) float64; title: above the panels when
     given. Returns the path.
     """
-    from farm.plots import new_figure
+    from farm.core.plots import new_figure
 
     k = len(frames)
     fig, axes = new_figure(1, k, figsize=(2.4 * k, 2.9))
@@ -56,7 +56,7 @@ def plot_episode(frames: list[tuple[np.ndarray, np.ndarray]], path: str | Path, 
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    from farm.plots import save_figure
+    from farm.core.plots import save_figure
 
     return save_figure(fig, path)
 
@@ -68,7 +68,7 @@ def training_curve_figure(steps, results, title: str = ""):
     their returns (stable-baselines3's evaluations.npz) -> a matplotlib Figure (the
     mean, shaded one standard deviation either side).
     """
-    from farm.plots import new_figure
+    from farm.core.plots import new_figure
 
     mean, std = results.mean(axis=1), results.std(axis=1)
     fig, axes = new_figure(figsize=(6, 3.6))
@@ -86,37 +86,30 @@ def training_curve_figure(steps, results, title: str = ""):
 
 def plot_training_curve(steps, results, path: Path, title: str) -> Path:
     """Save training_curve_figure(steps, results, title) to `path` (PNG); returns the path."""
-    from farm.plots import save_figure
+    from farm.core.plots import save_figure
 
     return save_figure(training_curve_figure(steps, results, title), path)
 
 
-def learning_curves_figure(curves, cols: int = 5):
-    """An experiment's learning curves over seeds: one small panel per point, a grid of them.
+def plot_behaviour_steps(means: dict[str, np.ndarray], path: Path) -> Path | None:
+    """Coverage, engaged cells and defenders per engaged cell, step by step, one line per policy.
 
-    curves: a non-empty list of farm.experiments_results.PointCurves (timesteps (E,) int64,
-    returns (S, E) float64) -> a matplotlib Figure. Each panel draws the mean over seeds as
-    a line with its band shaded (farm.experiments_results.seed_band: the 95% CI over seeds,
-    or the min-max of 2 seeds), titled with the point, its grid values, and the band's kind.
-    cols: panels per row at most.
-    """
-    from farm.experiments_results import seed_band
-    from farm.plots import new_figure
+    means: {policy: (T, 3) float64 the step-by-step means (farm.alloc.rollout.behaviour_pair)}.
+    Returns path, or None for no policy."""
+    from farm.core.plots import new_figure, save_figure
 
-    cols = min(cols, len(curves))
-    rows = -(-len(curves) // cols)
-    fig, axes = new_figure(rows, cols, figsize=(2.9 * cols, 2.3 * rows + 0.4))
-    for i, (ax, c) in enumerate(zip(axes.flat, curves)):
-        mean, low, high, kind = seed_band(c.returns)
-        ax.fill_between(c.timesteps, low, high, color="tab:blue", alpha=0.2, linewidth=0)
-        ax.plot(c.timesteps, mean, color="tab:blue", linewidth=1.5)
-        ax.set_title(f"p{c.point}: {c.label}\n{kind}", fontsize=7)
-        ax.tick_params(labelsize=7)
-        if i + cols >= len(curves):  # no panel below
-            ax.set_xlabel("environment steps", fontsize=7)
-        if i % cols == 0:
-            ax.set_ylabel("evaluation return", fontsize=7)
-    for ax in axes.flat[len(curves):]:
-        ax.set_visible(False)
+    if not means:
+        return None
+    fig, axes = new_figure(1, 3, figsize=(12, 3.2))
+    axes = axes[0]
+    titles = ("coverage (share of intruder mass met)", "engaged cells", "defenders per engaged cell")
+    for name, m in means.items():
+        for j, ax in enumerate(axes):
+            ax.plot(np.arange(1, len(m) + 1), m[:, j], marker="o", label=name)
+    for ax, title in zip(axes, titles):
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("step")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
     fig.tight_layout()
-    return fig
+    return save_figure(fig, path)

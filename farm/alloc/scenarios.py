@@ -9,7 +9,7 @@ larger_5x5.yaml and larger_8x8.yaml, and harder scenarios built from the model's
 Every scenario uses `team_sizes: lattice`: each cell's team sizes are snapped to the 16 sizes of
 farm.alloc.env.LATTICE (1, 2, 3, 4, 6, 8, 12, ..., 192, 256; larger teams play as 256), so a
 scenario meets at most 16 x 16 = 256 distinct games, the whole lattice is computed once up
-front (farm.alloc.train.lattice_pairs, `client.warm`) and every policy, episode and run
+front (farm.alloc.lattice.warm_lattices) and every policy, episode and run
 shares it. That is why the paper's runs here differ from their training configs, which use
 exact team sizes: configs/train/suite_<name>.yaml trains each scenario as it is defined here.
 

@@ -1,13 +1,13 @@
 """The capture-time service: "how fast do n_p pursuers catch n_e evaders?"
 
-The whole lookup reads in farm/service/lookup.py: a CaptureTimeClient (the only thing
-callers touch) in front of one core (memo, store, estimate, compute) that runs in this
+The whole lookup reads in farm/service/lookup.py, its client side in client.py: a
+CaptureTimeClient (the only thing callers touch) in front of one core (memo, store, estimate, compute) that runs in this
 process or as a named Ray actor (farm/service/actor.py) over a persistent SQLite store.
 """
 
-from farm.errors import StoreCorruptError
+from farm.core.errors import StoreCorruptError
 from farm.service.keys import ServiceSettings, StatsKey
-from farm.service.lookup import CaptureTimeClient, open_client
+from farm.service.client import CaptureTimeClient, open_client
 from farm.service.store import StatsStore
 
 __all__ = ["CaptureTimeClient", "open_client", "ServiceSettings", "StatsKey", "StatsStore", "StoreCorruptError",

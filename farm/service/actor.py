@@ -18,7 +18,7 @@ from pathlib import Path
 
 import ray
 
-from farm.errors import ConfigError, SwarmFarmError
+from farm.core.errors import ConfigError, SwarmFarmError
 from farm.runtime import NAMESPACE
 from farm.service.lookup import ServiceLookup
 from farm.service.store import check_store
@@ -108,5 +108,5 @@ def get_service(store_path, *, name: str = SERVICE_NAME, max_shards_in_flight: i
         raise cause from None
     if served != wanted:
         raise ConfigError(f"store: the capture-time service {name!r} running on this cluster serves {served}, "
-                          f"not {wanted}; name that store, or stop that service")
+                          f"not {wanted}; name that store, or stop that service", field="store")
     return actor

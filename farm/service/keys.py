@@ -16,7 +16,7 @@ from functools import cached_property
 
 from workers import Case, InputError
 
-from farm.config import SETTING_FIELDS
+from farm.core.config import SETTING_FIELDS
 
 __all__ = ["ServiceSettings", "StatsKey", "SERVICE_FIELDS", "LATTICE", "lattice_anchors"]
 
@@ -59,9 +59,9 @@ class ServiceSettings:
     def key(self, n_pursuers: int, n_evaders: int) -> "StatsKey":
         """The StatsKey of one team-size pair under these settings; InputError (one line) for bad games, seed or sizes."""
         if isinstance(self.games, bool) or not isinstance(self.games, int) or self.games < 2:
-            raise InputError(f"games: must be a whole number >= 2, got {self.games!r}")
+            raise InputError(f"games: must be a whole number >= 2, got {self.games!r}", field="games")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise InputError(f"seed: must be a whole number >= 0, got {self.seed!r}")
+            raise InputError(f"seed: must be a whole number >= 0, got {self.seed!r}", field="seed")
         case = replace(self.game, n_pursuers=n_pursuers, n_evaders=n_evaders).validate()
         return StatsKey(case, self.games, self.seed)
 
@@ -76,7 +76,7 @@ def _known(game: dict) -> None:
     """Case fields other than the team sizes (which each key sets) are settings."""
     unknown = sorted(set(game) - set(SETTING_FIELDS))
     if unknown:
-        raise InputError(f"ServiceSettings: not a game setting: {', '.join(unknown)}")
+        raise InputError(f"ServiceSettings: not a game setting: {', '.join(unknown)}", field="ServiceSettings")
 
 
 @dataclass(frozen=True)

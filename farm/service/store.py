@@ -27,7 +27,7 @@ from pathlib import Path
 
 from workers import CaptureStats, InputError
 
-from farm.errors import ConfigError, NotAStoreError, StoreCorruptError
+from farm.core.errors import ConfigError, NotAStoreError, StoreCorruptError
 from farm.service.keys import StatsKey
 
 log = logging.getLogger(__name__)
@@ -88,20 +88,20 @@ def check_store_path(path: str | Path, *, write: bool = True) -> Path:
     writes its -wal and -shm files next to it). Creates nothing; returns the path."""
     path = Path(path)
     if path.is_dir():
-        raise ConfigError(f"store: {path} is a folder, not a capture-time store file")
+        raise ConfigError(f"store: {path} is a folder, not a capture-time store file", field="store")
     folder = path.parent
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     if not folder.is_dir():
-        raise ConfigError(f"store: {path}: {folder} is a file, not a folder")
+        raise ConfigError(f"store: {path}: {folder} is a file, not a folder", field="store")
     if not write:
         return path
     if path.exists() and not os.access(path, os.W_OK):
         raise ConfigError(f"store: {path} is read-only (the file is not writable); "
-                          "make it writable or name another store")
+                          "make it writable or name another store", field="store")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise ConfigError(f"store: {path} is read-only (its folder {folder} is not writable); "
-                          "make it writable or name another store")
+                          "make it writable or name another store", field="store")
     return path
 
 
@@ -124,7 +124,7 @@ def _read_only_error(path: Path, e: sqlite3.Error) -> ConfigError | None:
     if not str(getattr(e, "sqlite_errorname", "")).startswith("SQLITE_READONLY"):
         return None
     return ConfigError(f"store: {path} is read-only ({str(e).splitlines()[0]}); "
-                       "make it writable or name another store")
+                       "make it writable or name another store", field="store")
 
 
 STORE_ENV = "SWARM_FARM_STORE"
@@ -156,7 +156,7 @@ class StatsStore:
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
             except OSError as e:
-                raise ConfigError(f"store: {self.path}: cannot make its folder ({e.strerror or e})") from None
+                raise ConfigError(f"store: {self.path}: cannot make its folder ({e.strerror or e})", field="store") from None
         self.corrupt_rows: set[str] = set()
         self.older_rows: set[str] = set()  # rows of an older engine's layout: never served (their keys differ)
         self._lock = threading.Lock()

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 from pydantic import Field, field_validator
 
-from farm.config import SETTING_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
+from farm.core.config import SETTING_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
 from farm.service.keys import SERVICE_FIELDS, ServiceSettings
 from farm.service.store import default_store_path
 
@@ -76,8 +76,8 @@ class TableConfig(Strict):
                 settings.key(self.n_pursuers[0], n_e)
 
     def size(self):
-        """Cases, games and CPU seconds by the cost model (farm.sizes.JobSize; at most 4096 cells sampled)."""
-        from farm.sizes import ITEM_BYTES, JobSize, game_seconds
+        """Cases, games and CPU seconds by the cost model (farm.games.sizes.JobSize; at most 4096 cells sampled)."""
+        from farm.games.sizes import ITEM_BYTES, JobSize, game_seconds
 
         settings = self.settings_list()
         cells = len(self.n_pursuers) * len(self.n_evaders)
@@ -107,11 +107,13 @@ def load_table_config(path) -> TableConfig:
 def fill_table(config: TableConfig, *, store=None, address=None, workers=None, show_progress=True) -> dict:
     """Have the service compute every cell of every table (misses on the farm, in parallel);
     returns counts: cases, computed (the rest came from the store) and seconds."""
-    from farm.progress import GameProgress
-    from farm.service.lookup import open_client
+    from farm.core.progress import GameProgress
+    from farm.runtime import check_workers
+    from farm.service.client import open_client
 
-    from farm.shards import warn_coarse_steps
+    from farm.games.shards import warn_coarse_steps
 
+    check_workers(workers)
     settings = config.settings_list()
     pairs = [(n_p, n_e) for n_p in config.n_pursuers for n_e in config.n_evaders]
     warn_coarse_steps(s.game for s in settings)
@@ -154,7 +156,7 @@ def table_frames(config: TableConfig, store=None) -> list[tuple[ServiceSettings,
 
 def plot_heatmaps(settings: ServiceSettings, mean: pd.DataFrame, frac: pd.DataFrame, path: Path) -> Path:
     """The two tables of a policy pair (table_frames) as heatmaps side by side, written to path."""
-    from farm.plots import draw_heatmap, new_figure, save_figure
+    from farm.core.plots import draw_heatmap, new_figure, save_figure
 
     fig, axes = new_figure(1, 2, figsize=(11, 4.6))
     draw_heatmap(fig, axes[0, 0], mean, "mean capture time (s)", "viridis")

@@ -85,14 +85,14 @@ _BUILTIN = {"pursuer": PURSUERS, "evader": EVADERS}
 
 def _table(team: str) -> dict[str, Policy]:
     if team not in _TABLES:
-        raise InputError(f"team: must be 'pursuer' or 'evader', got {team!r}")
+        raise InputError(f"team: must be 'pursuer' or 'evader', got {team!r}", field="team")
     return _TABLES[team]
 
 
 def lookup(table: dict, name, field: str):
     """table[name]; InputError naming `field` and the choices when name is not a key."""
     if not isinstance(name, str) or name not in table:
-        raise InputError(f"{field}: unknown policy {shown(name)} (choose from {', '.join(sorted(table))})")
+        raise InputError(f"{field}: unknown policy {shown(name)} (choose from {', '.join(sorted(table))})", field=field)
     return table[name]
 
 

@@ -1,0 +1,119 @@
+"""`farm eval RUN_DIR`: a run's trained allocator beside every registered baseline and planner,
+on the same seeded episodes (farm.alloc.rollout), the tables and figures written into the run
+folder (farm.alloc.runs); with fidelity "games", the same episodes again with every engaged
+cell's game simulated (farm.alloc.fidelity)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from farm.alloc.fidelity import evaluate_fidelity
+from farm.alloc.plots import plot_behaviour_steps
+from farm.alloc.policies import PolicySpec, make_policy, policy_entry, policy_names
+from farm.alloc.rollout import behaviour_pair, evaluate_policies, steps_table
+from farm.alloc.runs import LEARNER, RunFolder
+from farm.core.errors import ConfigError
+
+__all__ = ["fidelity_lines", "RunEvaluation", "reference_specs", "allocators", "evaluate_trained", "evaluate_run", "FIDELITIES"]
+
+FIDELITIES = ("service", "games")
+
+
+@dataclass
+class RunEvaluation:
+    """What evaluate_run measured: table (rollout.measure_table by policy), per (per-episode
+    rows), steps ({policy: list of (T, 3) per-step measures}), and under fidelity "games"
+    games_table and differences (farm.alloc.fidelity.evaluate_fidelity); games_per_case: the
+    service's games per case; written: the files written."""
+
+    table: pd.DataFrame
+    per: pd.DataFrame
+    steps: dict
+    games_per_case: int
+    games_table: pd.DataFrame | None = None
+    differences: pd.DataFrame | None = None
+    written: list[Path] = field(default_factory=list)
+
+
+def reference_specs() -> list[PolicySpec]:
+    """Every registered baseline and planner, in registration order, as specs (what a trained
+    allocator is compared with)."""
+    return [PolicySpec(policy_entry(name)) for name in policy_names(("baseline", "planner"))]
+
+
+def allocators(run: RunFolder, config, client, specs: list[PolicySpec] | None = None, learned=None) -> dict:
+    """{name: allocator}: the run's trained allocator (policy LEARNER; learned: it, loaded
+    already), then specs (default reference_specs()), each for config.env, planning on
+    client's statistics."""
+    learned = learned if learned is not None else make_policy(LEARNER, config.env, client, run=run.path)
+    policies = {LEARNER: learned}
+    policies.update({s.name: s.make(config.env, client) for s in (reference_specs() if specs is None else specs)})
+    return policies
+
+
+def evaluate_trained(run: RunFolder, config, policies: dict, client, episodes: int, seed: int, *,
+                     figures: bool = True):
+    """policies (allocators()) on episodes seeded seed .. seed + episodes - 1 of config.env, their
+    engagements answered by client; writes eval_table.csv, eval_episodes.csv, eval_steps.csv
+    and, with figures, density_<policy>.png and behaviour_steps.png into the run folder.
+    Returns (table, per, steps, the files written)."""
+    table, per, steps = evaluate_policies(config.env, policies, client, episodes, seed,
+                                          out=run.path if figures else None)
+    written = run.write_evaluation(table, per, steps_table(steps))
+    if figures:
+        chart = plot_behaviour_steps(behaviour_pair(steps, table, LEARNER), run.file("behaviour_steps.png"))
+        written += [chart] if chart is not None else []
+    return table, per, steps, written
+
+
+def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str = "service") -> RunEvaluation:
+    """`farm eval`: evaluate a run folder's trained allocator (see the module doc) with the
+    capture-time service of its config (service.mode local: in this process, the games of
+    fidelity "games" too, no Ray). ConfigError (one line naming the field) for bad input,
+    before any episode: not a run, episodes or seed not whole numbers >= 1 (>= 0), an unknown fidelity."""
+    from farm.alloc.training.config import store_of
+    from farm.service.client import open_client
+
+    run = RunFolder(run_dir)
+    config = run.read_config()
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ConfigError(f"episodes: must be a whole number >= 1, got {episodes!r}", field="episodes")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"seed: must be a whole number >= 0, got {seed!r}", field="seed")
+    if fidelity not in FIDELITIES:
+        raise ConfigError(f"fidelity: must be one of {', '.join(FIDELITIES)}, got {fidelity!r}", field="fidelity")
+    learned = make_policy(LEARNER, config.env, None, run=run.path)  # a bad model.zip: one line, before Ray starts
+    settings = config.env.service_settings()
+    mode = config.service.mode  # local: the service and the games of fidelity "games" in this process, no Ray
+    with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
+        policies = allocators(run, config, client, learned=learned)
+        table, per, steps, written = evaluate_trained(run, config, policies, client, episodes, seed)
+        result = RunEvaluation(table, per, steps, settings.games, written=written)
+        if fidelity == "games":
+            result.games_table, result.differences = evaluate_fidelity(config.env, policies, client, episodes, seed,
+                                                                       in_process=mode == "local")
+            result.written += run.write_fidelity(result.games_table, result.differences)
+    return result
+
+
+def fidelity_lines(result: RunEvaluation) -> list[str]:
+    """What fidelity "games" found, as lines: each policy's return under the games minus under
+    the service, and the fraction captured within tau, game minus service, over the engagements."""
+    import numpy as np
+
+    from farm.core.stats import mean_ci95
+
+    merged = result.table.merge(result.games_table, on="policy", suffixes=("_service", "_games"))
+    lines = ["return, games minus service: " + ", ".join(
+        f"{r.policy} {r.return_mean_games - r.return_mean_service:+.3f}" for r in merged.itertuples())]
+    if len(result.differences):
+        d = (result.differences["game_frac_tau"] - result.differences["service_frac_tau"]).to_numpy(dtype=float)
+        m, h = mean_ci95(d)
+        lines.append(f"fraction captured within tau over {len(d)} engagements, game - service: "
+                     f"mean {m:+.3f} ± {h:.3f} (95% CI over engagements, the service's values taken as fixed; "
+                     f"they carry the sampling error of {result.games_per_case} games per case), "
+                     f"mean |game - service| {np.abs(d).mean():.3f} (one game per engagement: mostly noise)")
+    return lines

@@ -1,0 +1,140 @@
+"""The allocators' registry: every allocator, heuristic, planner or learned, listed once and
+made one way.
+
+An entry is a name, a kind (`baseline`, `planner` or `learned`) and a maker,
+`make(config, client, **options) -> allocator`: config is the scenario's AllocConfig, client
+the CaptureTimeClient answering its engagements (a baseline ignores it), options the
+allocator's own keywords (a planner's `horizon`, a learned allocator's trained `policy`).
+An allocator answers SB3's `predict(obs, state=None, episode_start=None, deterministic=True)
+-> (action, state)`. `farm eval`, `farm suite`, `farm experiments`, the benchmarks and the
+report take their lists from here (policy_names), in registration order.
+
+Entries travel to Ray workers inside the tasks that use them (a PolicySpec holds its entry).
+A spec pickles its entry with cloudpickle, the maker's module by value when it is the user's
+own code (not farm's, not an installed package: a script, a notebook, a test file), which a
+worker could not import by name; so an allocator registered in a driver's own module is
+evaluated on the farm too.
+"""
+
+from __future__ import annotations
+
+import inspect
+import sys
+import sysconfig
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from farm.core.errors import ConfigError
+
+__all__ = ["PolicyEntry", "PolicySpec", "KINDS", "register_policy", "unregister_policy", "policy_entry",
+           "policy_names", "make_policy"]
+
+KINDS = ("baseline", "planner", "learned")
+_REGISTRY: dict[str, "PolicyEntry"] = {}
+
+
+@dataclass(frozen=True)
+class PolicyEntry:
+    """One allocator: name, kind (one of KINDS), make (see the module doc), description."""
+
+    name: str
+    kind: str
+    make: Callable[..., Any]
+    description: str = ""
+
+    def options(self) -> list[str]:
+        """The keyword options make accepts (its parameters but config and client)."""
+        params = inspect.signature(self.make).parameters.values()
+        return [p.name for p in params if p.name not in ("config", "client")
+                and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """An allocator to make elsewhere (a Ray task, a Tune trial): its entry and its options."""
+
+    entry: PolicyEntry
+    options: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        """The entry's name."""
+        return self.entry.name
+
+    def make(self, config, client):
+        """The allocator."""
+        return self.entry.make(config, client, **self.options)
+
+    def __reduce__(self):
+        return _spec_from_bytes, (_dumps((self.entry, self.options)),)
+
+
+def _users_module(name: str):
+    """The module `name` when it is the user's own code (see the module doc), else None."""
+    module = sys.modules.get(name)
+    path = getattr(module, "__file__", None)
+    if module is None or name == "__main__" or name.split(".")[0] in ("farm", "workers") or path is None:
+        return None
+    installed = {Path(sysconfig.get_paths()[k]).resolve() for k in ("purelib", "platlib", "stdlib")}
+    return None if any(parent in installed for parent in Path(path).resolve().parents) else module
+
+
+def _dumps(value) -> bytes:
+    """cloudpickle's bytes of value, the module of its maker by value when it is the user's own."""
+    import cloudpickle
+
+    entry = value[0]
+    module = _users_module(getattr(entry.make, "__module__", "") or "")
+    if module is None:
+        return cloudpickle.dumps(value)
+    cloudpickle.register_pickle_by_value(module)
+    try:
+        return cloudpickle.dumps(value)
+    finally:
+        cloudpickle.unregister_pickle_by_value(module)
+
+
+def _spec_from_bytes(data: bytes) -> "PolicySpec":
+    import cloudpickle
+
+    entry, options = cloudpickle.loads(data)
+    return PolicySpec(entry, options)
+
+
+def register_policy(name: str, make: Callable[..., Any], *, kind: str, description: str = "",
+                    replace: bool = False) -> PolicyEntry:
+    """Add an allocator to the registry (at the end of its order); returns its entry. A name
+    taken already is refused (ValueError) unless replace."""
+    if kind not in KINDS:
+        raise ValueError(f"kind: must be one of {', '.join(KINDS)}, got {kind!r}")
+    if name in _REGISTRY and not replace:
+        raise ValueError(f"an allocator named {name!r} is registered already")
+    entry = PolicyEntry(name, kind, make, description or (inspect.getdoc(make) or "").split("\n")[0])
+    _REGISTRY[name] = entry
+    return entry
+
+
+def unregister_policy(name: str) -> None:
+    """Take an allocator out of the registry (tests that register their own)."""
+    _REGISTRY.pop(name, None)
+
+
+def policy_names(kinds: str | tuple[str, ...] = KINDS) -> list[str]:
+    """The registered allocators of the given kinds, in registration order."""
+    kinds = (kinds,) if isinstance(kinds, str) else kinds
+    return [name for name, entry in _REGISTRY.items() if entry.kind in kinds]
+
+
+def policy_entry(name: str, field_name: str = "policy") -> PolicyEntry:
+    """The entry of a name; ConfigError (one line naming field_name and the choices) for an unknown one."""
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ConfigError(f"{field_name}: unknown allocator {name!r} (choose from {', '.join(_REGISTRY)})",
+                          field=field_name) from None
+
+
+def make_policy(name: str, config, client=None, **options):
+    """The allocator `name` for the AllocConfig config, planning on client's statistics."""
+    return policy_entry(name).make(config, client, **options)

@@ -1,0 +1,151 @@
+"""The one rollout and evaluation loop: allocators on the same seeded episodes.
+
+run_episode plays one episode of an allocator (its predict() timed, its first observation
+kept); play runs episodes seeded seed .. seed + episodes - 1 on one env; evaluate_policies
+runs several allocators so and measure_table turns the per-episode rows into a table of
+`<measure>_mean` and `<measure>_ci95` (the 95% t interval over episodes, farm.core.stats).
+`farm eval`, `farm suite` and the experiments' trials all evaluate through here.
+
+The measures of an episode (MEASURES; docs/model.md section 5):
+  return, eliminated, breached, length: the episode's reward sum, intruder mass eliminated
+            and breached, and its steps;
+  coverage: the share of the intruder mass sharing a cell with defenders, per step
+            (averaged over the episode's steps);
+  engaged: engaged cells per step;
+  defenders_per_engaged: defenders per engaged cell, over the steps with any.
+Per step (STEP_MEASURES): coverage, engaged_cells, defenders_per_engaged.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from farm.alloc.env import SwarmAllocationEnv
+from farm.alloc.plots import plot_episode
+from farm.core.stats import ci_columns
+
+__all__ = ["MEASURES", "STEP_MEASURES", "Episode", "run_episode", "play", "evaluate_policies", "measure_table",
+           "steps_table", "step_means", "behaviour_pair"]
+
+MEASURES = ("return", "eliminated", "breached", "coverage", "engaged", "defenders_per_engaged", "length")
+STEP_MEASURES = ("coverage", "engaged_cells", "defenders_per_engaged")
+
+
+@dataclass
+class Episode:
+    """One episode of an allocator: summary (its measures, in the order return, eliminated,
+    breached, length, coverage, engaged, defenders_per_engaged), steps (T, 3) float64 (the
+    STEP_MEASURES of each step), frames (the (D, I) densities, (N, N) float64 each, before the
+    first step and after each, when recorded, else empty), predict_seconds (wall seconds in
+    predict(), summed over the steps), first_obs (2 N^2,) float32 (the observation it started from)."""
+
+    summary: dict
+    steps: np.ndarray
+    frames: list
+    predict_seconds: float
+    first_obs: np.ndarray
+
+    @property
+    def length(self) -> int:
+        """The episode's steps (predict() calls)."""
+        return int(self.summary["length"])
+
+
+def run_episode(env: SwarmAllocationEnv, policy, seed: int, record: bool = False) -> Episode:
+    """One episode of policy (predict(obs, deterministic=True) -> (action, state)) on env, reset with seed."""
+    obs, _ = env.reset(seed=seed)
+    first_obs = np.array(obs, copy=True)
+    total, frames, steps, per_step, seconds = 0.0, [], 0, [], 0.0
+    n = env.n
+    if record:
+        frames.append((env.D.reshape(n, n).copy(), env.I.reshape(n, n).copy()))
+    while True:
+        t0 = time.perf_counter()
+        action, _ = policy.predict(obs, deterministic=True)
+        seconds += time.perf_counter() - t0
+        obs, r, term, trunc, info = env.step(action)
+        total += r
+        steps += 1
+        per_step.append([info["coverage"], info["engaged_cells"],
+                         info["defenders_per_engaged"] if info["engaged_cells"] else np.nan])
+        if record:
+            frames.append((env.D.reshape(n, n).copy(), env.I.reshape(n, n).copy()))
+        if term or trunc:
+            m = np.array(per_step)
+            engaged_steps = m[:, 1] > 0
+            summary = {"return": total, "eliminated": info["eliminated"], "breached": info["breached"],
+                       "length": steps, "coverage": float(m[:, 0].mean()), "engaged": float(m[:, 1].mean()),
+                       "defenders_per_engaged": float(np.mean(m[engaged_steps, 2])) if engaged_steps.any() else np.nan}
+            return Episode(summary, m, frames, seconds, first_obs)
+
+
+def play(config, policy, client, episodes: int, seed: int, record_first: bool = False) -> list[Episode]:
+    """policy on episodes seeded seed .. seed + episodes - 1 of one env of the AllocConfig config
+    (its engagements answered by client); record_first: keep episode 0's density frames."""
+    env = SwarmAllocationEnv(config, client=client)
+    try:
+        return [run_episode(env, policy, seed + k, record=record_first and k == 0) for k in range(episodes)]
+    finally:
+        env.close()
+
+
+def measure_table(per: pd.DataFrame, by: list[str], measures=MEASURES) -> pd.DataFrame:
+    """One row per group of per-episode rows (by: the grouping columns, groups in order of
+    appearance): the group's values, episodes, then `<m>_mean` and `<m>_ci95` for each m of
+    measures over its episodes (NaN values left out; NaN half-width for one episode)."""
+    rows = []
+    for values, g in per.groupby(by, sort=False):
+        values = values if isinstance(values, tuple) else (values,)
+        rows.append({**dict(zip(by, values)), "episodes": len(g), **ci_columns({m: g[m].to_numpy(dtype=float)
+                                                                                 for m in measures})})
+    return pd.DataFrame(rows)
+
+
+def evaluate_policies(config, policies: dict, client, episodes: int, seed: int, out: Path | None = None):
+    """Every policy ({name: allocator}) on episodes seeded seed .. seed + episodes - 1; returns
+    (table: measure_table by policy, per-episode rows: policy, episode and the measures,
+    per-step measures {policy: list of (T, 3) arrays}). out: a folder for each policy's density
+    maps of episode 0 (density_<policy>.png); None draws none."""
+    rows, steps = [], {}
+    for name, policy in policies.items():
+        played = play(config, policy, client, episodes, seed, record_first=out is not None)
+        rows += [{"policy": name, "episode": k, **e.summary} for k, e in enumerate(played)]
+        steps[name] = [e.steps for e in played]
+        if out is not None:
+            plot_episode(played[0].frames, out / f"density_{name}.png", title=f"{name}: densities through episode 0 "
+                         f"(seed {seed}); defenders blue, intruders red")
+    per = pd.DataFrame(rows)
+    return measure_table(per, ["policy"]), per, steps
+
+
+def step_means(runs: list[np.ndarray]) -> np.ndarray:
+    """Per-step measures of several episodes (lists of (T_k, 3)) -> (T, 3) float64 means over the
+    episodes still running at each step (NaN-aware)."""
+    length = max(len(r) for r in runs)
+    stack = np.full((len(runs), length, 3), np.nan)
+    for k, r in enumerate(runs):
+        stack[k, : len(r)] = r
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a step no episode engaged at: NaN
+        return np.nanmean(stack, axis=0)
+
+
+def steps_table(steps: dict) -> pd.DataFrame:
+    """Per-step measures of every policy and episode: one row each (policy, episode, step, ...)."""
+    rows = [{"policy": name, "episode": k, "step": t + 1, **dict(zip(STEP_MEASURES, m[t]))}
+            for name, runs in steps.items() for k, m in enumerate(runs) for t in range(len(m))]
+    return pd.DataFrame(rows)
+
+
+def behaviour_pair(steps: dict, table: pd.DataFrame, trained: str) -> dict[str, np.ndarray]:
+    """The step-by-step means (step_means) of the trained policy and of the other policy with
+    the best mean return, {name: (T, 3) float64}, for farm.alloc.plots.plot_behaviour_steps."""
+    others = table[table["policy"] != trained].sort_values("return_mean", ascending=False)
+    names = [n for n in [trained, *others["policy"].head(1)] if n in steps]
+    return {name: step_means(steps[name]) for name in names}

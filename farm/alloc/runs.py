@@ -1,0 +1,200 @@
+"""A training run's folder: the one reader and writer of its files.
+
+    config.yaml        the TrainConfig it was trained with (plain values)
+    model.zip          the trained model (stable-baselines3's file)
+    metrics.json       RunMetrics: steps, timings, the periodic evaluation's figures
+    evaluations.npz    the periodic evaluation (SB3's EvalCallback layout: timesteps, results, ep_lengths)
+    training_curve.png the curve of evaluations.npz
+    DIVERGED           written, with the reason, into a run that diverged: not a result
+    checkpoints/       rl_model_<n>_steps.zip, rl_model_replay_buffer_<n>_steps.pkl, rl_model_state_<n>_steps.pkl
+    best/, tb/         SB3's best model and TensorBoard logs
+    eval_table.csv, eval_episodes.csv, eval_steps.csv          farm eval (and an experiment's trial)
+    eval_table_games.csv, fidelity_differences.csv            farm eval --fidelity games
+    behaviour_steps.png, density_<policy>.png                 farm eval's figures
+
+Readers of a damaged file get one line (ResultsError naming the file), never a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+from pydantic import BaseModel, ConfigDict
+
+from farm.core.errors import ConfigError, ResultsError
+
+__all__ = ["RunFolder", "RunMetrics", "checkpoint_files", "latest_checkpoint", "CONFIG", "MODEL", "METRICS",
+           "EVALUATIONS", "DIVERGED", "LEARNER"]
+
+CONFIG = "config.yaml"
+MODEL = "model.zip"
+METRICS = "metrics.json"
+EVALUATIONS = "evaluations.npz"
+DIVERGED = "DIVERGED"
+LEARNER = "td3"  # the policy name a run's trained model is evaluated under (farm.alloc.policies)
+
+# What a damaged or unreadable evaluations.npz raises on np.load and reading its arrays:
+# OSError (missing, a folder, unreadable), EOFError (empty), zipfile.BadZipFile (cut short,
+# a bad CRC), zlib.error (a damaged compressed member), ValueError (not an .npz: numpy
+# refuses it as pickled data; object arrays), LookupError (KeyError: no such array in the
+# archive; IndexError: a plain .npy array indexed by name).
+_NPZ_DAMAGE = (OSError, EOFError, zipfile.BadZipFile, zlib.error, ValueError, LookupError)
+
+
+class RunMetrics(BaseModel):
+    """metrics.json: what a training run measured. Fields in the file's order; a file written
+    before a field existed reads it as None."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    name: str | None = None
+    timesteps: int | None = None
+    resumed_from: int | None = None
+    wall_seconds: float | None = None
+    steps_per_second: float | None = None
+    update_seconds: float | None = None
+    outside_update_share: float | None = None
+    engagements: int | None = None
+    estimated_share: float | None = None
+    final_eval_mean_return: float | None = None
+    final_eval_std_return: float | None = None
+    best_eval_mean_return: float | None = None
+
+
+def checkpoint_files(run_dir: Path, steps: int) -> tuple[Path, Path, Path]:
+    """The files of a run folder's checkpoint at `steps`, in checkpoints/: (the model, SB3's
+    rl_model_<steps>_steps.zip; the replay buffer, rl_model_replay_buffer_<steps>_steps.pkl;
+    the RunState, rl_model_state_<steps>_steps.pkl, written last and whole)."""
+    folder = Path(run_dir) / "checkpoints"
+    return (folder / f"rl_model_{steps}_steps.zip", folder / f"rl_model_replay_buffer_{steps}_steps.pkl",
+            folder / f"rl_model_state_{steps}_steps.pkl")
+
+
+def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
+    """(model file, steps) of a run folder's last whole checkpoint (its RunState file, which
+    is written last, is there), or None."""
+    found = []
+    for p in (Path(run_dir) / "checkpoints").glob("rl_model_state_*_steps.pkl"):
+        m = re.fullmatch(r"rl_model_state_(\d+)_steps\.pkl", p.name)
+        if m and all(f.exists() for f in checkpoint_files(run_dir, int(m.group(1)))):
+            found.append(int(m.group(1)))
+    if not found:
+        return None
+    steps = max(found)
+    return checkpoint_files(run_dir, steps)[0], steps
+
+
+class RunFolder:
+    """One training run's folder (see the module doc). path: the folder."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+
+    def __repr__(self) -> str:
+        return f"RunFolder({str(self.path)!r})"
+
+    def file(self, name: str) -> Path:
+        """The path of one of the run's files (the names of the module doc)."""
+        return self.path / name
+
+    # ------------------------------------------------------------------ config and model
+    def is_run(self) -> bool:
+        """Whether the folder holds a run (its config.yaml)."""
+        return self.file(CONFIG).exists()
+
+    def has_model(self) -> bool:
+        """Whether the run is trained (its model.zip)."""
+        return self.file(MODEL).exists()
+
+    def read_config(self):
+        """The run's TrainConfig; ConfigError (one line) without config.yaml or for a bad one."""
+        from farm.alloc.training.config import load_train_config
+
+        if not self.is_run():
+            raise ConfigError(f"{self.path}: not a training run (no {CONFIG})")
+        return load_train_config(self.file(CONFIG))
+
+    def read_config_values(self) -> dict | None:
+        """config.yaml as plain values (None without it)."""
+        path = self.file(CONFIG)
+        return yaml.safe_load(path.read_text()) if path.exists() else None
+
+    def write_config(self, config) -> None:
+        """Write config.yaml (a TrainConfig), creating the folder."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        self.file(CONFIG).write_text(yaml.safe_dump(json.loads(config.model_dump_json()), sort_keys=False))
+
+    def model_path(self) -> Path:
+        """model.zip's path."""
+        return self.file(MODEL)
+
+    # ------------------------------------------------------------------ metrics and evaluations
+    def write_metrics(self, metrics: RunMetrics) -> None:
+        """Write metrics.json."""
+        self.file(METRICS).write_text(json.dumps(metrics.model_dump(), indent=2))
+
+    def read_metrics(self) -> RunMetrics | None:
+        """metrics.json (None without it); ResultsError (one line) when it is unreadable."""
+        path = self.file(METRICS)
+        if not path.exists():
+            return None
+        try:
+            return RunMetrics.model_validate(json.loads(path.read_text()))
+        except (OSError, UnicodeDecodeError, ValueError) as e:
+            raise ResultsError(f"{path}: unreadable metrics ({type(e).__name__})") from None
+
+    def evaluations(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """evaluations.npz as (timesteps (E,) int64, results (E, episodes) float64); None without
+        the file; ResultsError (one line) when it is damaged."""
+        path = self.file(EVALUATIONS)
+        if not path.exists():
+            return None
+        try:
+            with np.load(path) as data:
+                return np.asarray(data["timesteps"], dtype=np.int64), np.asarray(data["results"], dtype=float)
+        except _NPZ_DAMAGE as e:
+            raise ResultsError(f"{path}: unreadable evaluations ({type(e).__name__})") from None
+
+    def diverged(self) -> str | None:
+        """Why the run diverged (its DIVERGED file), or None."""
+        path = self.file(DIVERGED)
+        return path.read_text(errors="replace").strip() if path.exists() else None
+
+    def mark_diverged(self, why: str) -> None:
+        """Say in the folder that the run diverged (farm report shows it)."""
+        self.file(DIVERGED).write_text(why + "\n")
+
+    # ------------------------------------------------------------------ farm eval's files
+    def write_evaluation(self, table: pd.DataFrame, per: pd.DataFrame, steps: pd.DataFrame) -> list[Path]:
+        """eval_table.csv, eval_episodes.csv and eval_steps.csv (farm.alloc.rollout's tables)."""
+        from farm.core.output import write_table
+
+        return [write_table(table, self.path / "eval_table", "csv"), write_table(per, self.path / "eval_episodes", "csv"),
+                write_table(steps, self.path / "eval_steps", "csv")]
+
+    def write_fidelity(self, table: pd.DataFrame, differences: pd.DataFrame) -> list[Path]:
+        """eval_table_games.csv and fidelity_differences.csv (farm eval --fidelity games)."""
+        from farm.core.output import write_table
+
+        return [write_table(table, self.path / "eval_table_games", "csv"),
+                write_table(differences, self.path / "fidelity_differences", "csv")]
+
+    def eval_steps(self) -> pd.DataFrame | None:
+        """eval_steps.csv (None without it)."""
+        path = self.file("eval_steps.csv")
+        return pd.read_csv(path) if path.exists() else None
+
+    def checkpoint_files(self, steps: int) -> tuple[Path, Path, Path]:
+        """checkpoint_files of this run."""
+        return checkpoint_files(self.path, steps)
+
+    def latest_checkpoint(self) -> tuple[Path, int] | None:
+        """latest_checkpoint of this run."""
+        return latest_checkpoint(self.path)

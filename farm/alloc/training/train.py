@@ -1,0 +1,155 @@
+"""`farm train CONFIG`: an allocator trained with stable-baselines3 on the allocation env,
+rewards from the capture-time service, into a run folder (farm.alloc.runs). The design (the
+config, checkpoints and exact resume, divergence) is docs/training.md."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+from stable_baselines3 import TD3
+from stable_baselines3.common.callbacks import CallbackList, EvalCallback
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from farm.alloc.env import SwarmAllocationEnv
+from farm.alloc.lattice import lattice_groups, warm_lattices
+from farm.alloc.runs import RunFolder, RunMetrics, checkpoint_files, latest_checkpoint
+from farm.alloc.training.callbacks import Checkpointer, DivergenceGuard, StepProgress, UpdateTimer
+from farm.alloc.training.config import TrainConfig, store_of
+from farm.alloc.training.state import RunState
+from farm.core.config import ConfigError
+from farm.core.errors import ActionError, TrainingDiverged
+
+__all__ = ["train", "EVAL_SEED_OFFSET"]
+
+EVAL_SEED_OFFSET = 1_000_000  # the periodic evaluation's episodes: seeded apart from training's
+
+
+def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True,
+          callbacks: list | None = None) -> dict:
+    """Train (or resume) into run_dir, with the capture-time client of config.service
+    (farm.service.lookup.open_client: a local Ray or the cluster named, or in process);
+    returns the metrics written to metrics.json.
+
+    callbacks: more SB3 callbacks, called after the run's own (so in on_step after the
+    step's evaluation, and at a rollout's start or the training's end after the checkpoint of
+    the steps so far): farm.studies.experiments reports a trial's progress to Ray Tune so."""
+    import torch
+
+    run_dir = Path(run_dir)
+    run = RunFolder(run_dir)
+    if run.is_run() and not resume:
+        raise ConfigError(f"out: {run_dir} already holds a run; resume it or choose another folder", field="out")
+    if resume:
+        if not run.is_run():
+            raise ConfigError(f"resume: {run_dir} holds no run to resume", field="resume")
+        before = run.read_config()  # parsed: fields added since compare equal at their defaults
+
+        def comparable(c: TrainConfig) -> dict:  # the length of training and the threads may change on resume
+            return c.model_copy(update={"td3": c.td3.model_copy(update={"n_timesteps": 0}), "threads": None}).model_dump()
+
+        if comparable(before) != comparable(config):
+            raise ConfigError(f"resume: {run_dir} was trained with another config", field="resume")
+    run.write_config(config)
+    threads_before = torch.get_num_threads()
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
+    try:
+        return _train(config, run_dir, resume, show_progress, callbacks or [])
+    finally:
+        torch.set_num_threads(threads_before)
+
+
+def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, extra: list) -> dict:
+    from farm.service.client import open_client
+
+    with open_client(config.env.service_settings(), mode=config.service.mode, store=store_of(config),
+                     address=config.service.address) as client:
+        return _learn(config, run_dir, resume, show_progress, client, extra)
+
+
+def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list) -> dict:
+    if config.service.warm_lattice:
+        warm_lattices(client, lattice_groups([config.env]), show_progress)
+    train_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+    monitor = Monitor(train_env)
+    env = DummyVecEnv([lambda: monitor])
+    eval_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+    eval_monitor = Monitor(eval_env)
+    # EvalCallback resets without a seed, which would leave the curve's episodes to OS entropy:
+    # seeding once here makes evaluations.npz the same on every run of the same config.
+    eval_monitor.reset(seed=config.seed + EVAL_SEED_OFFSET)
+    p = config.td3
+    n_act = env.action_space.shape[0]
+    noise = NormalActionNoise(np.zeros(n_act), p.noise_std * np.ones(n_act)) if p.noise_type == "normal" else None
+    timer = UpdateTimer()
+    evaluation = EvalCallback(eval_monitor, eval_freq=config.eval.freq, n_eval_episodes=config.eval.episodes,
+                              log_path=str(run_dir), best_model_save_path=str(run_dir / "best"), deterministic=True,
+                              verbose=0)
+    state = RunState(train_env, monitor, eval_env, evaluation, timer)
+
+    done_steps = 0
+    checkpoint = latest_checkpoint(run_dir) if resume else None
+    if checkpoint:
+        path, done_steps = checkpoint
+        _, buffer, state_file = checkpoint_files(run_dir, done_steps)
+        # force_reset=False keeps the saved last observation: training goes on with the episode in progress
+        model = TD3.load(path, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
+        model.load_replay_buffer(buffer)
+        env.reset()  # through the wrappers (the Monitor refuses a step before a reset); the state replaces the episode
+        state.restore(model, pickle.loads(state_file.read_bytes()))
+    else:
+        model = TD3(
+            p.policy, env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
+            learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
+            train_freq=p.train_freq, gradient_steps=p.gradient_steps, policy_delay=p.policy_delay,
+            action_noise=noise, policy_kwargs=dict(p.policy_kwargs), tensorboard_log=str(run_dir / "tb"),
+            seed=config.seed, verbose=0, device="cpu",
+        )
+    remaining = max(0, p.n_timesteps - done_steps)
+    callbacks = CallbackList([
+        timer,  # first: it times the updates alone
+        DivergenceGuard(),  # next: no evaluation or checkpoint sees a step or an update it refuses
+        evaluation,
+        Checkpointer(run_dir, config.checkpoint_freq, state, done_steps),
+        StepProgress(p.n_timesteps, done_steps, show_progress),
+        *extra,
+    ])
+    try:
+        try:
+            model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=not checkpoint,
+                        tb_log_name="td3", log_interval=config.log_interval)
+        except ActionError as e:  # the env refuses a non-finite action before the guard sees it
+            raise TrainingDiverged(f"training diverged at step {model.num_timesteps + 1}: the policy's action is "
+                                   f"not finite (lower td3.learning_rate?): {e}") from None
+    except TrainingDiverged as e:  # the folder says so, for farm report and whoever looks
+        RunFolder(run_dir).mark_diverged(str(e))
+        raise
+    wall = timer.wall_seconds  # the whole run's, as the other figures: a resumed run's earlier parts too
+    run = RunFolder(run_dir)
+    model.save(run.model_path())
+    evals = run.evaluations()
+    steps, results = evals if evals is not None else (None, None)
+    metrics = RunMetrics(**{
+        "name": config.name,
+        "timesteps": int(model.num_timesteps),
+        "resumed_from": done_steps if checkpoint else None,
+        "wall_seconds": wall,
+        "steps_per_second": model.num_timesteps / wall if wall > 0 else None,
+        "update_seconds": timer.update_seconds,
+        "outside_update_share": 1 - timer.update_seconds / wall if wall > 0 else None,
+        "engagements": train_env.engagements,  # engaged cells of the training steps
+        "estimated_share": train_env.estimated / train_env.engagements if train_env.engagements else 0.0,
+        "final_eval_mean_return": float(results[-1].mean()) if evals is not None else None,
+        "final_eval_std_return": float(results[-1].std()) if evals is not None else None,
+        "best_eval_mean_return": float(results.mean(axis=1).max()) if evals is not None else None,
+    })
+    run.write_metrics(metrics)
+    if evals is not None:
+        from farm.alloc.plots import plot_training_curve
+
+        plot_training_curve(steps, results, run.file("training_curve.png"), config.name)
+    return metrics.model_dump()

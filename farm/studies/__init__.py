@@ -1,0 +1,2 @@
+"""Studies built on allocation: the scenario suite (suite/), experiments over grids and seeds
+as Ray Tune trials (experiments/) and the paper's claims measured on their runs (claims.py)."""

@@ -1,0 +1,106 @@
+"""A `farm experiments` config (ExperimentConfig, load_experiment_config) and the dotted fields a
+grid may set (field_problem); docs/experiments.md shows one."""
+
+from __future__ import annotations
+
+import typing
+from typing import Any
+
+from pydantic import BaseModel, Field, field_validator, model_validator
+
+from farm.core.config import StrictFile, load_yaml_model
+
+__all__ = ["ExperimentConfig", "load_experiment_config", "field_problem", "RESERVED_FIELDS"]
+
+RESERVED_FIELDS = ("name", "seed", "threads", "service")  # the experiment sets these for every trial
+
+
+class ExperimentConfig(StrictFile):
+    """A `farm experiments` config (see the module doc); ConfigError or ValidationError, one
+    line naming the field, for bad input."""
+
+    KIND = "an experiments"
+
+    name: str = Field(min_length=1, max_length=80, pattern=r"^[A-Za-z0-9_.-]+$")
+    base: str | None = None
+    scenario: str | None = None
+    overrides: dict[str, Any] = {}
+    grid: dict[str, list[Any]] = {}
+    seeds: list[int]
+    episodes: int = Field(10, ge=1, le=100_000)
+    eval_seed: int = Field(1000, ge=0)
+    store: str | None = None
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, v):
+        if not v:
+            raise ValueError("must name at least one seed")
+        for s in v:
+            if s < 0:
+                raise ValueError(f"must be whole numbers >= 0, got {s}")
+        if len(set(v)) != len(v):
+            raise ValueError(f"a seed is named twice: {v}")
+        return v
+
+    @field_validator("overrides", "grid")
+    @classmethod
+    def _fields(cls, v, info):
+        for path, values in v.items():
+            problem = field_problem(path)
+            if problem:
+                raise ValueError(f"{path}: {problem}")
+            if info.field_name == "grid":
+                if not isinstance(values, list) or not values:
+                    raise ValueError(f"{path}: must be a non-empty list of values, got {values!r}")
+        return v
+
+    @model_validator(mode="after")
+    def _one_base(self):
+        named = "scenario" in self.grid or "scenario" in self.overrides
+        if self.base is not None and self.scenario is not None:
+            raise ValueError("base: give one of `base` (a training config) or `scenario` (a suite scenario), not both")
+        if self.base is None and self.scenario is None and not named:
+            raise ValueError("base: give `base` (a training config), `scenario` (a suite scenario) or a grid over "
+                             "`scenario`")
+        if self.scenario is not None:
+            from farm.alloc.scenarios import SCENARIOS
+
+            if self.scenario not in SCENARIOS:
+                raise ValueError(f"scenario: unknown scenario {self.scenario!r} (choose from {', '.join(SCENARIOS)})")
+        both = set(self.overrides) & set(self.grid)
+        if both:
+            raise ValueError(f"grid: {sorted(both)[0]} is in `overrides` too; give it in one of them")
+        return self
+
+
+def field_problem(path: str) -> str | None:
+    """Why a dotted field cannot be set by an experiment (None: it can): it must name a field
+    of farm.alloc.training.TrainConfig through its sections, and not one of RESERVED_FIELDS."""
+    from farm.alloc.training import TrainConfig
+
+    parts = path.split(".")
+    if not all(parts):
+        return "not a dotted field name"
+    if parts[0] in RESERVED_FIELDS:
+        why = {"seed": "seeds come from `seeds`", "name": "trials are named after the experiment",
+               "threads": "every trial trains on one torch thread",
+               "service": "every trial uses the experiment's capture-time service (`store`)"}[parts[0]]
+        return f"set by the experiment ({why})"
+    model: Any = TrainConfig
+    for depth, part in enumerate(parts):
+        if model is dict or typing.get_origin(model) is dict:  # a free mapping (td3.policy_kwargs): checked later
+            return None
+        if not (isinstance(model, type) and issubclass(model, BaseModel)):
+            return f"{'.'.join(parts[:depth])} has no fields"
+        fields = model.model_fields
+        if part not in fields:
+            where = ".".join(parts[:depth]) or "a training config"
+            return f"not a field of {where} (choose from {', '.join(f for f in fields if depth or f not in RESERVED_FIELDS)})"
+        model = fields[part].annotation
+    return None
+
+
+def load_experiment_config(path) -> ExperimentConfig:
+    """Read and validate an experiments YAML; ConfigError of one line naming the file and the field."""
+    return load_yaml_model(path, ExperimentConfig, "experiments")

@@ -1,0 +1,77 @@
+"""The running experiment's progress on stderr: trials done, running and waiting, steps and
+the ETA (Display), fed by the Tune callback farm.studies.experiments.tune.Progress."""
+
+from __future__ import annotations
+
+import threading
+
+__all__ = ["Display", "PROGRESS"]
+
+# The running experiment's display: the Tune callback (farm.studies.experiments.tune.Progress, pickled
+# with Tune's state and unpickled on a restore) finds it here, so a restored experiment shows
+# this run's progress.
+PROGRESS: dict = {}
+
+
+class Display:
+    """Trials done, running and waiting, steps done and the ETA (tqdm's, over the steps this run
+    trains), as a bar of steps on stderr. finished: the keys of trials finished before this run."""
+
+    def __init__(self, plan, enabled: bool, finished: list[str]):
+        from farm.core.progress import GameProgress
+
+        self.total = {t.key: t.config["td3"]["n_timesteps"] for t in plan.trials}
+        self.steps = {key: (self.total[key] if key in finished else 0) for key in self.total}
+        self.done: set[str] = set(finished)
+        self.running: set[str] = set()
+        self.failed: set[str] = set()
+        self.started_keys: set[str] = set()  # trials Tune started in this run
+        self.lock = threading.Lock()
+        self.bar = GameProgress(sum(self.total.values()), sum(self.steps.values()), enabled=enabled, desc="trials",
+                                unit="step")
+        self._describe()
+
+    def _set_steps(self, key: str, steps: int) -> None:
+        steps = min(int(steps), self.total[key])
+        if steps > self.steps[key]:
+            self.bar.update(steps - self.steps[key])
+            self.steps[key] = steps
+
+    def _describe(self) -> None:
+        if self.bar.bar is not None:
+            pending = len(self.total) - len(self.done) - len(self.running) - len(self.failed)
+            failed = f", {len(self.failed)} failed" if self.failed else ""
+            self.bar.bar.set_description_str(f"trials: {len(self.done)}/{len(self.total)} done, "
+                                             f"{len(self.running)} running, {pending} waiting{failed}")
+
+    def started(self, key: str) -> None:
+        """A trial started (or restarted)."""
+        with self.lock:
+            self.running.add(key)
+            self.started_keys.add(key)
+            self._describe()
+
+    def result(self, key: str, result: dict) -> None:
+        """A trial reported."""
+        with self.lock:
+            if "timesteps" in result and result["timesteps"] is not None:
+                self._set_steps(key, result["timesteps"])
+            self.running.add(key)
+            self._describe()
+
+    def ended(self, key: str, ok: bool) -> None:
+        """A trial finished (ok) or failed."""
+        with self.lock:
+            self.running.discard(key)
+            if ok:
+                self._set_steps(key, self.total[key])
+                self.done.add(key)
+            else:
+                self.failed.add(key)
+            self._describe()
+
+    def close(self) -> None:
+        """Close the bar."""
+        self.bar.close()
+
+

@@ -1,0 +1,174 @@
+"""`farm experiments CONFIG --out DIR`: many trainings as one Ray Tune experiment, over a grid
+of settings and seeds, every trial evaluated against the registered baselines and planners on
+the same seeded episodes, all trials on ONE capture-time service. docs/experiments.md tells
+how it runs, shares the CPUs with the service's games, and resumes."""
+
+from __future__ import annotations
+
+import os
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import pandas as pd
+
+from farm.alloc.config import AllocConfig
+from farm.alloc.evaluation import reference_specs
+from farm.alloc.lattice import lattice_groups, warm_lattices
+from farm.core.errors import SwarmFarmError
+from farm.studies.experiments.config import ExperimentConfig
+from farm.studies.experiments.display import PROGRESS, Display
+from farm.studies.experiments.folder import TUNE_DIR, ExperimentFolder
+from farm.studies.experiments.plan import Plan, plan, trial_cpus
+from farm.studies.experiments.tables import manifest_trials, summary_table, trials_table
+from farm.studies.experiments.trial import run_trial, trial_dirname
+
+__all__ = ["run_experiment", "ExperimentError", "MAX_FAILURES"]
+
+MAX_FAILURES = 2
+
+
+class ExperimentError(SwarmFarmError):
+    """A trial that failed (its error's first line, naming the trial)."""
+
+
+def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments", address: str | None = None,
+                   workers: int | None = None, show_progress: bool = True,
+                   warm: bool = True) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
+    """Run or resume an experiment into the folder out (docs/experiments.md); returns
+    (trials.csv's table, summary.csv's table, info).
+
+    address: a Ray cluster to join (default $RAY_ADDRESS, else a local Ray of max(2,
+    workers) CPUs); workers: trials at once (default: the cluster's CPUs); warm: False
+    skips the lattice warm-up, in the driver and in every trial (the tests use it to make
+    trials miss on a cold store). info: trials run this time and before, the CPUs per
+    trial, the warm-up's cases and seconds, the wall seconds, the claims' files and the
+    learning curves' figure written (claims: a list of paths, learning_curves: a path or None).
+    ConfigError (one line) for bad input before Ray starts; ExperimentError naming the first
+    trial that failed (after the tables of the others are written).
+    """
+    from farm.runtime import check_workers, starts_local_ray
+    from farm.service.client import open_client
+
+    check_workers(workers)
+    the_plan = plan(config, source)
+    if not warm:
+        for t in the_plan.trials:
+            t.config["service"]["warm_lattice"] = False
+    out = Path(out).resolve()
+    folder = ExperimentFolder(out)
+    folder.check_for(the_plan.digest)
+    folder.write_manifest({"name": the_plan.name, "digest": the_plan.digest,
+                           "config": config.model_dump(mode="json", exclude_unset=True), "store": the_plan.store,
+                           "fields": the_plan.fields, "trials": manifest_trials(the_plan)})
+    before = [t.key for t in the_plan.trials if folder.finished(t.key)]
+    starts_ray = starts_local_ray(address)
+    first = the_plan.trials[0].config["env"]
+    info: dict = {"trials": len(the_plan.trials), "finished_before": len(before), "warmed_cases": 0}
+    t0 = time.perf_counter()
+    with open_client(AllocConfig(**first).service_settings(), mode="ray", store=the_plan.store, address=address,
+                     num_cpus=max(2, workers or 2) if starts_ray else None) as client:
+        import ray
+
+        if warm and len(before) < len(the_plan.trials):  # a trial left to run
+            envs = [AllocConfig(**t.config["env"]) for t in the_plan.trials if t.config["service"]["warm_lattice"]]
+            info["warmed_cases"] = warm_lattices(client, lattice_groups(envs), show_progress)
+        info["warm_seconds"] = time.perf_counter() - t0
+        cpus = float(ray.cluster_resources().get("CPU", 0))
+        k = min(workers or max(1, int(cpus)), len(the_plan.trials))
+        share = trial_cpus(cpus, k)
+        info.update(workers=k, trial_cpus=share, cluster_cpus=cpus)
+        display = Display(the_plan, show_progress, before)
+        PROGRESS["display"] = display
+        try:
+            results = _fit(the_plan, out, k, share)
+        finally:
+            PROGRESS.pop("display", None)
+            display.close()
+        info["started"] = len(display.started_keys)
+    info["seconds"] = time.perf_counter() - t0
+    trials = trials_table(the_plan, out)
+    summary = summary_table(the_plan.fields, trials)
+    folder.write_tables(trials, summary)
+    info.update(_write_claims_and_curves(out))
+    errors = [(r.error, r.path) for r in results if r.error is not None]
+    info["tune_finished"] = sum(1 for r in results if r.error is None and (r.metrics or {}).get("phase") == "done")
+    if errors:
+        error, path = errors[0]
+        problem = (str(error).strip().splitlines() or [type(error).__name__])[-1]
+        raise ExperimentError(f"trial {Path(path).name} failed ({len(errors)} of {len(results)} failed): {problem}")
+    if len(trials) < len(the_plan.trials):  # Tune was stopped (Ctrl+C): its state is saved
+        raise ExperimentError(f"{len(the_plan.trials) - len(trials)} of {len(the_plan.trials)} trials unfinished "
+                              f"(interrupted); run the same command again to go on")
+    return trials, summary, info
+
+
+def _write_claims_and_curves(out: Path) -> dict:
+    """The paper's claims over the seeds (claims.csv, claims_seeds.csv; when the experiment has
+    a C_capture 0 and 1.5 pair: farm.studies.claims.claims_over_seeds) and the learning curves
+    over seeds (learning_curves.png); returns {claims: the files written, learning_curves: the
+    figure's path or None}."""
+    from farm.studies.claims import claims_over_seeds, write_claims_over_seeds
+    from farm.studies.experiments.results import write_learning_curves
+
+    found = claims_over_seeds(out)
+    return {"claims": write_claims_over_seeds(out, found) if found.pair is not None and found.rows else [],
+            "learning_curves": write_learning_curves(out)}
+
+
+def _fit(plan: Plan, out: Path, workers: int, share: float):
+    """Run (or restore and go on with) the Tune experiment; returns its ResultGrid."""
+    from ray import tune
+
+    from farm.studies.experiments.tune import Progress
+
+    trainable = tune.with_resources(run_trial, {"cpu": share})
+    path = out / TUNE_DIR
+    if tune.Tuner.can_restore(str(path)):
+        tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_unfinished=True, resume_errored=True)
+    else:
+        policies = reference_specs()  # the registry's, as this process has it: carried to every trial
+        specs = [{"trial": t.model_dump(), "dir": str(ExperimentFolder(out).trial_dir(t.key)), "episodes": plan.episodes,
+                  "eval_seed": plan.eval_seed, "policies": policies} for t in plan.trials]
+        tuner = tune.Tuner(
+            trainable,
+            param_space={"spec": tune.grid_search(specs)},
+            tune_config=tune.TuneConfig(max_concurrent_trials=workers, reuse_actors=True, trial_dirname_creator=trial_dirname,
+                                        trial_name_creator=trial_dirname),
+            run_config=tune.RunConfig(name=TUNE_DIR, storage_path=str(out),
+                                      failure_config=tune.FailureConfig(max_failures=MAX_FAILURES),
+                                      checkpoint_config=tune.CheckpointConfig(num_to_keep=2),
+                                      verbose=0, callbacks=[Progress()]),
+        )
+    with _quiet_tune():
+        return tuner.fit()
+
+
+# Ray Tune's own output, off while an experiment runs (its progress is farm's bar): the new
+# output engine prints a configuration box whatever the verbosity, the legacy one is silent at
+# verbose=0; the warning that saving the experiment's state took long is meant for remote storage;
+# the warning that TensorboardX is missing is about Tune's own result logger (each trial's
+# TensorBoard logs are SB3's, in its run folder).
+_TUNE_QUIET = {"RAY_AIR_NEW_OUTPUT": "0", "TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S": "0"}
+_TUNE_QUIET_LOGGER = "ray.tune.utils.callback"
+
+
+@contextmanager
+def _quiet_tune():
+    """Set _TUNE_QUIET's variables that are not set, and _TUNE_QUIET_LOGGER's level to errors
+    only, for the block."""
+    import logging
+
+    added = [name for name in _TUNE_QUIET if name not in os.environ]
+    os.environ.update({name: _TUNE_QUIET[name] for name in added})
+    quiet = logging.getLogger(_TUNE_QUIET_LOGGER)
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        quiet.setLevel(level)
+        for name in added:
+            os.environ.pop(name, None)
+
+

@@ -1,0 +1,77 @@
+"""An experiment's tables: trials.csv (one row per finished trial), summary.csv (one row per
+point, means and 95% CIs over seeds) and the summary as shown (docs/experiments.md lists the columns)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from farm.alloc.runs import LEARNER
+from farm.core.stats import ci_columns, format_ci
+from farm.studies.experiments.folder import ExperimentFolder
+from farm.studies.experiments.plan import Plan
+
+__all__ = ["trials_table", "summary_table", "summary_view", "format_summary", "manifest_trials", "TIMING_COLUMNS",
+           "METRICS_COLUMNS"]
+
+TIMING_COLUMNS = ("wall_seconds", "steps_per_second", "update_seconds", "outside_update_share", "train_seconds",
+                  "evaluate_seconds")
+METRICS_COLUMNS = ("timesteps", "resumed_from", "engagements", "estimated_share", *TIMING_COLUMNS[:4])
+
+
+def manifest_trials(plan: Plan) -> list[dict]:
+    """experiment.json's list of trials: {key, point, seed, values} each, in grid order."""
+    return [{"key": t.key, "point": t.point, "seed": t.seed, "values": t.values} for t in plan.trials]
+
+
+def trials_table(plan: Plan, out: Path) -> pd.DataFrame:
+    """trials.csv (docs/experiments.md) from the trials' result.json files, in grid order; a
+    trial without one (not finished) is left out."""
+    return pd.DataFrame([t["result"] for t in ExperimentFolder(out).finished_trials({"trials": manifest_trials(plan)})])
+
+
+def summary_table(fields: list[str], trials: pd.DataFrame) -> pd.DataFrame:
+    """summary.csv (docs/experiments.md): one row per point with finished trials; fields: the
+    grid's dotted fields (Plan.fields), trials: trials.csv's table."""
+    if trials.empty:
+        return pd.DataFrame()
+    others = [c[: -len("_return")] for c in trials.columns
+              if c.endswith("_return") and c not in (f"{LEARNER}_return", "final_eval_return", "best_eval_return")]
+    rows = []
+    for point, g in trials.groupby("point", sort=True):
+        row = {"point": int(point), **{f: g[f].iloc[0] for f in fields}, "seeds": len(g)}
+        row.update(ci_columns({name: g[col].to_numpy(dtype=float) for name, col in (
+            ("return", f"{LEARNER}_return"), ("eliminated", f"{LEARNER}_eliminated"),
+            ("final_eval_return", "final_eval_return"))}))
+        for name in others:
+            row[f"{name}_return"] = float(g[f"{name}_return"].mean())
+            row[f"{name}_eliminated"] = float(g[f"{name}_eliminated"].mean())
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def summary_view(summary: pd.DataFrame) -> pd.DataFrame:
+    """summary.csv as shown (format_summary, farm report): point, the point's fields, seeds,
+    td3's return and eliminated as `mean ± CI` strings, and the baseline or planner eliminating
+    the most (`name value`); an empty frame for an empty summary."""
+
+    if summary.empty:
+        return pd.DataFrame()
+    fields = list(summary.columns[1: list(summary.columns).index("seeds") + 1])
+    view = summary[["point", *fields]].copy()
+    view[f"{LEARNER} return"] = [format_ci(m, h) for m, h in zip(summary["return_mean"], summary["return_ci95"])]
+    view[f"{LEARNER} eliminated"] = [format_ci(m, h) for m, h in zip(summary["eliminated_mean"],
+                                                                     summary["eliminated_ci95"])]
+    others = [c[: -len("_eliminated")] for c in summary.columns if c.endswith("_eliminated")]
+    if others:
+        best = [max(others, key=lambda n: r[f"{n}_eliminated"]) for _, r in summary.iterrows()]
+        view["best other (eliminated)"] = [f"{n} {r[f'{n}_eliminated']:.3f}" for n, (_, r) in zip(best, summary.iterrows())]
+    return view
+
+
+def format_summary(summary: pd.DataFrame) -> str:
+    """summary.csv as a text table (summary_view)."""
+    if summary.empty:
+        return "(no finished trials)"
+    return summary_view(summary).to_string(index=False)

@@ -1,0 +1,71 @@
+"""One experiment trial, Ray Tune's function trainable (run_trial): train the trial (or resume
+it), evaluate its trained allocator beside the registered baselines and planners (the one
+evaluation of farm.alloc.evaluation), write its result.json and report it. docs/experiments.md
+tells how trials resume and why a finished one never trains again."""
+
+from __future__ import annotations
+
+import time
+
+from farm.alloc.evaluation import allocators, evaluate_trained, reference_specs
+from farm.alloc.runs import RunFolder
+from farm.studies.experiments.folder import ExperimentFolder
+from farm.studies.experiments.plan import Trial
+from farm.studies.experiments.tables import METRICS_COLUMNS
+
+__all__ = ["run_trial", "trial_dirname"]
+
+
+def _evaluate(config, run: RunFolder, episodes: int, seed: int, specs):
+    """The final model and specs (the baselines and planners) on episodes seed .. seed+episodes-1
+    (one client on the shared service); writes farm eval's tables into the run folder (farm
+    claims reads them); returns the table."""
+    from farm.service.client import open_client
+
+    with open_client(config.env.service_settings(), mode="ray", store=config.service.store) as client:
+        policies = allocators(run, config, client, specs)
+        return evaluate_trained(run, config, policies, client, episodes, seed, figures=False)[0]
+
+
+def run_trial(params: dict) -> None:
+    """The Tune trainable. params: {"spec": {"trial": Trial as plain values, "dir": the trial's
+    folder, "episodes", "eval_seed", "policies": the PolicySpecs to compare with (default: the
+    registry's baselines and planners)}}."""
+    from ray import tune
+
+    from farm.alloc.training import TrainConfig, train
+    from farm.studies.experiments.tune import TuneReport
+
+    spec = params["spec"]
+    trial = Trial(**spec["trial"])
+    from pathlib import Path
+
+    folder = ExperimentFolder(Path(spec["dir"]).parent.parent)
+    if folder.finished(trial.key):  # finished before (e.g. the driver died after it): never trained again
+        tune.report({**folder.read_result(trial.key), "phase": "done"})
+        return
+    config = TrainConfig(**trial.config)
+    run = RunFolder(folder.run_dir(trial.key))
+    every = max(1, min(config.checkpoint_freq, config.td3.n_timesteps // 10 or 1))
+    t0 = time.perf_counter()
+    metrics = train(config, run.path, resume=run.is_run(), show_progress=False,
+                    callbacks=[TuneReport(run.path, every)])
+    t1 = time.perf_counter()
+    specs = spec.get("policies")
+    table = _evaluate(config, run, spec["episodes"], spec["eval_seed"], reference_specs() if specs is None else specs)
+    t2 = time.perf_counter()
+    result = {"trial": trial.key, "point": trial.point, "seed": trial.seed, **trial.values,
+              "final_eval_return": metrics.get("final_eval_mean_return"),
+              "best_eval_return": metrics.get("best_eval_mean_return")}
+    for row in table.itertuples():
+        result[f"{row.policy}_return"] = float(row.return_mean)
+        result[f"{row.policy}_eliminated"] = float(row.eliminated_mean)
+    result.update({name: metrics.get(name) for name in METRICS_COLUMNS})
+    result.update(train_seconds=t1 - t0, evaluate_seconds=t2 - t1)
+    folder.write_result(trial.key, result)
+    tune.report({**result, "phase": "done"})
+
+
+def trial_dirname(trial) -> str:
+    """Tune's folder (and name) of a trial: the trial's key."""
+    return trial.config["spec"]["trial"]["key"]

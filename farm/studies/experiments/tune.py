@@ -1,0 +1,90 @@
+"""The Ray Tune side of farm.studies.experiments: the SB3 callback a trial reports through, and the
+Tune callback showing the experiment's progress.
+
+This module imports Ray at its top, so it is imported only inside functions, after
+farm.runtime.ray_cluster has set Ray's loopback switch (farm/runtime/cluster.py), as
+farm/service/actor.py is. Both classes live at a module's top level so that Tune's pickled
+experiment state names them (a restored experiment finds them by name).
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from pathlib import Path
+
+from ray import tune
+
+from farm.alloc.training import AfterUpdates
+
+__all__ = ["TuneReport", "Progress"]
+
+
+class TuneReport(AfterUpdates):
+    """An SB3 callback reporting a trial's steps to Ray Tune each time they pass a multiple
+    of `every` ({"timesteps": n, "phase": "train"}), after the step's update (AfterUpdates),
+    with a Tune checkpoint when the run's Checkpointer (called before it) has just saved one: a marker folder holding progress.json
+    (the steps and the SB3 checkpoint's path), the weights, the replay buffer and the run's
+    state staying in the run folder (docs/experiments.md says why).
+
+    run_dir: the trial's run folder; every: steps between reports."""
+
+    def __init__(self, run_dir, every: int):
+        super().__init__(every)
+        self.run_dir = Path(run_dir)
+
+    def _on_training_start(self) -> None:
+        self.last = int(self.model.num_timesteps)  # a resumed run reported its checkpoint's steps before
+
+    def due(self, steps: int) -> None:
+        """Report `steps`, with the checkpoint of `steps` when there is one."""
+        from farm.alloc.runs import latest_checkpoint
+
+        metrics = {"timesteps": steps, "phase": "train"}
+        last = latest_checkpoint(self.run_dir)
+        if last is None or last[1] != steps:
+            tune.report(metrics)
+            return
+        with tempfile.TemporaryDirectory(prefix="farm-trial-") as folder:  # Tune copies it before report returns
+            (Path(folder) / "progress.json").write_text(json.dumps({"timesteps": steps, "sb3_checkpoint": str(last[0])}))
+            tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(folder))
+
+
+class Progress(tune.Callback):
+    """Feeds the running experiment's display (farm.studies.experiments.display.PROGRESS["display"]): trials
+    done, running and waiting, steps and the ETA on stderr. Holds no state of its own, so the
+    copy Tune unpickles on a restore shows the new run's display."""
+
+    @staticmethod
+    def _display():
+        from farm.studies.experiments.display import PROGRESS
+
+        return PROGRESS.get("display")
+
+    @staticmethod
+    def _key(trial) -> str:
+        return trial.config["spec"]["trial"]["key"]
+
+    def on_trial_start(self, iteration, trials, trial, **info):
+        """A trial started (or restarted)."""
+        display = self._display()
+        if display is not None:
+            display.started(self._key(trial))
+
+    def on_trial_result(self, iteration, trials, trial, result, **info):
+        """A trial reported."""
+        display = self._display()
+        if display is not None:
+            display.result(self._key(trial), result)
+
+    def on_trial_complete(self, iteration, trials, trial, **info):
+        """A trial finished."""
+        display = self._display()
+        if display is not None:
+            display.ended(self._key(trial), True)
+
+    def on_trial_error(self, iteration, trials, trial, **info):
+        """A trial failed for good (FailureConfig's retries spent)."""
+        display = self._display()
+        if display is not None:
+            display.ended(self._key(trial), False)

@@ -1,0 +1,127 @@
+"""A `farm suite` config (SuiteConfig, load_suite_config); docs/suite.md shows one and says how
+a suite runs."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import Field, ValidationError, field_validator, model_validator
+
+from farm.alloc.config import AllocConfig
+from farm.alloc.policies import policy_entry, policy_names
+from farm.alloc.runs import LEARNER
+from farm.alloc.scenarios import SCENARIOS
+from farm.core.config import StrictFile, first_line, load_yaml_model
+
+__all__ = ["SuiteConfig", "load_suite_config", "available_policies"]
+
+
+def available_policies() -> list[str]:
+    """The allocators a suite may list: every registered baseline and planner, in registration order."""
+    return policy_names(("baseline", "planner"))
+
+
+def _choices(names) -> str:
+    return ", ".join(names) if names else "none"
+
+
+class SuiteConfig(StrictFile):
+    """A `farm suite` config (see the module doc); ConfigError or ValidationError, one line
+    naming the field, the bad value and the choices, for bad input."""
+
+    KIND = "a suite"
+
+    name: str = Field("suite", min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
+    scenarios: list[str] | None = None  # None: every scenario
+    policies: list[str] | None = None  # None: every baseline and every planner
+    planner_options: dict[str, dict[str, Any]] = {}
+    episodes: int = Field(10, ge=1, le=100_000)
+    seed: int = Field(1000, ge=0)
+    store: str | None = None  # None: farm.service.store.default_store_path()
+    env: dict[str, Any] = {}  # AllocConfig settings replacing every scenario's
+    runs: dict[str, str] = {}  # scenario -> TD3 run folder
+    skip_missing_runs: bool = False
+
+    @field_validator("scenarios")
+    @classmethod
+    def _known_scenarios(cls, v):
+        if v is None:
+            return v
+        if not v:
+            raise ValueError(f"must name at least one scenario (choose from {_choices(SCENARIOS)})")
+        for name in v:
+            if name not in SCENARIOS:
+                raise ValueError(f"unknown scenario {name!r} (choose from {_choices(SCENARIOS)})")
+        _no_repeats(v)
+        return v
+
+    @field_validator("policies")
+    @classmethod
+    def _known_policies(cls, v):
+        if v is None:
+            return v
+        choices = available_policies()
+        if not v:
+            raise ValueError(f"must name at least one policy (choose from {_choices(choices)})")
+        for name in v:
+            if name not in choices:
+                hint = "; trained runs come from `runs`" if name == LEARNER else ""
+                raise ValueError(f"unknown policy {name!r} (choose from {_choices(choices)}){hint}")
+        _no_repeats(v)
+        return v
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        scenarios = self.scenario_names()
+        for name, path in self.runs.items():
+            if name not in scenarios:
+                raise ValueError(f"runs.{name}: not a scenario of this suite, got {name!r} "
+                                 f"(choose from {_choices(scenarios)})")
+            if not path.strip():
+                raise ValueError(f"runs.{name}: an empty folder name")
+        policies = self.policy_names()
+        planners = [name for name in policies if policy_entry(name).options()]
+        for name, options in self.planner_options.items():
+            if name not in planners:
+                raise ValueError(f"planner_options.{name}: {name!r} is not a planner of this suite "
+                                 f"(choose from {_choices(planners)})")
+            allowed = policy_entry(name).options()
+            for option in options:
+                if option not in allowed:
+                    raise ValueError(f"planner_options.{name}: unknown option {option!r} "
+                                     f"(choose from {_choices(allowed)})")
+        for name in scenarios:
+            self.env_of(name)
+        return self
+
+    def scenario_names(self) -> list[str]:
+        """The scenarios run, in order (every scenario when the config names none)."""
+        return list(self.scenarios) if self.scenarios is not None else list(SCENARIOS)
+
+    def policy_names(self) -> list[str]:
+        """The baselines and planners run, in order (all of them when the config names none)."""
+        return list(self.policies) if self.policies is not None else available_policies()
+
+    def env_of(self, scenario: str) -> AllocConfig:
+        """The env settings of one scenario in this suite: the scenario's, `env` replacing them.
+
+        ValueError (one line, `env.<field>: ...`, naming the scenario) for a setting refused.
+        """
+        try:
+            return SCENARIOS[scenario].config(**self.env)
+        except ValidationError as e:
+            raise ValueError(f"env.{first_line(e)} (in scenario {scenario})") from None
+
+
+def _no_repeats(names: list[str]) -> None:
+    seen = set()
+    for name in names:
+        if name in seen:
+            raise ValueError(f"{name!r} is named twice")
+        seen.add(name)
+
+
+def load_suite_config(path) -> SuiteConfig:
+    """Read and validate a suite YAML; ConfigError of one line naming the file and the field."""
+    return load_yaml_model(path, SuiteConfig, "suite")
+

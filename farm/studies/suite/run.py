@@ -1,0 +1,224 @@
+"""`farm suite CONFIG --out DIR`: every allocator on every scenario, on the same seeded
+episodes; a leaderboard with 95% CIs. docs/suite.md says how it runs (one service actor, the
+lattice warmed first, one Ray task per (scenario, allocator)) and why 2 CPUs cannot deadlock."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from farm.alloc.config import AllocConfig
+from farm.alloc.lattice import lattice_groups, warm_lattices
+from farm.alloc.policies import PolicySpec, make_policy, policy_entry
+from farm.alloc.runs import LEARNER, RunFolder
+from farm.alloc.scenarios import SCENARIOS
+from farm.core.errors import ConfigError
+from farm.studies.suite.config import SuiteConfig
+from farm.studies.suite.leaderboard import leaderboard, plot_leaderboard
+
+__all__ = ["run_suite"]
+
+
+def _run_folder(config: SuiteConfig, scenario: str, env: AllocConfig):
+    """The trained policy of a scenario's run folder, or None when it is missing and missing runs
+    are skipped; ConfigError (one line naming runs.<scenario>) otherwise."""
+    run_dir = Path(config.runs[scenario])
+    run = RunFolder(run_dir)
+    field = f"runs.{scenario}"
+    if not run.has_model():
+        if config.skip_missing_runs:
+            return None
+        what = "does not exist" if not run_dir.exists() else "holds no trained model (model.zip)"
+        raise ConfigError(f"{field}: {run_dir} {what}; train it (farm train configs/train/suite_{scenario}.yaml "
+                          f"--out {run_dir}) or set skip_missing_runs: true", field=field)
+    try:
+        trained = run.read_config().env
+    except ConfigError as e:
+        raise ConfigError(f"{field}: {e}", field=field) from None
+    ours, theirs = env.model_dump(), trained.model_dump()
+    for name in ours:
+        if name not in ("games", "seed") and ours[name] != theirs.get(name):
+            raise ConfigError(f"{field}: {run_dir} was trained on another env ({name}: {theirs.get(name)!r}, "
+                              f"the scenario's {ours[name]!r})", field=field)
+    try:
+        return make_policy(LEARNER, env, None, run=run_dir)
+    except ConfigError as e:
+        raise ConfigError(f"{field}: {e}", field=field) from None
+
+
+def _plan(config: SuiteConfig) -> tuple[dict[str, AllocConfig], list[tuple[str, PolicySpec]], dict]:
+    """(env settings by scenario, [(scenario, allocator spec)] in leaderboard order, skipped runs)."""
+    envs = {name: config.env_of(name) for name in config.scenario_names()}
+    specs = [PolicySpec(policy_entry(name), dict(config.planner_options.get(name, {})))
+             for name in config.policy_names()]
+    jobs, skipped = [], {}
+    for scenario, env in envs.items():
+        jobs += [(scenario, spec) for spec in specs]
+        if scenario in config.runs:
+            policy = _run_folder(config, scenario, env)
+            if policy is None:
+                skipped[scenario] = config.runs[scenario]
+            else:
+                jobs.append((scenario, PolicySpec(policy_entry(LEARNER), {"policy": policy})))
+    return envs, jobs, skipped
+
+
+def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address: str | None = None,
+              workers: int | None = None, show_progress: bool = True, warm: bool = True) -> tuple[pd.DataFrame, dict]:
+    """Run a suite into the folder out (docs/suite.md); returns (leaderboard, info).
+
+    episodes: replaces the config's; address: a Ray cluster to join (default $RAY_ADDRESS,
+    else a local Ray of `workers` CPUs, 2 by default); workers: evaluation tasks in flight
+    (default the cluster's CPUs); warm: False skips computing the lattice first (the tests
+    use it to make evaluations miss). info: wall seconds of the warm-up and the evaluations,
+    cases warmed, tasks, the workers used, skipped runs.
+    ConfigError (one line naming the field) for bad input, before Ray starts: the folder, the
+    episodes, the run folders, the planners' option values (each planner is built once to
+    check them). A project error raised in a task (e.g. a planner's InputError) is raised
+    here as the same class, one line naming the scenario and the policy.
+    """
+    from farm.core.output import write_table
+    from farm.core.progress import GameProgress
+    from farm.runtime import bounded, check_workers, starts_local_ray, tasks_in_flight
+    from farm.service.client import open_client
+    from farm.service.store import default_store_path
+
+    if episodes is not None:
+        if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+            raise ConfigError(f"episodes: must be a whole number >= 1, got {episodes!r}", field="episodes")
+        config = config.model_copy(update={"episodes": episodes})
+    check_workers(workers)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"out: {out} exists and is not a folder", field="out")
+    envs, jobs, skipped = _plan(config)
+    _check_planners(jobs, envs)
+    for scenario, path in skipped.items():
+        print(f"farm suite: runs.{scenario}: {path} holds no trained model yet; skipped", file=sys.stderr)
+    store = Path(config.store or default_store_path())
+    first = next(iter(envs.values()))
+    starts_ray = starts_local_ray(address)
+    info: dict = {"tasks": len(jobs), "skipped_runs": skipped, "warmed_cases": 0}
+    t0 = time.perf_counter()
+    with open_client(first.service_settings(), mode="ray", store=store, address=address,
+                     num_cpus=workers if starts_ray else None) as client:
+        import ray
+
+        from farm.studies.suite.tasks import remote_suite_cell
+
+        actor = client.backend.actor
+        if warm:
+            info["warmed_cases"] = warm_lattices(client, lattice_groups(envs.values()), show_progress)
+        info["warm_seconds"] = time.perf_counter() - t0
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        n = tasks_in_flight(workers, cpus, address)
+        info["workers"] = n
+        # The largest maps first, so that the last tasks to finish are short ones.
+        order = sorted(range(len(jobs)), key=lambda j: -_cost(envs[jobs[j][0]]))
+        results: dict[int, list[dict]] = {}
+        bar = GameProgress(len(jobs) * config.episodes, enabled=show_progress, desc="episodes", unit="episode")
+        t1 = time.perf_counter()
+        try:
+            def submit(j):
+                scenario, spec = jobs[j]
+                return remote_suite_cell.remote(envs[scenario], spec, actor, config.episodes, config.seed)
+
+            for j, ref in bounded(submit, order, n):
+                results[j] = _result(ray, ref, *jobs[j])
+                bar.update(config.episodes)
+        finally:
+            bar.close()
+        info["evaluation_seconds"] = time.perf_counter() - t1
+    rows = [{"scenario": jobs[j][0], "policy": jobs[j][1].name, **row} for j in range(len(jobs)) for row in results[j]]
+    per = pd.DataFrame(rows)
+    board = leaderboard(per)
+    info["seconds"] = time.perf_counter() - t0
+    out.mkdir(parents=True, exist_ok=True)
+    write_table(board, out / "leaderboard", "csv")
+    write_table(per, out / "episodes", "csv")
+    plot_leaderboard(board, out / "leaderboard.png", title=f"{config.name}: intruder mass eliminated "
+                     f"(mean and 95% CI over {config.episodes} episodes)")
+    _write_manifest(config, envs, jobs, skipped, store, info, out / "suite.json")
+    return board, info
+
+
+class _Unasked:
+    """A capture-time backend for building planners to check their options: never asked."""
+
+    repeatable = True
+
+    def get_many(self, keys, estimate=False):
+        raise RuntimeError("a planner asked for statistics while being built")
+
+    def warm(self, keys, progress=None):
+        raise RuntimeError("a planner asked for statistics while being built")
+
+
+def _check_planners(jobs: list, envs: dict) -> None:
+    """Build every (scenario, planner) once, before Ray starts, so that a bad planner option
+    is one line (ConfigError naming planner_options.<planner>), not a failed task."""
+    from farm.core.errors import SwarmFarmError
+    from farm.service.client import CaptureTimeClient
+
+    for scenario, spec in jobs:
+        if not spec.entry.options():
+            continue
+        client = CaptureTimeClient(envs[scenario].service_settings(), backend=_Unasked())
+        try:
+            spec.make(envs[scenario], client)
+        except (SwarmFarmError, TypeError, ValueError) as e:
+            problem = str(e).removeprefix(f"{spec.name}: ")
+            raise ConfigError(f"planner_options.{spec.name}: {problem} (scenario {scenario})") from None
+
+
+def _result(ray, ref, scenario: str, spec: PolicySpec) -> list[dict]:
+    """A task's rows; a project error it raised comes back as that error, one line naming the
+    scenario and the policy (not Ray's wrapper with the worker's traceback)."""
+    from farm.core.errors import SwarmFarmError
+
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as e:
+        cause = getattr(e, "cause", None)
+        if not isinstance(cause, SwarmFarmError):
+            raise
+        try:
+            error = type(cause)(f"{scenario}, {spec.name}: {cause}")
+        except Exception:  # an error class that is not made from one message
+            error = cause
+        raise error from None
+
+
+def _cost(env: AllocConfig) -> float:
+    """A task's rough relative cost: cells times steps."""
+    return env.grid_size ** 2 * env.max_steps
+
+
+def _write_manifest(config: SuiteConfig, envs: dict, jobs: list, skipped: dict, store: Path, info: dict,
+                    path: Path) -> None:
+    from workers import ENGINE_VERSION
+
+    from farm.core.output import atomic_write_bytes
+
+    doc = {
+        "name": config.name,
+        "config": config.model_dump(mode="json", exclude_unset=True),
+        "resolved": {
+            "scenarios": {name: {"description": SCENARIOS[name].description, "gym_id": SCENARIOS[name].gym_id,
+                                 "env": env.model_dump(mode="json")} for name, env in envs.items()},
+            "policies": config.policy_names(),
+            "planner_options": config.planner_options,
+            "runs": {scenario: config.runs[scenario] for scenario, spec in jobs if spec.name == LEARNER},
+            "skipped_runs": skipped,
+            "episodes": config.episodes,
+            "seeds": [config.seed, config.seed + config.episodes - 1],
+            "store": str(store),
+        },
+        "engine_version": ENGINE_VERSION,
+        "info": {k: v for k, v in info.items() if k != "skipped_runs"},
+    }
+    atomic_write_bytes(path, (json.dumps(doc, indent=2) + "\n").encode())

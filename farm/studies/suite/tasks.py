@@ -1,0 +1,24 @@
+"""The suite's Ray task: one (scenario, allocator), all its episodes (evaluate_cell on a
+worker). Imports Ray: imported only by farm.studies.suite.run.run_suite, once Ray is up
+(farm.runtime.ray_cluster sets Ray's loopback switch before Ray's import)."""
+
+from __future__ import annotations
+
+import ray
+
+from farm.games.tasks import MAX_RETRIES
+from farm.studies.suite.cell import evaluate_cell
+
+__all__ = ["remote_suite_cell"]
+
+
+@ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)
+def remote_suite_cell(config, spec, service, episodes: int, seed: int) -> list[dict]:
+    """evaluate_cell on a worker, its client built on the shared capture-time service actor
+    `service` (a handle): config: the scenario's AllocConfig; spec: the allocator (a
+    farm.alloc.policies.PolicySpec); returns one dict per episode. While the client waits for
+    the actor (ray.get), Ray lends this task's CPU to the service's game tasks."""
+    from farm.service.client import CaptureTimeClient
+
+    client = CaptureTimeClient(config.service_settings(), service=service)
+    return evaluate_cell(config, spec, client, episodes, seed)
