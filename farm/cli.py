@@ -353,7 +353,7 @@ def cmd_claims(a) -> int:
     """`farm claims RUNS_DIR`: the paper's claims (a)-(c), measured on evaluated runs; on an
     experiment folder (its experiment.json), over its seeds."""
     from farm.studies.claims import claims
-    from farm.studies.experiments.results import is_experiment
+    from farm.studies.experiments.folder import is_experiment
     from farm.core.output import write_table
 
     runs = Path(a.runs_dir)

@@ -137,11 +137,16 @@ def test_trials_leave_one_cpu_to_the_games():
 
 
 def test_a_folder_of_another_experiment_is_refused_before_ray(tmp_path):
-    from farm.studies.experiments import _write_manifest, load_experiment_config, plan, run_experiment
+    from farm.studies.experiments import ExperimentFolder, load_experiment_config, plan, run_experiment
+    from farm.studies.experiments.tables import manifest_trials
 
     config = load_experiment_config(smoke_config(tmp_path / "s.yaml", tmp_path / "store.sqlite"))
     out = tmp_path / "exp"
-    _write_manifest(config, plan(config), out)
+    the_plan = plan(config)
+    ExperimentFolder(out).write_manifest({"name": the_plan.name, "digest": the_plan.digest,
+                                          "config": config.model_dump(mode="json", exclude_unset=True),
+                                          "store": the_plan.store, "fields": the_plan.fields,
+                                          "trials": manifest_trials(the_plan)})
     other = load_experiment_config(smoke_config(tmp_path / "o.yaml", tmp_path / "store.sqlite", seeds=[0]))
     with pytest.raises(ConfigError, match="holds another experiment") as e:
         run_experiment(other, out, show_progress=False)
@@ -271,7 +276,7 @@ def kill_session(process: subprocess.Popen) -> None:
 
 
 def checkpointed(run: Path, at_least: int) -> bool:
-    from farm.alloc.training import latest_checkpoint
+    from farm.alloc.runs import latest_checkpoint
 
     last = latest_checkpoint(run)
     return last is not None and last[1] >= at_least

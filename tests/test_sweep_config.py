@@ -111,7 +111,7 @@ def test_cli_bad_config_is_one_line_and_keeps_results(tmp_path):
     for args, message in [
         (("sweep", bad, "--out", out, "--no-ray"), "holds sweep"),
         (("sweep", tmp_path / "nope.yaml"), "no such config file"),
-        (("sweep", good, "--workers", "0"), "--workers: must be >= 1"),
+        (("sweep", good, "--workers", "0"), "--workers: must be a whole number >= 1, got 0"),
         (("sweep", good, "--out", good), "exists and is not a folder"),
     ]:
         r = run(*args)

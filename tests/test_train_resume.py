@@ -103,7 +103,8 @@ def assert_same_run(a: Path, b: Path) -> None:
 def test_a_run_stopped_after_a_checkpoint_and_resumed_equals_an_uninterrupted_one(reference, tmp_path):
     """Stopped at step 260: after the checkpoint of step 210 (past learning_starts, so the
     update's random draws matter) and the evaluation of step 250, which the resumed run redoes."""
-    from farm.alloc.training import checkpoint_files, latest_checkpoint, train
+    from farm.alloc.runs import checkpoint_files, latest_checkpoint
+    from farm.alloc.training import train
 
     uninterrupted, config = reference
     run = tmp_path / "run"
@@ -133,7 +134,7 @@ def test_a_shorter_run_resumed_to_the_full_length_equals_an_uninterrupted_one(re
 
 def test_latest_checkpoint_is_the_last_whole_one(tmp_path):
     """A checkpoint counts once its RunState file (written last) is there."""
-    from farm.alloc.training import checkpoint_files, latest_checkpoint
+    from farm.alloc.runs import checkpoint_files, latest_checkpoint
 
     assert latest_checkpoint(tmp_path) is None
     for steps, files in ((100, 3), (200, 3), (300, 2)):  # 300: stopped before its state was written

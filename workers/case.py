@@ -135,10 +135,10 @@ class Case:
             box = getattr(self.law, name)
             if not _is_box(box):
                 raise InputError(f"law.{name}: must be (x_min, x_max, y_min, y_max), finite numbers, "
-                                 f"got {shown(box)}{not_a_number_hint(box)}")
+                                 f"got {shown(box)}{not_a_number_hint(box)}", field=f"law.{name}")
             corners = np.array([[box[0], box[2]], [box[1], box[2]], [box[1], box[3]], [box[0], box[3]]])
             if self.law.kind == "boxes" and not arena.contains(corners).all():
-                raise InputError(f"law.{name}: {shown(box)} is not inside the arena")
+                raise InputError(f"law.{name}: {shown(box)} is not inside the arena", field=f"law.{name}")
         return self
 
     def to_dict(self) -> dict:

@@ -66,6 +66,11 @@ def run_trial(params: dict) -> None:
     tune.report({**result, "phase": "done"})
 
 
+# Tune knows a function trainable by its __name__, and Tuner.restore refuses another name: the
+# experiments saved since 0.5 were saved with this one.
+run_trial.__name__ = "_run_trial"
+
+
 def trial_dirname(trial) -> str:
     """Tune's folder (and name) of a trial: the trial's key."""
     return trial.config["spec"]["trial"]["key"]
