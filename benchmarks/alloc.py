@@ -35,7 +35,8 @@ def main() -> None:
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from farm.alloc import AllocConfig, SwarmAllocationEnv
-    from farm.alloc.training import ServiceParams, TrainConfig, UpdateTimer, lattice_pairs, load_train_config, train
+    from farm.alloc.lattice import lattice_pairs
+    from farm.alloc.training import ServiceParams, TrainConfig, UpdateTimer, load_train_config, train
     from farm.service import CaptureTimeClient
 
     torch.set_num_threads(1)

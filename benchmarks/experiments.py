@@ -70,7 +70,7 @@ def main() -> None:
     if steps < 1:
         ap.error(f"--steps: must be >= 1, got {steps}")
     from farm.alloc.config import AllocConfig
-    from farm.alloc.training import lattice_pairs
+    from farm.alloc.lattice import lattice_pairs
     from farm.studies.experiments import plan, run_experiment
     from farm.runtime import ray_cluster
 

@@ -80,7 +80,7 @@ def main() -> None:
     a = ap.parse_args()
     from farm.alloc.rollout import evaluate_policies
     from farm.alloc.scenarios import SCENARIOS
-    from farm.alloc.training import lattice_pairs
+    from farm.alloc.lattice import lattice_pairs
     from farm.service import CaptureTimeClient
     from farm.service.client import open_client
 

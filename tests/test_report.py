@@ -103,7 +103,7 @@ T975_2 = 4.302652729911275  # scipy.stats.t.ppf(0.975, 2): the 95% t interval of
 
 
 def test_the_band_over_seeds_by_hand():
-    from farm.studies.experiments.results import seed_band
+    from farm.core.stats import seed_band
 
     returns = np.array([[0.0, 1.0], [2.0, 3.0], [4.0, 8.0]])  # 3 seeds x 2 evaluations
     mean, low, high, kind = seed_band(returns)

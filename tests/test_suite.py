@@ -312,12 +312,13 @@ def test_a_cold_store_without_warming_cannot_deadlock_on_two_cpus(ray_local, dem
 
 
 def test_evaluate_cell_in_process_times_predict_and_records_the_start(tmp_path):
+    from farm.alloc.policies import PolicySpec, policy_entry
     from farm.service.client import CaptureTimeClient
 
     config = SCENARIOS["paper_3x3_c1_0"].config(games=2)
     client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
     try:
-        rows = evaluate_cell(config, ("baseline", "stay_at_base", None), client, 2, 5)
+        rows = evaluate_cell(config, PolicySpec(policy_entry("stay_at_base")), client, 2, 5)
     finally:
         client.close()
     assert [r["seed"] for r in rows] == [5, 6]

@@ -126,7 +126,7 @@ def test_one_seeding_every_path_plays_the_same_games(ray_local, tmp_path):
     in process): the same capture and escape times, bit for bit."""
     import ray
 
-    from farm.alloc.rollout import FreshGames
+    from farm.alloc.fidelity import FreshGames
     from farm.service import CaptureTimeClient, ServiceSettings, get_service
     from farm.games.tasks import _remote_shard
     from workers import CaptureStats, run_case, run_games
