@@ -305,13 +305,21 @@ def cmp_bytes(a: Side, b: Side, ra: str, rb: str, params):
     return False, f"bytes differ ({len(da)} vs {len(db)} bytes)", None
 
 
-def cmp_text_subs(a, b, ra, rb, params):
+def cmp_masked_text(a, b, ra, rb, mask):
+    """The two texts, the same as they are, or the same once mask(text) is applied to both."""
     ta, tb = a.text(ra), b.text(rb)
     if ta == tb:
         return True, "", None
-    for rx, rep in params["subs"]:
-        ta, tb = re.sub(rx, rep, ta), re.sub(rx, rep, tb)
+    ta, tb = mask(ta), mask(tb)
     return ta == tb, "" if ta == tb else first_diff_line(ta, tb), "masked"
+
+
+def cmp_text_subs(a, b, ra, rb, params):
+    def mask(t):
+        for rx, rep in params["subs"]:
+            t = re.sub(rx, rep, t)
+        return t
+    return cmp_masked_text(a, b, ra, rb, mask)
 
 
 _TQDM = re.compile(r"^(?P<desc>.*?)(?::\s*)?\s*\d+%\|[^|]*\|\s*(?P<n>\d+)/(?P<total>\d+) \[[^\]]*\]\s*$")
@@ -341,11 +349,7 @@ def reduce_stderr(text: str) -> str:
 
 
 def cmp_stderr(a, b, ra, rb, params):
-    ta, tb = a.text(ra), b.text(rb)
-    if ta == tb:
-        return True, "", None
-    ta, tb = reduce_stderr(ta), reduce_stderr(tb)
-    return ta == tb, "" if ta == tb else first_diff_line(ta, tb), "masked"
+    return cmp_masked_text(a, b, ra, rb, reduce_stderr)
 
 
 def cmp_suite_out(a, b, ra, rb, params):
@@ -361,11 +365,7 @@ def cmp_suite_out(a, b, ra, rb, params):
                 on = False
             lines.append(line)
         return "".join(lines)
-    ta, tb = a.text(ra), b.text(rb)
-    if ta == tb:
-        return True, "", None
-    ta, tb = mask(ta), mask(tb)
-    return ta == tb, "" if ta == tb else first_diff_line(ta, tb), "masked"
+    return cmp_masked_text(a, b, ra, rb, mask)
 
 
 def cmp_json(a, b, ra, rb, params):

@@ -219,7 +219,7 @@ class CaptureStats:
         guessed value (the store leaves such rows out and recomputes them)."""
         unknown = set(row) - set(cls.flat_names()) - _FORMER_KEYS
         if unknown:
-            raise InputError(f"CaptureStats: unknown fields {', '.join(sorted(unknown))}", field="CaptureStats")
+            raise InputError(f"CaptureStats: unknown fields {', '.join(sorted(unknown))}")
         times = {m: TimeSummary(**{s: row[f"{m}_{s}"] for s in TIME_STATS}) for m in TIME_METRICS}
         fractions = {name: row[flat] for name, (_, flat) in _FRACTIONS.items()}
         return cls(n_games=int(row["n_games"]), **fractions, **times, estimate=estimate)

@@ -200,7 +200,7 @@ class SwarmAllocationEnv(gym.Env):
         """Make the env; the class docstring's Arguments section describes each argument."""
         if config is not None and kwargs:
             raise ConfigError(f"SwarmAllocationEnv: give a config or AllocConfig keyword arguments, not both "
-                              f"(got a config and {', '.join(sorted(kwargs))})", field="SwarmAllocationEnv")
+                              f"(got a config and {', '.join(sorted(kwargs))})")
         if estimates not in (False, True, "lattice") or estimates.__class__ not in (bool, str):
             raise ConfigError(f"estimates: must be false, true or 'lattice', got {estimates!r}", field="estimates")
         self.estimates = estimates

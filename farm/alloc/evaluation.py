@@ -5,8 +5,7 @@ cell's game simulated (farm.alloc.fidelity)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import pandas as pd
 
@@ -27,7 +26,7 @@ class RunEvaluation:
     """What evaluate_run measured: table (rollout.measure_table by policy), per (per-episode
     rows), steps ({policy: list of (T, 3) per-step measures}), and under fidelity "games"
     games_table and differences (farm.alloc.fidelity.evaluate_fidelity); games_per_case: the
-    service's games per case; written: the files written."""
+    service's games per case."""
 
     table: pd.DataFrame
     per: pd.DataFrame
@@ -35,7 +34,6 @@ class RunEvaluation:
     games_per_case: int
     games_table: pd.DataFrame | None = None
     differences: pd.DataFrame | None = None
-    written: list[Path] = field(default_factory=list)
 
 
 def reference_specs() -> list[PolicySpec]:
@@ -59,14 +57,13 @@ def evaluate_trained(run: RunFolder, config, policies: dict, client, episodes: i
     """policies (allocators()) on episodes seeded seed .. seed + episodes - 1 of config.env, their
     engagements answered by client; writes eval_table.csv, eval_episodes.csv, eval_steps.csv
     and, with figures, density_<policy>.png and behaviour_steps.png into the run folder.
-    Returns (table, per, steps, the files written)."""
+    Returns (table, per, steps) (farm.alloc.rollout.evaluate_policies)."""
     table, per, steps = evaluate_policies(config.env, policies, client, episodes, seed,
                                           out=run.path if figures else None)
-    written = run.write_evaluation(table, per, steps_table(steps))
+    run.write_evaluation(table, per, steps_table(steps))
     if figures:
-        chart = plot_behaviour_steps(behaviour_pair(steps, table, LEARNER), run.file("behaviour_steps.png"))
-        written += [chart] if chart is not None else []
-    return table, per, steps, written
+        plot_behaviour_steps(behaviour_pair(steps, table, LEARNER), run.file("behaviour_steps.png"))
+    return table, per, steps
 
 
 def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str = "service") -> RunEvaluation:
@@ -90,12 +87,12 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     mode = config.service.mode  # local: the service and the games of fidelity "games" in this process, no Ray
     with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
         policies = allocators(run, config, client, learned=learned)
-        table, per, steps, written = evaluate_trained(run, config, policies, client, episodes, seed)
-        result = RunEvaluation(table, per, steps, settings.games, written=written)
+        table, per, steps = evaluate_trained(run, config, policies, client, episodes, seed)
+        result = RunEvaluation(table, per, steps, settings.games)
         if fidelity == "games":
             result.games_table, result.differences = evaluate_fidelity(config.env, policies, client, episodes, seed,
                                                                        in_process=mode == "local")
-            result.written += run.write_fidelity(result.games_table, result.differences)
+            run.write_fidelity(result.games_table, result.differences)
     return result
 
 

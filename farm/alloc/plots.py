@@ -1,4 +1,5 @@
-"""Figures of allocation: density maps of an episode (paper figures 6-9: defenders blue, intruders red),\nthe training curve, and the behaviour measures step by step."""
+"""Figures of allocation: density maps of an episode (paper figures 6-9: defenders blue, intruders red),
+the training curve, and the behaviour measures step by step."""
 
 from __future__ import annotations
 

@@ -190,11 +190,3 @@ class RunFolder:
         """eval_steps.csv (None without it)."""
         path = self.file("eval_steps.csv")
         return pd.read_csv(path) if path.exists() else None
-
-    def checkpoint_files(self, steps: int) -> tuple[Path, Path, Path]:
-        """checkpoint_files of this run."""
-        return checkpoint_files(self.path, steps)
-
-    def latest_checkpoint(self) -> tuple[Path, int] | None:
-        """latest_checkpoint of this run."""
-        return latest_checkpoint(self.path)

@@ -106,7 +106,7 @@ class CaptureTimeClient:
         if estimate == "lattice":
             return self.lattice_estimates(pairs)
         if estimate not in (False, True):
-            raise ConfigError(f"estimate: must be false, true or 'lattice', got {estimate!r}", field='estimate')
+            raise ConfigError(f"estimate: must be false, true or 'lattice', got {estimate!r}", field="estimate")
         pairs = [tuple(p) for p in pairs]
         memo = self._memo if self.backend.repeatable else {}
         out: list = [None if any(x.__class__ is bool for x in p) else memo.get(p) for p in pairs]
@@ -187,7 +187,7 @@ def open_client(settings: ServiceSettings, *, mode: str = "ray", store, address:
             client.close()
         return
     if mode != "ray":
-        raise ConfigError(f"service.mode: must be 'ray' or 'local', got {mode!r}", field='service.mode')
+        raise ConfigError(f"service.mode: must be 'ray' or 'local', got {mode!r}", field="service.mode")
     from farm.runtime import ray_cluster, starts_local_ray
     from farm.service.store import check_store
 

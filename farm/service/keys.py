@@ -76,7 +76,7 @@ def _known(game: dict) -> None:
     """Case fields other than the team sizes (which each key sets) are settings."""
     unknown = sorted(set(game) - set(SETTING_FIELDS))
     if unknown:
-        raise InputError(f"ServiceSettings: not a game setting: {', '.join(unknown)}", field="ServiceSettings")
+        raise InputError(f"ServiceSettings: not a game setting: {', '.join(unknown)}")
 
 
 @dataclass(frozen=True)

@@ -83,9 +83,6 @@ def _steps(run: Path) -> pd.DataFrame | None:
     return RunFolder(run).eval_steps()
 
 
-_fmt = format_ci
-
-
 def _h(h: float) -> float:
     """A CI half-width, 0 when there is none (one value)."""
     return h if math.isfinite(h) else 0.0
@@ -151,16 +148,16 @@ def claims(runs_dir: Path, c0: str = "paper_3x3_c1_0", c15: str = "paper_3x3_c1_
     a = measure_a(runs_dir / c0, policy)
     if a is not None:
         out.append({"claim": CLAIM_A,
-                    "measured": f"{policy} coverage at step 1: {_fmt(a['coverage_mean'], a['coverage_ci95'])} of the "
+                    "measured": f"{policy} coverage at step 1: {format_ci(a['coverage_mean'], a['coverage_ci95'])} of the "
                                 f"intruder mass; every intruder cell engaged at step 1 in {100 * a['all_engaged']:.0f}% "
                                 f"of episodes",
                     "verdict": f"{a['verdict']} (threshold: the coverage CI above {COVERAGE_THRESHOLD})"})
     b = measure_b(runs_dir / c0, runs_dir / c15, policy)
     if b is not None:
         out.append({"claim": CLAIM_B,
-                    "measured": f"engaged cells per step {_fmt(b['engaged_mean_c15'], b['engaged_ci95_c15'])} vs "
-                                f"{_fmt(b['engaged_mean_c0'], b['engaged_ci95_c0'])}; defenders per engaged cell "
-                                f"{_fmt(b['dpe_mean_c15'], b['dpe_ci95_c15'])} vs {_fmt(b['dpe_mean_c0'], b['dpe_ci95_c0'])}",
+                    "measured": f"engaged cells per step {format_ci(b['engaged_mean_c15'], b['engaged_ci95_c15'])} vs "
+                                f"{format_ci(b['engaged_mean_c0'], b['engaged_ci95_c0'])}; defenders per engaged cell "
+                                f"{format_ci(b['dpe_mean_c15'], b['dpe_ci95_c15'])} vs {format_ci(b['dpe_mean_c0'], b['dpe_ci95_c0'])}",
                     "verdict": f"{b['verdict']} (fewer: {'yes' if b['fewer'] else 'no'}, more: "
                                f"{'yes' if b['more'] else 'no'}; non-overlapping 95% CIs)"})
     plateaus = {r.name: plateau_minutes(r) for r in sorted(runs_dir.iterdir()) if r.is_dir()} if runs_dir.exists() else {}
@@ -248,7 +245,7 @@ def _spread(values, fmt: str = ".3f", unit: str = "") -> str:
 
 def _row_a(seeds: pd.DataFrame) -> dict:
     confirmed = list(seeds.a_verdict == "confirmed")
-    per_seed = "; ".join(f"seed {r.seed}: {r.a_verdict} (coverage {_fmt(r.coverage_mean, r.coverage_ci95)})"
+    per_seed = "; ".join(f"seed {r.seed}: {r.a_verdict} (coverage {format_ci(r.coverage_mean, r.coverage_ci95)})"
                          for r in seeds.itertuples())
     return {"claim": CLAIM_A, "verdict": _count(confirmed, "seed"),
             "measured": f"coverage at step 1 over seeds {_spread(seeds.coverage_mean)}; share of episodes with every "

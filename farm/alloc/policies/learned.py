@@ -42,6 +42,6 @@ def td3(config, client=None, *, policy=None, run: str | None = None):
     model of the run folder `run` (load_model)."""
     if policy is None:
         if run is None:
-            raise ConfigError("td3: needs a trained model: the run folder (run=...) or its policy (policy=...)", field='td3')
+            raise ConfigError("td3: needs a trained model: the run folder (run=...) or its policy (policy=...)")
         policy = load_model(run, "td3").policy
     return policy

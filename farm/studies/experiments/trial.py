@@ -6,6 +6,7 @@ tells how trials resume and why a finished one never trains again."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 from farm.alloc.evaluation import allocators, evaluate_trained, reference_specs
 from farm.alloc.runs import RunFolder
@@ -38,9 +39,7 @@ def run_trial(params: dict) -> None:
 
     spec = params["spec"]
     trial = Trial(**spec["trial"])
-    from pathlib import Path
-
-    folder = ExperimentFolder(Path(spec["dir"]).parent.parent)
+    folder = ExperimentFolder(Path(spec["dir"]).parent.parent)  # dir: <experiment>/trials/<key>
     if folder.finished(trial.key):  # finished before (e.g. the driver died after it): never trained again
         tune.report({**folder.read_result(trial.key), "phase": "done"})
         return

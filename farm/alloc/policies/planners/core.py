@@ -186,7 +186,7 @@ class _Planner:
         client (it needs one), then set estimates, levels (levels()) and rates (_Rates)."""
         self.estimates = _flag(self.name, "estimates", estimates)
         if self.client is None:
-            raise ConfigError(f"{self.name}: needs a capture-time client, got client=None", field=self.name)
+            raise ConfigError(f"{self.name}: needs a capture-time client, got client=None")
         self.levels = levels(self.config)
         self.rates = _Rates(self.config, self.client, self.estimates)
 
