@@ -110,11 +110,13 @@ class Cycle:
 
 @dataclass(frozen=True)
 class Report:
-    """What check() found in the tree at root: modules (by name), edges (every farm import,
-    sorted by file and line), and the findings: cycles, upward (edges to a higher layer) and
-    unlayered (module names)."""
+    """What check() found in the tree at root of the package (its name) with its layers: modules
+    (by name), edges (every import of the package's modules, sorted by file and line), and the
+    findings: cycles, upward (edges to a higher layer) and unlayered (module names)."""
 
     root: Path
+    package: str
+    layers: tuple
     modules: dict[str, Module]
     edges: tuple[Edge, ...]
     cycles: tuple[Cycle, ...]
@@ -127,35 +129,36 @@ class Report:
         return len(self.cycles) + len(self.upward) + len(self.unlayered)
 
 
-def layer_of(module: str) -> int | None:
-    """The index into LAYERS of the layer owning a module (its longest matching prefix), or None.
-    `farm` matches only the module farm itself; any other prefix also matches its submodules."""
+def layer_of(module: str, layers=LAYERS, package: str = PACKAGE) -> int | None:
+    """The index into layers of the layer owning a module (its longest matching prefix), or None.
+    The package's own name (`farm`) matches only the package itself; any other prefix also
+    matches its submodules."""
     best, best_length = None, -1
-    for index, (_, prefixes) in enumerate(LAYERS):
+    for index, (_, prefixes) in enumerate(layers):
         for prefix in prefixes:
-            matches = module == prefix or (prefix != PACKAGE and module.startswith(prefix + "."))
+            matches = module == prefix or (prefix != package and module.startswith(prefix + "."))
             if matches and len(prefix) > best_length:
                 best, best_length = index, len(prefix)
     return best
 
 
-def module_files(root: Path) -> dict[str, Path]:
+def module_files(root: Path, package: str = PACKAGE) -> dict[str, Path]:
     """Every module of the package folder root, by dotted name (a package by its own name)."""
     out = {}
     for path in sorted(root.rglob("*.py")):
-        parts = [PACKAGE, *path.relative_to(root).with_suffix("").parts]
+        parts = [package, *path.relative_to(root).with_suffix("").parts]
         if parts[-1] == "__init__":
             parts.pop()
         out[".".join(parts)] = path
     return out
 
 
-def _namespaces(root: Path, modules: dict[str, Path]) -> set[str]:
+def _namespaces(root: Path, modules: dict[str, Path], package: str) -> set[str]:
     """The names of the package folders of the tree, __init__.py or not (every folder above a module)."""
     names = set()
     for path in modules.values():
         for folder in path.relative_to(root).parents:
-            names.add(".".join([PACKAGE, *folder.parts]))
+            names.add(".".join([package, *folder.parts]))
     return names
 
 
@@ -167,10 +170,6 @@ def _relative_base(importer: str, is_package: bool, level: int, module: str | No
         return None
     here = here[: len(here) - (level - 1)]
     return ".".join([*here, module] if module else here)
-
-
-def _is_farm(name: str) -> bool:
-    return name == PACKAGE or name.startswith(PACKAGE + ".")
 
 
 def _dynamic_target(call: ast.Call) -> str | None:
@@ -222,16 +221,16 @@ def _walk(node: ast.AST, in_function: bool = False):
                 yield from _walk(child, inner)
 
 
-def imports_of(name: str, path: Path, file: str, known: set[str]) -> list[Edge]:
-    """Every import of a farm module in one module's source, sorted, one edge per (line, imported).
-    name: the module's dotted name; path: its file; file: the file as printed; known: the tree's
-    module and package names (for `from a import b`, b a module or a name)."""
+def imports_of(name: str, path: Path, file: str, known: set[str], package: str = PACKAGE) -> list[Edge]:
+    """Every import of a module of the package in one module's source, sorted, one edge per (line,
+    imported). name: the module's dotted name; path: its file; file: the file as printed; known:
+    the tree's module and package names (for `from a import b`, b a module or a name)."""
     tree = ast.parse(path.read_text(), str(path))
     is_package = path.name == "__init__.py"
     edges = set()
     for node, in_function in _walk(tree):
         for target in _targets(node, name, is_package, known):
-            if _is_farm(target):
+            if target == package or target.startswith(package + "."):
                 edges.add(Edge(file, node.lineno, name, target, in_function))
     return sorted(edges)
 
@@ -293,28 +292,28 @@ def _cycles(edges: tuple[Edge, ...]) -> tuple[Cycle, ...]:
     return tuple(cycles)
 
 
-def check(root: Path | None = None) -> Report:
-    """Check the farm package folder root (default: the one holding this file) against LAYERS.
-    Raises SyntaxError for a file that does not parse."""
+def check(root: Path | None = None, package: str = PACKAGE, layers=LAYERS) -> Report:
+    """Check the package folder root (default: farm's, the one holding this file), whose package
+    is named package, against layers (default: farm's LAYERS). Raises SyntaxError for a file
+    that does not parse. tests/test_workers_layout.py checks workers/ with it too."""
     root = Path(__file__).resolve().parent if root is None else Path(root)
-    files = module_files(root)
-    known = set(files) | _namespaces(root, files)
+    files = module_files(root, package)
+    known = set(files) | _namespaces(root, files, package)
     modules, edges = {}, []
     for name, path in files.items():
-        file = "/".join([PACKAGE, *path.relative_to(root).parts])
-        found = imports_of(name, path, file, known)
-        modules[name] = Module(name, path, len(path.read_text().splitlines()), layer_of(name))
-        edges.extend(found)
+        file = "/".join([package, *path.relative_to(root).parts])
+        edges.extend(imports_of(name, path, file, known, package))
+        modules[name] = Module(name, path, len(path.read_text().splitlines()), layer_of(name, layers, package))
     edges = tuple(sorted(edges))
-    upward = tuple(e for e in edges if (i := layer_of(e.importer)) is not None
-                   and (j := layer_of(e.imported)) is not None and j > i)
+    upward = tuple(e for e in edges if (i := layer_of(e.importer, layers, package)) is not None
+                   and (j := layer_of(e.imported, layers, package)) is not None and j > i)
     unlayered = tuple(name for name, module in modules.items() if module.layer is None)
-    return Report(root, modules, edges, _cycles(edges), upward, unlayered)
+    return Report(root, package, tuple(layers), modules, edges, _cycles(edges), upward, unlayered)
 
 
-def _layer_name(module: str) -> str:
-    layer = layer_of(module)
-    return "unlayered" if layer is None else LAYERS[layer][0]
+def _layer_name(report: Report, module: str) -> str:
+    layer = layer_of(module, report.layers, report.package)
+    return "unlayered" if layer is None else report.layers[layer][0]
 
 
 def _where(edge: Edge) -> str:
@@ -326,7 +325,7 @@ def format_report(report: Report, quiet: bool = False) -> str:
     line counts (not when quiet), the totals line, then each finding, one a line."""
     lines = []
     if not quiet:
-        floors = [(name, index) for index, (name, _) in reversed(list(enumerate(LAYERS)))]
+        floors = [(name, index) for index, (name, _) in reversed(list(enumerate(report.layers)))]
         if report.unlayered:
             floors.append(("unlayered", None))
         for name, index in floors:
@@ -340,10 +339,10 @@ def format_report(report: Report, quiet: bool = False) -> str:
                                    subsequent_indent=" " * 7, break_on_hyphens=False))
         lines.extend(f"    {e.importer}:{e.line} -> {e.imported}  {_where(e)}" for e in cycle.edges)
     for e in report.upward:
-        lines.append(f"{e.file}:{e.line} {e.importer} ({_layer_name(e.importer)}) -> "
-                     f"{e.imported} ({_layer_name(e.imported)})  {_where(e)}")
+        lines.append(f"{e.file}:{e.line} {e.importer} ({_layer_name(report, e.importer)}) -> "
+                     f"{e.imported} ({_layer_name(report, e.imported)})  {_where(e)}")
     for name in report.unlayered:
-        file = "/".join([PACKAGE, *report.modules[name].path.relative_to(report.root).parts])
+        file = "/".join([report.package, *report.modules[name].path.relative_to(report.root).parts])
         lines.append(f"{file} {name}: unlayered (no layer's prefix matches it)")
     return "\n".join(lines)
 

@@ -8,75 +8,32 @@ from pathlib import Path
 import pytest
 
 import workers
+from farm.layers import check, module_files, strong_components
 from workers.compiled import _kernel_sources
 from workers.policies.registry import EVADERS, PURSUERS
 
 ROOT = Path(workers.__file__).resolve().parent
 
 
-def module_files(folder: Path, package: str) -> dict[str, Path]:
-    """Every module of the package in folder, by dotted name (a package by its own name)."""
-    out = {}
-    for path in sorted(folder.rglob("*.py")):
-        parts = [package, *path.relative_to(folder).with_suffix("").parts]
-        if parts[-1] == "__init__":
-            parts.pop()
-        out[".".join(parts)] = path
-    return out
-
-
 def import_graph(folder: Path, package: str) -> dict[str, set[str]]:
     """module -> the package's modules it imports anywhere in its code (at the top or in a
-    function), read from the source: `import a.b`, `from a.b import c` (c itself when it is
-    a module), relative imports too."""
-    modules = module_files(folder, package)
-    graph = {name: set() for name in modules}
-    for name, path in modules.items():
-        is_package = path.name == "__init__.py"
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            targets = []
-            if isinstance(node, ast.Import):
-                targets = [alias.name for alias in node.names]
-            elif isinstance(node, ast.ImportFrom):
-                base = node.module or ""
-                if node.level:
-                    here = name.split(".") if is_package else name.split(".")[:-1]
-                    here = here[: len(here) - (node.level - 1)]
-                    base = ".".join([*here, base] if base else here)
-                targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else base
-                           for alias in node.names]
-            for target in targets:
-                while target and target not in modules:  # `import a.b.c` where c is not a module
-                    target = target.rpartition(".")[0]
-                if target and target != name:
-                    graph[name].add(target)
+    function), read from the source by farm.layers (the farm/ checker's reader, run on another
+    package): `import a.b`, `from a.b import c` (c itself when it is a module), relative imports."""
+    report = check(folder, package=package, layers=())
+    graph = {name: set() for name in report.modules}
+    for edge in report.edges:
+        target = edge.imported
+        while target and target not in graph:  # `import a.b.c` where c is not a module
+            target = target.rpartition(".")[0]
+        if target and target != edge.importer:
+            graph[edge.importer].add(target)
     return graph
 
 
-def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
-    """A cycle of the graph as [a, b, ..., a], or None when it has none."""
-    state, stack = {}, []
-
-    def visit(node):
-        state[node] = "open"
-        stack.append(node)
-        for nxt in sorted(graph.get(node, ())):
-            if state.get(nxt) == "open":
-                return stack[stack.index(nxt):] + [nxt]
-            if nxt not in state:
-                found = visit(nxt)
-                if found:
-                    return found
-        stack.pop()
-        state[node] = "done"
-        return None
-
-    for node in sorted(graph):
-        if node not in state:
-            found = visit(node)
-            if found:
-                return found
-    return None
+def find_cycle(graph: dict[str, set[str]]) -> set[str] | None:
+    """The modules of one import cycle of the graph (a strongly connected component of two or
+    more), or None when it has none."""
+    return next((set(c) for c in strong_components(graph) if len(c) > 1), None)
 
 
 def workers_graph() -> dict[str, set[str]]:
@@ -113,8 +70,7 @@ def write_package(root: Path, files: dict[str, str]) -> Path:
 def test_the_checker_finds_a_built_cycle(tmp_path, y_imports_x):
     pkg = write_package(tmp_path, {"pkg/__init__.py": "", "pkg/x.py": "from pkg.y import f\n\ndef g():\n    pass\n",
                                    "pkg/y.py": y_imports_x, "pkg/z.py": "from pkg import y\n"})
-    cycle = find_cycle(import_graph(pkg, "pkg"))
-    assert cycle is not None and cycle[0] == cycle[-1] and set(cycle) == {"pkg.x", "pkg.y"}
+    assert find_cycle(import_graph(pkg, "pkg")) == {"pkg.x", "pkg.y"}
 
 
 def test_the_checker_passes_a_package_without_a_cycle(tmp_path):
@@ -126,7 +82,7 @@ def test_the_checker_passes_a_package_without_a_cycle(tmp_path):
     assert graph["pkg.x"] == {"pkg.y", "pkg.z"} and graph["pkg.z"] == {"pkg.y"}
     assert find_cycle(graph) is None
     graph["pkg.y"].add("pkg")  # the package's __init__ imports x, which imports y
-    assert find_cycle(graph) == ["pkg", "pkg.x", "pkg.y", "pkg"]
+    assert find_cycle(graph) == {"pkg", "pkg.x", "pkg.y", "pkg.z"}  # x imports z, which imports y too
 
 
 def uses_numba(path: Path) -> bool:
