@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-stamp
 CONSTRAINTS ?= -c constraints-cpu.txt
 RESULTS ?= results/demo
 
-.PHONY: demo test bench experiments suite install browser clean
+.PHONY: demo test bench experiments experiments-learners suite install browser clean
 
 $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -61,6 +61,11 @@ suite: $(STAMP)
 # capture-time service (configs/experiments/paper.yaml); the same command again resumes it.
 experiments: $(STAMP)
 	$(VENV)/bin/farm experiments configs/experiments/paper.yaml --out results/experiments/paper
+	$(VENV)/bin/farm report results
+
+# The learners' recipe (PPO pretrained by DAgger from receding_horizon) on every scenario, 3 seeds.
+experiments-learners: $(STAMP)
+	$(VENV)/bin/farm experiments configs/experiments/learners.yaml --out results/experiments/learners
 	$(VENV)/bin/farm report results
 
 clean:

@@ -314,7 +314,7 @@ def cmd_train(a) -> int:
     if a.timesteps is not None:
         if a.timesteps < 1:
             raise CliError(f"--timesteps: must be >= 1, got {a.timesteps}")
-        config = config.model_copy(update={"td3": config.td3.model_copy(update={"n_timesteps": a.timesteps})})
+        config = config.with_timesteps(a.timesteps)
     if a.service:
         config = config.model_copy(update={"service": config.service.model_copy(update={"mode": a.service})})
     if a.threads is not None:
@@ -498,7 +498,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("config", help="training YAML, e.g. configs/train/paper_3x3_c1_0.yaml")
     tr.add_argument("--out", help="run folder (default results/runs/<name>)")
     tr.add_argument("--resume", action="store_true", help="go on from the run folder's last checkpoint")
-    tr.add_argument("--timesteps", type=int, help="override td3.n_timesteps")
+    tr.add_argument("--timesteps", type=int, help="override the learner's n_timesteps (td3.n_timesteps, ppo.n_timesteps or sac.n_timesteps)")
     tr.add_argument("--service", choices=["ray", "local"], help="override service.mode")
     tr.add_argument("--threads", type=int, help="override threads: torch threads while training (config default 1)")
     tr.add_argument("--quiet", action="store_true")

@@ -286,7 +286,7 @@ def test_a_damaged_model_zip_is_one_error_naming_the_file(run_folder, tmp_path, 
     with pytest.raises(ModelError) as err:
         load_model(run)
     message = str(err.value)
-    assert message.startswith(f"{run / 'model.zip'}: not a loadable stable-baselines3 model (")
+    assert message.startswith(f"{run / 'model.zip'}: not a loadable stable-baselines3 TD3 model (")
     assert len(message.splitlines()) == 1
 
 
@@ -305,5 +305,5 @@ def test_farm_eval_of_a_truncated_model_is_one_line(run_folder, tmp_path):
     run = damaged(run_folder, tmp_path, "truncated")
     r = farm("eval", run, "--episodes", 1)
     assert r.returncode == 2, r.stderr[-2000:]
-    assert r.stderr.startswith(f"farm: error: {run / 'model.zip'}: not a loadable stable-baselines3 model (")
+    assert r.stderr.startswith(f"farm: error: {run / 'model.zip'}: not a loadable stable-baselines3 TD3 model (")
     assert len(r.stderr.strip().splitlines()) == 1

@@ -5,17 +5,19 @@ Importing this package registers the env, and each benchmark scenario
     import gymnasium, farm.alloc
     env = gymnasium.make("farm/SwarmAllocation-v0", grid_size=3, n_defenders=100, n_intruders=50)
     env = gymnasium.make("farm/paper_3x3_c1_0-v0")
+and each id's batched form (farm.alloc.vector_env.SwarmAllocationVectorEnv, B episodes in numpy):
+    envs = gymnasium.make_vec("farm/paper_3x3_c1_0-v0", num_envs=16, vectorization_mode="vector_entry_point")
 """
 
 import gymnasium
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.env import SwarmAllocationEnv, moves, n_actions
-from farm.alloc.scenarios import SCENARIOS, register_scenarios
+from farm.alloc.scenarios import SCENARIOS, VECTOR_ENTRY_POINT, register_scenarios
 
 ENV_ID = "farm/SwarmAllocation-v0"
 if ENV_ID not in gymnasium.registry:
-    gymnasium.register(ENV_ID, entry_point="farm.alloc.env:SwarmAllocationEnv")
+    gymnasium.register(ENV_ID, entry_point="farm.alloc.env:SwarmAllocationEnv", vector_entry_point=VECTOR_ENTRY_POINT)
 register_scenarios()
 
 __all__ = ["AllocConfig", "SwarmAllocationEnv", "ENV_ID", "moves", "n_actions", "SCENARIOS"]

@@ -3,9 +3,11 @@
 SwarmAllocationEnv is the env (registered as `farm/SwarmAllocation-v0`); its docstring
 describes the MDP: action and observation spaces, one step, the reward, the start and
 the end of an episode, and its arguments. moves and n_actions give the action layout
-of an N x N grid. A step's intruder advance and engagements (and the lattice of team
-sizes, `team_sizes: lattice`) are farm.alloc.model's functions, which the planners use
-to look ahead.
+of an N x N grid. A step is farm.alloc.dynamics.step, for one episode here and for B at
+once in farm.alloc.vector_env (so both give an episode the same numbers); its intruder
+advance and engagements (and the lattice of team sizes, `team_sizes: lattice`) are
+farm.alloc.model's functions, which the planners use to look ahead. check_env_arguments
+and env_client are the constructor's rules, which the batched env shares.
 See farm.alloc.config for the settings and the two engagement models.
 """
 
@@ -18,40 +20,41 @@ import numpy as np
 from gymnasium.error import ResetNeeded
 
 from farm.alloc.config import AllocConfig
-from farm.alloc.model import EngagementModel, advance_intruders
-from farm.core.errors import ActionError, ConfigError
+from farm.alloc.dynamics import (Layout, check_actions, episode_end, move_probabilities, moves, n_actions, observe,
+                                 start_densities, step)
+from farm.alloc.model import EngagementModel, row_sums
+from farm.core.errors import ConfigError
+
+__all__ = ["SwarmAllocationEnv", "moves", "n_actions", "check_env_arguments", "env_client"]
 
 log = logging.getLogger(__name__)
 
-def moves(n: int):
-    """The feasible moves of an n x n grid, in the action vector's order.
 
-    A cell may stay or move to any of its 8 neighbours inside the grid; cells come in
-    cell order (c = row * n + col), each cell's moves in row-major (d_row, d_col) order.
-    Returns (src, dst, start): src: (A,) int64 and dst: (A,) int64 the source and
-    destination cell of each move, A = n_actions(n); start: (n*n,) int64 the offset of
-    each cell's slice in the action vector.
+def check_env_arguments(name: str, config: AllocConfig | None, estimates, kwargs: dict) -> AllocConfig:
+    """The env's config from its constructor's arguments, or a one-line ConfigError.
+
+    name: the env class's name, for the message; config: an AllocConfig or None; kwargs:
+    AllocConfig keyword arguments, the settings when config is None (both given: refused);
+    estimates: False, True or "lattice" (anything else refused, naming `estimates`).
     """
-    src, dst, start = [], [], []
-    for r in range(n):
-        for c in range(n):
-            start.append(len(src))
-            for dr in (-1, 0, 1):
-                for dc in (-1, 0, 1):
-                    rr, cc = r + dr, c + dc
-                    if 0 <= rr < n and 0 <= cc < n:
-                        src.append(r * n + c)
-                        dst.append(rr * n + cc)
-    return np.array(src), np.array(dst), np.array(start)
+    if config is not None and kwargs:
+        raise ConfigError(f"{name}: give a config or AllocConfig keyword arguments, not both "
+                          f"(got a config and {', '.join(sorted(kwargs))})")
+    if estimates not in (False, True, "lattice") or estimates.__class__ not in (bool, str):
+        raise ConfigError(f"estimates: must be false, true or 'lattice', got {estimates!r}", field="estimates")
+    return config or AllocConfig(**kwargs)
 
 
-def n_actions(n: int) -> int:
-    """The number of feasible moves A of an n x n grid (n >= 2): the action's length.
+def env_client(config: AllocConfig, store):
+    """The in-process capture-time client (no Ray) an env makes when given none, over store
+    (str, Path or None: farm.service.store.default_store_path(), logged at INFO)."""
+    from farm.service import CaptureTimeClient
+    from farm.service.store import default_store_path
 
-    Corners have 4 moves, other edge cells 6, inner cells 9: A = 4*4 + 6*4(n-2) + 9(n-2)^2
-    (49 for n = 3).
-    """
-    return 4 * 4 + 6 * 4 * (n - 2) + 9 * (n - 2) ** 2
+    if store is None:
+        store = default_store_path()
+        log.info("capture-time store: %s", store)
+    return CaptureTimeClient(config.service_settings(), local_store=store)
 
 
 class SwarmAllocationEnv(gym.Env):
@@ -186,6 +189,7 @@ class SwarmAllocationEnv(gym.Env):
     the same episode and draws).
 
     Attributes: config: AllocConfig; client: CaptureTimeClient; n: int, the grid side N;
+    layout: farm.alloc.dynamics.Layout of the grid;
     src, dst: (A,) int64 and start: (N^2,) int64 as moves(N) returns them; n_moves:
     (N^2,) int64 the number of moves of each cell; base: int, the base cell's index;
     D, I: (N^2,) float64 the densities; steps: int and breached, eliminated: float, the
@@ -198,35 +202,22 @@ class SwarmAllocationEnv(gym.Env):
     def __init__(self, config: AllocConfig | None = None, *, client=None, store: str | None = None,
                  render_mode: str | None = None, estimates: bool | str = False, **kwargs):
         """Make the env; the class docstring's Arguments section describes each argument."""
-        if config is not None and kwargs:
-            raise ConfigError(f"SwarmAllocationEnv: give a config or AllocConfig keyword arguments, not both "
-                              f"(got a config and {', '.join(sorted(kwargs))})")
-        if estimates not in (False, True, "lattice") or estimates.__class__ not in (bool, str):
-            raise ConfigError(f"estimates: must be false, true or 'lattice', got {estimates!r}", field="estimates")
+        self.config = check_env_arguments("SwarmAllocationEnv", config, estimates, kwargs)
         self.estimates = estimates
         self.engagements = 0  # engaged cells answered by the service, over the env's lifetime
         self.estimated = 0  # of which by an interpolation (estimates=True)
-        self.config = config or AllocConfig(**kwargs)
-        cfg = self.config
-        n = cfg.grid_size
+        n = self.config.grid_size
         self.n = n
-        self.src, self.dst, self.start = moves(n)
-        self.n_moves = np.diff(np.append(self.start, len(self.src)))
+        self.layout = Layout(n)
+        self.src, self.dst, self.start = self.layout.src, self.layout.dst, self.layout.start
+        self.n_moves = self.layout.n_moves
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.src),), dtype=np.float32)
         self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
         self.render_mode = render_mode
         self._owns_client = client is None  # close() closes a client the env made, never one it was given
-        if client is None:
-            from farm.service import CaptureTimeClient
-            from farm.service.store import default_store_path
-
-            if store is None:
-                store = default_store_path()
-                log.info("capture-time store: %s", store)
-            client = CaptureTimeClient(self.config.service_settings(), local_store=store)
-        self.client = client
-        self.model = EngagementModel(self.config, client, estimates)
-        self.base = (n // 2) * n
+        self.client = env_client(self.config, store) if client is None else client
+        self.model = EngagementModel(self.config, self.client, estimates)
+        self.base = self.layout.base
         self.D = np.zeros(n * n)
         self.I = np.zeros(n * n)
         self.steps = 0
@@ -239,44 +230,17 @@ class SwarmAllocationEnv(gym.Env):
         """The action as (A,) float64, values as given (step() clips them), or ActionError.
 
         Refused: anything that is not an array of real numbers (integers or floats) of the
-        action space's shape (A,), and NaN or infinite values.
+        action space's shape (A,), and NaN or infinite values (farm.alloc.dynamics.check_actions).
         """
-        expected = f"action: expected shape {self.action_space.shape} of finite numbers in the action space"
-        try:
-            a = np.asarray(action)
-        except (TypeError, ValueError, OverflowError):
-            raise ActionError(f"{expected}, got a {type(action).__name__} that is not an array of numbers") from None
-        if a.dtype.kind not in "iuf":
-            raise ActionError(f"{expected}, got dtype {a.dtype}")
-        if a.shape != self.action_space.shape:
-            raise ActionError(f"{expected}, got shape {a.shape}")
-        with np.errstate(over="ignore"):  # a float128 beyond float64 becomes inf, refused below
-            a = a.astype(np.float64)
-        bad = np.flatnonzero(~np.isfinite(a))
-        if len(bad):
-            raise ActionError(f"{expected}, got {a[bad[0]]} at index {bad[0]} ({len(bad)} value(s) not finite)")
-        return a
+        return check_actions(action, self.action_space.shape)
 
     def move_probabilities(self, action: np.ndarray) -> np.ndarray:
         """Map an action to the probabilities of the feasible moves (the `action_map`).
 
         action: (A,) float, clipped to [-1, 1] -> p: (A,) float64 in the same order, each
-        cell's slice summing to 1.
+        cell's slice summing to 1 (farm.alloc.dynamics.move_probabilities for one episode).
         """
-        a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64), -1.0), 1.0)
-        if self.config.action_map == "softmax":
-            z = self.config.softmax_beta * a
-            z = z - np.maximum.reduceat(z, self.start)[self.src]
-            w = np.exp(z)
-        else:
-            w = a + 1.0
-        total = np.add.reduceat(w, self.start)
-        uniform = total <= 0
-        total = np.where(uniform, 1.0, total)
-        p = w / total[self.src]
-        if uniform.any():
-            p = np.where(uniform[self.src], 1.0 / self.n_moves[self.src], p)
-        return p
+        return move_probabilities(self.layout, self.config, np.asarray(action, dtype=np.float64)[None])[0]
 
     def transition_matrix(self, action: np.ndarray) -> np.ndarray:
         """The column-stochastic transition matrix of an action (for tests and plots).
@@ -289,22 +253,6 @@ class SwarmAllocationEnv(gym.Env):
         T[self.dst, self.src] = self.move_probabilities(action)
         return T
 
-    def _engage(self):
-        """Every cell holding both sides plays its game; returns (capture score, mass
-        eliminated, engaged cells, estimated answers, coverage, defenders per engaged cell)."""
-        e = self.model.engage(self.D, self.I)
-        if len(e.cells) == 0:
-            return 0.0, 0.0, 0, 0, 0.0, 0.0
-        total = float(self.I.sum())
-        before = self.I[e.cells].copy()
-        coverage = float(before.sum()) / total if total > 0 else 0.0
-        score = float(np.sum(before * e.score))
-        self.I[e.cells] = before * (1.0 - e.removed)
-        self.engagements += len(e.cells)
-        self.estimated += e.estimates
-        return (score, float(np.sum(before - self.I[e.cells])), len(e.cells), e.estimates, coverage,
-                float(np.mean(e.n_p)))
-
     def reset(self, *, seed=None, options=None):
         """Start an episode (see Starting State); returns (observation, info).
 
@@ -312,16 +260,13 @@ class SwarmAllocationEnv(gym.Env):
         observation: (2 N^2,) float32 [D, I]; info: the step measures, all 0.
         """
         super().reset(seed=seed)
-        n = self.n
-        self.D = np.zeros(n * n)
-        self.D[self.base] = 1.0
-        self.I = np.zeros(n * n)
-        self.I[np.arange(n) * n + (n - 1)] = self.np_random.dirichlet(np.ones(n))
+        D, I = start_densities(self.layout, self.np_random.dirichlet(np.ones(self.n))[None])
+        self.D, self.I = D[0], I[0]
         self.steps = 0
         self.breached = 0.0
         self.eliminated = 0.0
         self._reset_done = True
-        return self._obs(), self._info(0.0, 0.0, 0, 0)
+        return self._obs(), self._info(0.0, 0.0, 0, 0, float(row_sums(I)[0]))
 
     def step(self, action):
         """One step of the MDP (see Description); returns (obs, reward, terminated, truncated, info).
@@ -334,20 +279,19 @@ class SwarmAllocationEnv(gym.Env):
         """
         if not self._reset_done:
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
-        cfg = self.config
-        p = self.move_probabilities(self.check_action(action))
-        self.D = np.bincount(self.dst, weights=p * self.D[self.src], minlength=self.n * self.n)
-        self.I, breach = advance_intruders(self.I, self.n, cfg.vertical_drift)
+        r = step(self.layout, self.config, self.model, self.D[None], self.I[None], self.check_action(action)[None])
+        self.D, self.I = r.D[0], r.I[0]
+        breach, eliminated = float(r.breach[0]), float(r.eliminated[0])
+        engaged, estimates = int(r.engaged[0]), int(r.estimates[0])
         self.breached += breach
-        score, eliminated, engaged, estimates, coverage, per_cell = self._engage()
         self.eliminated += eliminated
+        self.engagements += engaged
+        self.estimated += estimates
         self.steps += 1
-        remaining = float(self.I.sum())
-        reward = -cfg.c_distribution * remaining + cfg.c_capture * score - cfg.breach_penalty * breach
-        terminated = remaining < cfg.epsilon
-        truncated = not terminated and self.steps >= cfg.max_steps
-        info = self._info(breach, eliminated, engaged, estimates, coverage, per_cell)
-        return self._obs(), float(reward), bool(terminated), bool(truncated), info
+        terminated, truncated = episode_end(self.config, np.array([self.steps]), r.remaining)
+        info = self._info(breach, eliminated, engaged, estimates, float(r.remaining[0]), float(r.coverage[0]),
+                          float(r.per_engaged[0]))
+        return self._obs(), float(r.reward[0]), bool(terminated[0]), bool(truncated[0]), info
 
     def get_state(self) -> dict:
         """The env's state, for set_state() to continue it later (a resumed training): a
@@ -385,17 +329,18 @@ class SwarmAllocationEnv(gym.Env):
 
     def _obs(self) -> np.ndarray:
         """The observation: (2 N^2,) float32 [D, I] clipped to [0, 1]."""
-        return np.minimum(np.maximum(np.concatenate([self.D, self.I]), 0.0), 1.0).astype(np.float32)
+        return observe(self.D[None], self.I[None])[0]
 
-    def _info(self, breach, eliminated, engaged, estimates, coverage=0.0, per_cell=0.0) -> dict:
+    def _info(self, breach, eliminated, engaged, estimates, mass, coverage=0.0, per_cell=0.0) -> dict:
         """The info dict of reset() and step() (see the class docstring's Info).
 
-        coverage: the share of the intruder mass (after its advance) in cells with defenders
-        (n_p >= 1), which are the engaged cells; defenders_per_engaged: mean n_p over them.
+        mass: the intruder mass sum(I); coverage: the share of the intruder mass (after its
+        advance) in cells with defenders (n_p >= 1), which are the engaged cells;
+        defenders_per_engaged: mean n_p over them.
         """
         return {"breached_step": breach, "breached": self.breached, "eliminated_step": eliminated,
                 "eliminated": self.eliminated, "engaged_cells": engaged,
-                "estimates": estimates, "intruder_mass": float(self.I.sum()), "coverage": coverage,
+                "estimates": estimates, "intruder_mass": mass, "coverage": coverage,
                 "defenders_per_engaged": per_cell}
 
     def render(self):

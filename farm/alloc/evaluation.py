@@ -13,7 +13,7 @@ from farm.alloc.fidelity import evaluate_fidelity
 from farm.alloc.plots import plot_behaviour_steps
 from farm.alloc.policies import PolicySpec, make_policy, policy_entry, policy_names
 from farm.alloc.rollout import behaviour_pair, evaluate_policies, steps_table
-from farm.alloc.runs import LEARNER, RunFolder
+from farm.alloc.runs import RunFolder
 from farm.core.errors import ConfigError
 
 __all__ = ["fidelity_lines", "RunEvaluation", "reference_specs", "allocators", "evaluate_trained", "evaluate_run", "FIDELITIES"]
@@ -43,11 +43,11 @@ def reference_specs() -> list[PolicySpec]:
 
 
 def allocators(run: RunFolder, config, client, specs: list[PolicySpec] | None = None, learned=None) -> dict:
-    """{name: allocator}: the run's trained allocator (policy LEARNER; learned: it, loaded
-    already), then specs (default reference_specs()), each for config.env, planning on
-    client's statistics."""
-    learned = learned if learned is not None else make_policy(LEARNER, config.env, client, run=run.path)
-    policies = {LEARNER: learned}
+    """{name: allocator}: the run's trained allocator (named by its algo, config.algo; learned:
+    it, loaded already), then specs (default reference_specs()), each for config.env, planning
+    on client's statistics."""
+    learned = learned if learned is not None else make_policy(config.algo, config.env, client, run=run.path)
+    policies = {config.algo: learned}
     policies.update({s.name: s.make(config.env, client) for s in (reference_specs() if specs is None else specs)})
     return policies
 
@@ -62,7 +62,7 @@ def evaluate_trained(run: RunFolder, config, policies: dict, client, episodes: i
                                           out=run.path if figures else None)
     run.write_evaluation(table, per, steps_table(steps))
     if figures:
-        plot_behaviour_steps(behaviour_pair(steps, table, LEARNER), run.file("behaviour_steps.png"))
+        plot_behaviour_steps(behaviour_pair(steps, table, config.algo), run.file("behaviour_steps.png"))
     return table, per, steps
 
 
@@ -82,7 +82,7 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
         raise ConfigError(f"seed: must be a whole number >= 0, got {seed!r}", field="seed")
     if fidelity not in FIDELITIES:
         raise ConfigError(f"fidelity: must be one of {', '.join(FIDELITIES)}, got {fidelity!r}", field="fidelity")
-    learned = make_policy(LEARNER, config.env, None, run=run.path)  # a bad model.zip: one line, before Ray starts
+    learned = make_policy(config.algo, config.env, None, run=run.path)  # a bad model.zip: one line, before Ray starts
     settings = config.env.service_settings()
     mode = config.service.mode  # local: the service and the games of fidelity "games" in this process, no Ray
     with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:

@@ -5,13 +5,23 @@ The env (farm.alloc.env) steps through these functions, and the planners
 step is the env's step and never a copy that could drift from it:
 
 - advance_intruders: the intruders' vertical drift and one-column advance (known in
-  advance: it does not depend on the defenders);
+  advance: it does not depend on the defenders), advance_intruders_many the same for B
+  episodes at once;
 - team_sizes: a cell's game, (n_p, n_e) from its densities (rounding, the lattice);
 - EngagementModel: a cell's expected outcome from the capture-time client's
   statistics, the share of its intruders removed and its capture score per unit of
-  intruder mass under the config's `capture_score` rule (docs/model.md section 5).
+  intruder mass under the config's `capture_score` rule (docs/model.md section 5);
+  engage_many answers the engaged cells of B episodes with one lookup.
 
-Every density is a vector over the N x N cells in cell order, c = row * N + col.
+Every density is a vector over the N x N cells in cell order, c = row * N + col; a batch of
+B episodes is a (B, N^2) array, one episode a row.
+
+Sums and batches. The batched functions give each episode the very numbers the same function
+gives it alone (B = 1), to the last bit: the single env (farm.alloc.env) and the batched one
+(farm.alloc.vector_env) step through them with B = 1 and B episodes. numpy sums a 1-D array
+pairwise (in blocks of 8 from 8 entries on), so a sum's last bit depends on how its entries are
+grouped; row_sums and segment_sums sum each episode's entries exactly as numpy sums that
+episode's entries alone as a 1-D array (tests/test_vector_env.py checks the property).
 """
 
 from __future__ import annotations
@@ -23,7 +33,8 @@ import numpy as np
 from farm.alloc.config import AllocConfig
 from farm.service.keys import LATTICE
 
-__all__ = ["LATTICE", "snap", "snap_many", "advance_intruders", "team_sizes", "Engagement", "EngagementModel"]
+__all__ = ["LATTICE", "snap", "snap_many", "row_sums", "segment_sums", "advance_intruders", "advance_intruders_many",
+           "team_sizes", "Engagement", "Engagements", "EngagementModel"]
 
 _LATTICE = np.array(LATTICE)
 _LATTICE_MIDS = np.sqrt(_LATTICE[:-1] * _LATTICE[1:])  # geometric midpoints: never an integer
@@ -43,27 +54,80 @@ def snap(x: int) -> int:
     return int(snap_many(np.asarray([x]))[0])
 
 
+def row_sums(X: np.ndarray) -> np.ndarray:
+    """The sum of each row: X: (B, M) float64 -> (B,) float64, row k exactly X[k].sum().
+
+    numpy reduces a C-contiguous array's last axis row by row with its 1-D pairwise
+    summation, whatever B, so each row's sum is its 1-D sum bit for bit.
+    """
+    return np.ascontiguousarray(X).sum(axis=1)
+
+
+_SHORT = 8  # numpy sums fewer entries than this one after another, from the first
+
+
+def segment_sums(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Sums of consecutive segments, each exactly numpy's 1-D sum of the segment alone.
+
+    values: (R, K) float64, R quantities of K entries laid out as B consecutive segments;
+    counts: (B,) int64 the segments' lengths (summing to K, 0 allowed) -> (R, B) float64,
+    [r, b] = values[r, segment b].sum() (0.0 for an empty segment). A single segment is summed
+    by numpy (row_sums). Of several, those of fewer than 8 entries are summed one entry after
+    another from 0, as numpy sums so few (np.bincount's order); longer ones by numpy, one
+    (rows, length) array per distinct length, its rows summed as 1-D arrays (row_sums).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    counts = np.asarray(counts, dtype=np.int64)
+    R, B = values.shape[0], len(counts)
+    if B == 1:  # one segment, the whole row: numpy's sum itself
+        return row_sums(values)[:, None]
+    K = values.shape[1]
+    if B == 0 or K == 0:
+        return np.zeros((R, B))
+    bins = np.repeat(np.arange(B), counts) + (np.arange(R) * B)[:, None]
+    out = np.bincount(bins.reshape(-1), weights=values.reshape(-1), minlength=R * B).reshape(R, B)
+    if counts.max() >= _SHORT:
+        starts = np.cumsum(counts) - counts
+        for length in np.unique(counts[counts >= _SHORT]).tolist():
+            rows = np.flatnonzero(counts == length)
+            idx = starts[rows, None] + np.arange(length)
+            out[:, rows] = row_sums(values[:, idx].reshape(R * len(rows), length)).reshape(R, len(rows))
+    return out
+
+
+def advance_intruders_many(I: np.ndarray, n: int, drift: float) -> tuple[np.ndarray, np.ndarray]:
+    """The intruders' move of one step in B episodes: vertical drift, then one column left.
+
+    I: (B, N^2) float64 intruder densities, one episode a row; n: the grid side N; drift: the
+    share d of each row's mass sent to each neighbouring row (`vertical_drift`). Returns (I':
+    (B, N^2) float64 the densities after the advance, breach: (B,) float64 the mass that left
+    the left edge). I is not changed.
+    """
+    grid = np.asarray(I).reshape(-1, n, n)
+    if drift > 0:
+        up = drift * grid[:, 1:]
+        down = drift * grid[:, :-1]
+        grid = grid.copy()
+        grid[:, 1:] -= up
+        grid[:, :-1] += up
+        grid[:, :-1] -= down
+        grid[:, 1:] += down
+    breach = row_sums(grid[:, :, 0])
+    moved = np.zeros_like(grid)
+    moved[:, :, :-1] = grid[:, :, 1:]
+    return moved.reshape(len(grid), n * n), breach
+
+
 def advance_intruders(I: np.ndarray, n: int, drift: float) -> tuple[np.ndarray, float]:
     """The intruders' move of one step: vertical drift, then one column left.
 
     I: (N^2,) float64 intruder densities; n: the grid side N; drift: the share d of each
     row's mass sent to each neighbouring row (`vertical_drift`). Returns (I': (N^2,)
     float64 the densities after the advance, breach: float the mass that left the left
-    edge). I is not changed.
+    edge). I is not changed. advance_intruders_many with B = 1.
     """
-    grid = I.reshape(n, n)
-    if drift > 0:
-        up = drift * grid[1:]
-        down = drift * grid[:-1]
-        grid = grid.copy()
-        grid[1:] -= up
-        grid[:-1] += up
-        grid[:-1] -= down
-        grid[1:] += down
-    breach = float(grid[:, 0].sum())
-    moved = np.zeros_like(grid)
-    moved[:, :-1] = grid[:, 1:]
-    return moved.reshape(-1), breach
+    moved, breach = advance_intruders_many(np.asarray(I)[None], n, drift)
+    return moved[0], float(breach[0])
 
 
 def team_sizes(config: AllocConfig, D: np.ndarray, I: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -98,6 +162,29 @@ class Engagement:
     estimates: int
 
 
+@dataclass(frozen=True)
+class Engagements:
+    """The engaged cells of one step in B episodes, episode by episode, each in cell order.
+
+    episode: (k,) int64 each engaged cell's episode (ascending); cells: (k,) int64 the cell;
+    counts: (B,) int64 the engaged cells of each episode; n_p, n_e: (k,) int64 the games'
+    team sizes; removed, score: (k,) float64 as Engagement's; estimated: (k,) bool the answers
+    that were interpolations.
+    """
+
+    episode: np.ndarray
+    cells: np.ndarray
+    counts: np.ndarray
+    n_p: np.ndarray
+    n_e: np.ndarray
+    removed: np.ndarray
+    score: np.ndarray
+    estimated: np.ndarray
+
+
+_DISTINCT_FROM = 64  # fewer pairs are asked as they come: a memo hit costs less than finding the distinct ones
+
+
 class EngagementModel:
     """A config's engagements answered by a capture-time client: the env's and the planners' model.
 
@@ -116,34 +203,66 @@ class EngagementModel:
         n_p = np.rint(D * self.config.n_defenders)
         return np.flatnonzero((n_p >= 1) & (I > self.config.engage_min_mass))
 
-    def rates(self, n_p: np.ndarray, n_e: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-        """The expected outcome of games per unit of intruder mass.
+    def lookup(self, n_p: np.ndarray, n_e: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The expected outcome of games per unit of intruder mass, with one client call.
 
         n_p, n_e: (k,) int team sizes, n_p >= 1 -> (removed: (k,) float64 the share of the
         intruders captured within tau, score: (k,) float64 the capture score per unit of
-        mass, estimates: int the interpolated answers). The score's rule is the config's
-        `capture_score`: "expected", the mean over all games of each game's mean of
-        max(0, 1 - t/tau) per intruder (capture_score_tau), or "conditional", max(0, 1 -
-        t/capture_time_norm) with t the mean capture time of the games that caught someone
-        (t_max when none did).
+        mass, estimated: (k,) bool the interpolated answers). A pair met more than once is
+        asked once (the client's get_many, one call, on the distinct pairs). The score's rule
+        is the config's `capture_score`: "expected", the mean over all games of each game's
+        mean of max(0, 1 - t/tau) per intruder (capture_score_tau), or "conditional", max(0,
+        1 - t/capture_time_norm) with t the mean capture time of the games that caught
+        someone (t_max when none did).
         """
+        n_p, n_e = np.asarray(n_p), np.asarray(n_e)
+        inverse = None
+        if n_p.dtype.kind in "iu" and n_e.dtype.kind in "iu" and len(n_p) > _DISTINCT_FROM:
+            lo_p, lo_e = int(n_p.min()), int(n_e.min())
+            width = int(n_e.max()) - lo_e + 1
+            keys, inverse = np.unique((n_p.astype(np.int64) - lo_p) * width + (n_e.astype(np.int64) - lo_e),
+                                      return_inverse=True)
+            n_p, n_e = keys // width + lo_p, keys % width + lo_e
+        values = self.client.get_many(list(zip(n_p.tolist(), n_e.tolist())), estimate=self.estimates)
         cfg = self.config
-        pairs = list(zip(np.asarray(n_p).tolist(), np.asarray(n_e).tolist()))
-        values = self.client.get_many(pairs, estimate=self.estimates)
         removed = np.array([v.frac_captured_tau for v in values], dtype=np.float64)
         if cfg.capture_score == "expected":
             score = np.array([v.capture_score_tau for v in values], dtype=np.float64)
         else:
             t = np.array([v.mean_capture.mean for v in values], dtype=np.float64)
             score = np.maximum(0.0, 1.0 - np.where(np.isfinite(t), t, cfg.t_max) / cfg.capture_time_norm)
-        return removed, score, sum(v.estimate is not None for v in values)
+        estimated = np.array([v.estimate is not None for v in values], dtype=bool)
+        if inverse is not None:
+            removed, score, estimated = removed[inverse], score[inverse], estimated[inverse]
+        return removed, score, estimated
+
+    def rates(self, n_p: np.ndarray, n_e: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """The expected outcome of games per unit of intruder mass (lookup, its interpolations counted).
+
+        n_p, n_e: (k,) int team sizes, n_p >= 1 -> (removed: (k,) float64, score: (k,)
+        float64, estimates: int the interpolated answers); see lookup.
+        """
+        removed, score, estimated = self.lookup(n_p, n_e)
+        return removed, score, int(estimated.sum())
+
+    def engage_many(self, D: np.ndarray, I: np.ndarray) -> Engagements:
+        """The engagements of B episodes' densities, answered with one lookup (none without any).
+
+        D, I: (B, N^2) float64 the defenders and the intruders after their advance -> Engagements;
+        an episode's cells are those engaged() gives it alone, in the same order.
+        """
+        B, cells = D.shape
+        n_p = np.rint(D * self.config.n_defenders)
+        flat = np.flatnonzero((n_p >= 1) & (I > self.config.engage_min_mass))
+        episode, cell = np.divmod(flat, cells)
+        n_p, n_e = team_sizes(self.config, D.reshape(-1)[flat], I.reshape(-1)[flat])
+        if len(flat):
+            removed, score, estimated = self.lookup(n_p, n_e)
+        else:
+            removed, score, estimated = np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool)
+        return Engagements(episode, cell, np.bincount(episode, minlength=B), n_p, n_e, removed, score, estimated)
 
     def engage(self, D: np.ndarray, I: np.ndarray) -> Engagement:
         """The engagements of densities D, I: (N^2,) float64 (the intruders after their advance)."""
-        cells = self.engaged(D, I)
-        n_p, n_e = team_sizes(self.config, D[cells], I[cells])
-        if len(cells) == 0:
-            empty = np.zeros(0)
-            return Engagement(cells, n_p, n_e, empty, empty, 0)
-        removed, score, estimates = self.rates(n_p, n_e)
-        return Engagement(cells, n_p, n_e, removed, score, estimates)
+        e = self.engage_many(np.asarray(D)[None], np.asarray(I)[None])
+        return Engagement(e.cells, e.n_p, e.n_e, e.removed, e.score, int(e.estimated.sum()))

@@ -38,7 +38,7 @@ MODEL = "model.zip"
 METRICS = "metrics.json"
 EVALUATIONS = "evaluations.npz"
 DIVERGED = "DIVERGED"
-LEARNER = "td3"  # the policy name a run's trained model is evaluated under (farm.alloc.policies)
+LEARNER = "td3"  # the learner of a run from before `algo` (RunFolder.learner)
 
 # What a damaged or unreadable evaluations.npz raises on np.load and reading its arrays:
 # OSError (missing, a folder, unreadable), EOFError (empty), zipfile.BadZipFile (cut short,
@@ -55,6 +55,7 @@ class RunMetrics(BaseModel):
     model_config = ConfigDict(extra="ignore")
 
     name: str | None = None
+    algo: str | None = None  # None: a run from before `algo` (td3)
     timesteps: int | None = None
     resumed_from: int | None = None
     wall_seconds: float | None = None
@@ -66,6 +67,11 @@ class RunMetrics(BaseModel):
     final_eval_mean_return: float | None = None
     final_eval_std_return: float | None = None
     best_eval_mean_return: float | None = None
+    kept: str | None = None  # model.zip: the final model or the best evaluated (`keep`)
+    pretrain_states: int | None = None
+    pretrain_seconds: float | None = None
+    pretrain_loss: float | None = None
+    pretrained_eval_mean_return: float | None = None
 
 
 def checkpoint_files(run_dir: Path, steps: int) -> tuple[Path, Path, Path]:
@@ -77,13 +83,17 @@ def checkpoint_files(run_dir: Path, steps: int) -> tuple[Path, Path, Path]:
             folder / f"rl_model_state_{steps}_steps.pkl")
 
 
-def latest_checkpoint(run_dir: Path) -> tuple[Path, int] | None:
+def latest_checkpoint(run_dir: Path, replay_buffer: bool = True) -> tuple[Path, int] | None:
     """(model file, steps) of a run folder's last whole checkpoint (its RunState file, which
-    is written last, is there), or None."""
+    is written last, is there, and so is the model and, with replay_buffer (an off-policy
+    learner's checkpoint: TD3's, SAC's), its replay buffer), or None."""
     found = []
     for p in (Path(run_dir) / "checkpoints").glob("rl_model_state_*_steps.pkl"):
         m = re.fullmatch(r"rl_model_state_(\d+)_steps\.pkl", p.name)
-        if m and all(f.exists() for f in checkpoint_files(run_dir, int(m.group(1)))):
+        if m is None:
+            continue
+        model, buffer, state = checkpoint_files(run_dir, int(m.group(1)))
+        if model.exists() and state.exists() and (buffer.exists() or not replay_buffer):
             found.append(int(m.group(1)))
     if not found:
         return None
@@ -120,6 +130,13 @@ class RunFolder:
         if not self.is_run():
             raise ConfigError(f"{self.path}: not a training run (no {CONFIG})")
         return load_train_config(self.file(CONFIG))
+
+    def learner(self) -> str:
+        """The policy name the run's trained model is evaluated under: its config's algo (td3 for a
+        run from before `algo`, or without a readable config)."""
+        values = self.read_config_values() if self.is_run() else None
+        algo = values.get("algo") if isinstance(values, dict) else None
+        return algo if isinstance(algo, str) else LEARNER
 
     def read_config_values(self) -> dict | None:
         """config.yaml as plain values (None without it)."""

@@ -20,6 +20,8 @@ caller may override as RL Zoo's `env_kwargs` do:
     import gymnasium, farm.alloc
     env = gymnasium.make("farm/outnumbered_3x3-v0")              # the scenario as defined
     env = gymnasium.make("farm/outnumbered_3x3-v0", c_capture=0.0)  # one setting changed
+    envs = gymnasium.make_vec("farm/outnumbered_3x3-v0", num_envs=16,  # 16 episodes batched
+                              vectorization_mode="vector_entry_point")
 
 The harder scenarios were chosen by measuring the policies on them (`farm suite`, 10 episodes,
 seeds 1000..1009, the service's 64 games a case, when the scenarios were chosen). A cell's
@@ -41,7 +43,9 @@ from typing import Any, Mapping
 
 from farm.alloc.config import AllocConfig
 
-__all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "gym_id", "register_scenarios"]
+__all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "VECTOR_ENTRY_POINT", "gym_id", "register_scenarios"]
+
+VECTOR_ENTRY_POINT = "farm.alloc.vector_env:SwarmAllocationVectorEnv"  # the batched env of every id
 
 
 @dataclass(frozen=True)
@@ -125,7 +129,10 @@ def register_scenarios() -> list[str]:
 
     Each id makes farm.alloc.env.SwarmAllocationEnv with the scenario's settings as keyword
     arguments; gymnasium.make's own keyword arguments replace them, one by one, and may add
-    the env's other arguments (client, store, render_mode, estimates).
+    the env's other arguments (client, store, render_mode, estimates). Its vector entry point
+    (VECTOR_ENTRY_POINT) is farm.alloc.vector_env.SwarmAllocationVectorEnv, which
+    gymnasium.make_vec(id, num_envs=B, vectorization_mode="vector_entry_point") makes with the
+    same settings and keyword arguments.
     """
     import gymnasium
 
@@ -133,6 +140,6 @@ def register_scenarios() -> list[str]:
     for scenario in SCENARIOS.values():
         if scenario.gym_id not in gymnasium.registry:
             gymnasium.register(scenario.gym_id, entry_point="farm.alloc.env:SwarmAllocationEnv",
-                               kwargs=dict(scenario.env))
+                               vector_entry_point=VECTOR_ENTRY_POINT, kwargs=dict(scenario.env))
         ids.append(scenario.gym_id)
     return ids

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from farm.alloc.runs import LEARNER, RunFolder
+from farm.alloc.runs import RunFolder
 from farm.core.stats import format_ci, mean_ci95
 from farm.core.errors import ResultsError
 
@@ -83,12 +83,17 @@ def _steps(run: Path) -> pd.DataFrame | None:
     return RunFolder(run).eval_steps()
 
 
+def _learner(run: Path, policy: str | None) -> str:
+    """The policy whose measures a claim reads: policy, else the run's learner (its algo)."""
+    return policy or RunFolder(run).learner()
+
+
 def _h(h: float) -> float:
     """A CI half-width, 0 when there is none (one value)."""
     return h if math.isfinite(h) else 0.0
 
 
-def measure_a(run: Path, policy: str = LEARNER) -> dict | None:
+def measure_a(run: Path, policy: str | None = None) -> dict | None:
     """Claim (a)'s measures of one C_capture = 0 run (its eval_steps.csv; None without it):
     coverage_mean, coverage_ci95 (float: the policy's coverage at step 1, mean and 95% CI
     half-width over episodes), all_engaged (float: the share of episodes with every intruder
@@ -97,6 +102,7 @@ def measure_a(run: Path, policy: str = LEARNER) -> dict | None:
     steps = _steps(run)
     if steps is None:
         return None
+    policy = _learner(run, policy)
     first = steps[(steps.policy == policy) & (steps.step == 1)]
     m, h = mean_ci95(first.coverage.to_numpy(dtype=float))
     all_engaged = float(np.mean(first.engaged_cells.to_numpy() >= _intruder_cells_at_step1(run)))
@@ -113,7 +119,7 @@ def _per_episode(steps: pd.DataFrame, policy: str) -> dict[str, float]:
     return {"engaged_mean": engaged[0], "engaged_ci95": engaged[1], "dpe_mean": dpe[0], "dpe_ci95": dpe[1]}
 
 
-def measure_b(run0: Path, run15: Path, policy: str = LEARNER) -> dict | None:
+def measure_b(run0: Path, run15: Path, policy: str | None = None) -> dict | None:
     """Claim (b)'s measures of a C_capture = 0 run and a 1.5 run (their eval_steps.csv; None
     without either): for each run (suffix _c0, _c15) engaged_mean, engaged_ci95 (engaged cells
     per step) and dpe_mean, dpe_ci95 (defenders per engaged cell), floats over episodes; fewer,
@@ -122,7 +128,7 @@ def measure_b(run0: Path, run15: Path, policy: str = LEARNER) -> dict | None:
     s0, s15 = _steps(run0), _steps(run15)
     if s0 is None or s15 is None:
         return None
-    c0, c15 = _per_episode(s0, policy), _per_episode(s15, policy)
+    c0, c15 = _per_episode(s0, _learner(run0, policy)), _per_episode(s15, _learner(run15, policy))
     fewer = c15["engaged_mean"] + _h(c15["engaged_ci95"]) < c0["engaged_mean"] - _h(c0["engaged_ci95"])
     more = c15["dpe_mean"] - _h(c15["dpe_ci95"]) > c0["dpe_mean"] + _h(c0["dpe_ci95"])
     verdict = "confirmed" if fewer and more else ("partly confirmed" if fewer or more else "not confirmed")
@@ -134,7 +140,7 @@ def _plateau_confirmed(minutes: float) -> bool:
     return minutes <= PLATEAU_MINUTES
 
 
-def claims(runs_dir: Path, c0: str = "paper_3x3_c1_0", c15: str = "paper_3x3_c1_1.5", policy: str = LEARNER) -> list[dict]:
+def claims(runs_dir: Path, c0: str = "paper_3x3_c1_0", c15: str = "paper_3x3_c1_1.5", policy: str | None = None) -> list[dict]:
     """Measure the paper's three claims on evaluated runs: rows {claim, measured, verdict}.
 
     runs_dir: the folder of training runs; c0, c15: the names of the C_capture = 0 and
@@ -325,7 +331,7 @@ def _pair_note(pairs: list[tuple[int, int]]) -> str:
     return f"(a), (b): points {pairs[0][0]} (C_capture 0) and {pairs[0][1]} (C_capture 1.5){more}"
 
 
-def claims_over_seeds(folder, points: tuple[int, int] | None = None, policy: str = LEARNER) -> SeedClaims:
+def claims_over_seeds(folder, points: tuple[int, int] | None = None, policy: str | None = None) -> SeedClaims:
     """The paper's claims over an experiment's seeds (see the module doc): SeedClaims.
 
     folder: a `farm experiments` folder (experiment.json, trials/<trial>/run); only finished

@@ -1,5 +1,5 @@
-"""Learned allocators: a trained stable-baselines3 model of a run folder, loaded on the CPU
-and checked (load_model), acting through its policy's predict()."""
+"""Learned allocators: a trained stable-baselines3 model of a run folder (TD3, PPO or SAC, the
+run's `algo`), loaded on the CPU and checked (load_model), acting through its policy's predict()."""
 
 from __future__ import annotations
 
@@ -7,7 +7,18 @@ from pathlib import Path
 
 from farm.core.errors import ConfigError, ModelError
 
-__all__ = ["load_model", "td3"]
+__all__ = ["ALGORITHMS", "algorithm_class", "load_model", "learned", "td3", "ppo", "sac"]
+
+ALGORITHMS = ("td3", "ppo", "sac")  # the registry's learned allocators, one per SB3 algorithm
+
+
+def algorithm_class(algo: str):
+    """stable-baselines3's class of an algorithm name (td3, ppo, sac)."""
+    import stable_baselines3
+
+    if algo not in ALGORITHMS:
+        raise ConfigError(f"algo: must be one of {', '.join(ALGORITHMS)}, got {algo!r}", field="algo")
+    return getattr(stable_baselines3, algo.upper())
 
 
 def load_model(run_dir, algorithm: str = "td3"):
@@ -16,18 +27,18 @@ def load_model(run_dir, algorithm: str = "td3"):
     ConfigError without a model.zip; ModelError (one line naming the file) for a file
     stable-baselines3 cannot load (truncated, damaged, not a model of `algorithm`) or whose
     parameters are not all finite."""
-    import stable_baselines3
     import torch
 
     run_dir = Path(run_dir)
     path = run_dir / "model.zip"
     if not path.exists():
         raise ConfigError(f"{run_dir}: no trained model (model.zip); run `farm train CONFIG --out {run_dir}`")
+    cls = algorithm_class(algorithm)
     try:
-        model = getattr(stable_baselines3, algorithm.upper()).load(path, device="cpu")
+        model = cls.load(path, device="cpu")
     except Exception as e:  # any failure to read it: the file is not a model this can evaluate
         problem = (str(e).strip().splitlines() or [""])[0]
-        raise ModelError(f"{path}: not a loadable stable-baselines3 model ({type(e).__name__}"
+        raise ModelError(f"{path}: not a loadable stable-baselines3 {algorithm.upper()} model ({type(e).__name__}"
                          f"{': ' + problem if problem else ''})") from None
     with torch.no_grad():
         for name, p in model.policy.named_parameters():
@@ -37,11 +48,26 @@ def load_model(run_dir, algorithm: str = "td3"):
     return model
 
 
-def td3(config, client=None, *, policy=None, run: str | None = None):
-    """A trained TD3 allocator: policy (a loaded SB3 policy, model.policy) as it is, or the
-    model of the run folder `run` (load_model)."""
+def learned(algo: str, policy=None, run: str | None = None):
+    """A trained allocator of algorithm algo: policy (a loaded SB3 policy, model.policy) as it
+    is, or the model of the run folder `run` (load_model)."""
     if policy is None:
         if run is None:
-            raise ConfigError("td3: needs a trained model: the run folder (run=...) or its policy (policy=...)")
-        policy = load_model(run, "td3").policy
+            raise ConfigError(f"{algo}: needs a trained model: the run folder (run=...) or its policy (policy=...)")
+        policy = load_model(run, algo).policy
     return policy
+
+
+def td3(config, client=None, *, policy=None, run: str | None = None):
+    """A trained TD3 allocator (learned)."""
+    return learned("td3", policy, run)
+
+
+def ppo(config, client=None, *, policy=None, run: str | None = None):
+    """A trained PPO allocator (learned)."""
+    return learned("ppo", policy, run)
+
+
+def sac(config, client=None, *, policy=None, run: str | None = None):
+    """A trained SAC allocator (learned)."""
+    return learned("sac", policy, run)

@@ -70,7 +70,8 @@ class DivergenceGuard(BaseCallback):
     the policy (actor, critics and their targets) must be finite; else TrainingDiverged
     names the step. It reads and changes nothing of the training (no random numbers)."""
 
-    LOSSES = ("train/actor_loss", "train/critic_loss")
+    LOSSES = ("train/actor_loss", "train/critic_loss", "train/ent_coef_loss", "train/policy_gradient_loss",
+              "train/value_loss", "train/loss")  # TD3's and SAC's, SAC's, PPO's
 
     def _on_training_start(self) -> None:
         self._check("in the policy it starts from")
@@ -79,7 +80,7 @@ class DivergenceGuard(BaseCallback):
         actions = self.locals.get("actions")
         if actions is not None and not np.all(np.isfinite(actions)):
             raise TrainingDiverged(f"training diverged at step {self.num_timesteps}: the policy's action is not "
-                                   f"finite (lower td3.learning_rate?)")
+                                   f"finite (lower the learning_rate?)")
         return True
 
     def _on_rollout_start(self) -> None:
@@ -95,7 +96,7 @@ class DivergenceGuard(BaseCallback):
             value = self.logger.name_to_value.get(name)
             if value is not None and not math.isfinite(value):
                 raise TrainingDiverged(f"training diverged at step {self.num_timesteps}: {name} is {value} "
-                                       f"{what} (lower td3.learning_rate?)")
+                                       f"{what} (lower the learning_rate?)")
         with torch.no_grad():  # one sum per tensor is fast; a sum that is not finite is looked into
             params = list(self.model.policy.named_parameters())
             sums = torch.stack([p.sum() for _, p in params])
@@ -104,7 +105,7 @@ class DivergenceGuard(BaseCallback):
             for name, p in params:
                 if not bool(torch.isfinite(p).all()):
                     raise TrainingDiverged(f"training diverged at step {self.num_timesteps}: the policy's {name} "
-                                           f"is not finite {what} (lower td3.learning_rate?)")
+                                           f"is not finite {what} (lower the learning_rate?)")
 
 
 class StepProgress(BaseCallback):
@@ -180,5 +181,6 @@ class Checkpointer(AfterUpdates):
         model_file, buffer_file, state_file = checkpoint_files(self.run_dir, steps)
         model_file.parent.mkdir(parents=True, exist_ok=True)
         self.model.save(model_file)
-        self.model.save_replay_buffer(buffer_file)
+        if getattr(self.model, "replay_buffer", None) is not None:  # off-policy; PPO's rollouts start afresh
+            self.model.save_replay_buffer(buffer_file)
         atomic_write_bytes(state_file, pickle.dumps(self.state.capture(self.model)))

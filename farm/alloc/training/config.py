@@ -1,5 +1,6 @@
-"""A `farm train` config: TrainConfig and its sections (TD3Params, EvalParams, ServiceParams),
-read with load_train_config; every default in one place (docs/training.md shows a config)."""
+"""A `farm train` config: TrainConfig and its sections (the learner's: TD3Params, PPOParams or
+SACParams under `algo`; PretrainParams, EvalParams, ServiceParams), read with load_train_config;
+every default in one place (docs/training.md shows a config)."""
 
 from __future__ import annotations
 
@@ -15,10 +16,22 @@ from farm.alloc.config import AllocConfig
 from farm.alloc.scenarios import SCENARIOS
 from farm.core.config import Strict, load_yaml_model
 
-__all__ = ["TD3Params", "EvalParams", "ServiceParams", "TrainConfig", "load_train_config", "store_of", "POLICY_KWARGS"]
+__all__ = ["ALGOS", "TD3Params", "PPOParams", "SACParams", "PretrainParams", "EvalParams", "ServiceParams",
+           "TrainConfig", "load_train_config", "store_of", "POLICY_KWARGS"]
 
-# What policy_kwargs may set from a config (SB3's TD3Policy arguments that are plain values).
-POLICY_KWARGS = ("net_arch", "n_critics", "share_features_extractor", "normalize_images", "optimizer_kwargs")
+ALGOS = ("td3", "ppo", "sac")  # stable-baselines3's algorithms a config may name (`algo`)
+
+# What policy_kwargs may set from a config, by algorithm: the SB3 policy's arguments that are plain
+# values (activation_fn by name: ACTIVATIONS).
+POLICY_KWARGS = {
+    "td3": ("net_arch", "n_critics", "share_features_extractor", "normalize_images", "optimizer_kwargs",
+            "activation_fn"),
+    "sac": ("net_arch", "n_critics", "share_features_extractor", "normalize_images", "optimizer_kwargs",
+            "activation_fn", "log_std_init", "use_expln", "clip_mean"),
+    "ppo": ("net_arch", "share_features_extractor", "normalize_images", "optimizer_kwargs", "activation_fn",
+            "log_std_init", "ortho_init", "full_std", "use_expln", "squash_output"),
+}
+ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu")  # torch.nn's ReLU, Tanh, ELU, LeakyReLU, GELU
 
 
 def _whole(x) -> bool:
@@ -27,6 +40,45 @@ def _whole(x) -> bool:
 
 def _number(x) -> bool:
     return is_number(x) and math.isfinite(x)
+
+
+def _check_policy_kwargs(v: dict, algo: str) -> dict:
+    """policy_kwargs of algo's SB3 policy as a config may set them (POLICY_KWARGS), checked."""
+    unknown = sorted(set(v) - set(POLICY_KWARGS[algo]))
+    if unknown:
+        raise ValueError(f"{unknown[0]}: not a {algo.upper()} policy argument a config can set "
+                         f"(choose from {', '.join(POLICY_KWARGS[algo])})")
+    for name in ("share_features_extractor", "normalize_images", "ortho_init", "full_std", "use_expln",
+                 "squash_output"):
+        if name in v and not isinstance(v[name], bool):
+            raise ValueError(f"{name}: must be true or false, got {v[name]!r}")
+    sizes = v.get("net_arch")
+    layers = ([] if sizes is None else sizes.values() if isinstance(sizes, dict) and set(sizes) <= {"pi", "qf", "vf"}
+              else [sizes])
+    for layer in layers:
+        if not isinstance(layer, list) or not all(_whole(x) and x >= 1 for x in layer):
+            raise ValueError(f"net_arch: must be a list of layer sizes >= 1 (or {{pi: [...], qf: [...]}}, vf for ppo), "
+                             f"got {sizes!r}")
+    if "n_critics" in v and not (_whole(v["n_critics"]) and v["n_critics"] >= 1):
+        raise ValueError(f"n_critics: must be a whole number >= 1, got {v['n_critics']!r}")
+    adam = v.get("optimizer_kwargs") or {}
+    if not isinstance(adam, dict) or not set(adam) <= {"betas", "eps", "weight_decay", "amsgrad"}:
+        raise ValueError(f"optimizer_kwargs: must be a mapping of Adam's betas, eps, weight_decay or amsgrad, "
+                         f"got {adam!r}")
+    betas = adam.get("betas", (0.9, 0.999))
+    if not (isinstance(betas, (list, tuple)) and len(betas) == 2 and all(_number(b) and 0 <= b < 1 for b in betas)):
+        raise ValueError(f"optimizer_kwargs.betas: must be two numbers in [0, 1), got {betas!r}")
+    for name in ("eps", "weight_decay"):
+        if name in adam and not (_number(adam[name]) and adam[name] >= 0):
+            raise ValueError(f"optimizer_kwargs.{name}: must be a number >= 0, got {adam[name]!r}")
+    if not isinstance(adam.get("amsgrad", False), bool):
+        raise ValueError(f"optimizer_kwargs.amsgrad: must be true or false, got {adam['amsgrad']!r}")
+    if "activation_fn" in v and v["activation_fn"] not in ACTIVATIONS:
+        raise ValueError(f"activation_fn: must be one of {', '.join(ACTIVATIONS)}, got {v['activation_fn']!r}")
+    for name in ("log_std_init", "clip_mean"):
+        if name in v and not _number(v[name]):
+            raise ValueError(f"{name}: must be a number, got {v[name]!r}")
+    return v
 
 
 class TD3Params(Strict):
@@ -57,35 +109,126 @@ class TD3Params(Strict):
     @field_validator("policy_kwargs")
     @classmethod
     def _policy_kwargs(cls, v):
-        unknown = sorted(set(v) - set(POLICY_KWARGS))
-        if unknown:
-            raise ValueError(f"{unknown[0]}: not a TD3 policy argument a config can set "
-                             f"(choose from {', '.join(POLICY_KWARGS)})")
-        for name in ("share_features_extractor", "normalize_images"):
-            if name in v and not isinstance(v[name], bool):
-                raise ValueError(f"{name}: must be true or false, got {v[name]!r}")
-        sizes = v.get("net_arch")
-        layers = ([] if sizes is None else sizes.values() if isinstance(sizes, dict) and set(sizes) <= {"pi", "qf"}
-                  else [sizes])
-        for layer in layers:
-            if not isinstance(layer, list) or not all(_whole(x) and x >= 1 for x in layer):
-                raise ValueError(f"net_arch: must be a list of layer sizes >= 1 (or {{pi: [...], qf: [...]}}), "
-                                 f"got {sizes!r}")
-        if "n_critics" in v and not (_whole(v["n_critics"]) and v["n_critics"] >= 1):
-            raise ValueError(f"n_critics: must be a whole number >= 1, got {v['n_critics']!r}")
-        adam = v.get("optimizer_kwargs") or {}
-        if not isinstance(adam, dict) or not set(adam) <= {"betas", "eps", "weight_decay", "amsgrad"}:
-            raise ValueError(f"optimizer_kwargs: must be a mapping of Adam's betas, eps, weight_decay or amsgrad, "
-                             f"got {adam!r}")
-        betas = adam.get("betas", (0.9, 0.999))
-        if not (isinstance(betas, (list, tuple)) and len(betas) == 2 and all(_number(b) and 0 <= b < 1 for b in betas)):
-            raise ValueError(f"optimizer_kwargs.betas: must be two numbers in [0, 1), got {betas!r}")
-        for name in ("eps", "weight_decay"):
-            if name in adam and not (_number(adam[name]) and adam[name] >= 0):
-                raise ValueError(f"optimizer_kwargs.{name}: must be a number >= 0, got {adam[name]!r}")
-        if not isinstance(adam.get("amsgrad", False), bool):
-            raise ValueError(f"optimizer_kwargs.amsgrad: must be true or false, got {adam['amsgrad']!r}")
+        return _check_policy_kwargs(v, "td3")
+
+
+class PPOParams(Strict):
+    """stable-baselines3 PPO's hyperparameters, RL-Zoo style (SB3's defaults, but gamma and the
+    rollout's length, which suit episodes of 12 to 16 steps)."""
+
+    n_timesteps: int = Field(100_000, ge=1)
+    policy: Literal["MlpPolicy"] = "MlpPolicy"
+    learning_rate: float = Field(3e-4, gt=0)
+    n_steps: int = Field(256, ge=1)  # per env: a rollout is n_steps x n_envs steps
+    batch_size: int = Field(64, ge=2)
+    n_epochs: int = Field(10, ge=1)
+    gamma: float = Field(0.99, ge=0, le=1)
+    gae_lambda: float = Field(0.95, ge=0, le=1)
+    clip_range: float = Field(0.2, gt=0)
+    ent_coef: float = Field(0.0, ge=0)
+    vf_coef: float = Field(0.5, ge=0)
+    max_grad_norm: float = Field(0.5, gt=0)
+    target_kl: float | None = Field(None, gt=0)
+    normalize_advantage: bool = True
+    policy_kwargs: dict[str, Any] = {}
+
+    @field_validator("policy_kwargs")
+    @classmethod
+    def _policy_kwargs(cls, v):
+        return _check_policy_kwargs(v, "ppo")
+
+
+class SACParams(Strict):
+    """stable-baselines3 SAC's hyperparameters, RL-Zoo style (SB3's defaults, but gamma, the
+    buffer and the warm-up, as TD3's here)."""
+
+    n_timesteps: int = Field(30_000, ge=1)
+    policy: Literal["MlpPolicy"] = "MlpPolicy"
+    learning_rate: float = Field(3e-4, gt=0)
+    buffer_size: int = Field(200_000, ge=1)
+    learning_starts: int = Field(1000, ge=0)
+    batch_size: int = Field(256, ge=1)
+    tau: float = Field(0.005, gt=0, le=1)
+    gamma: float = Field(0.95, ge=0, le=1)
+    train_freq: int = Field(1, ge=1)
+    gradient_steps: int = Field(1, ge=-1)
+    ent_coef: float | Literal["auto"] = "auto"  # a number: fixed; auto: learned, starting at 1
+    target_entropy: float | Literal["auto"] = "auto"
+    policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}
+
+    @field_validator("gradient_steps")
+    @classmethod
+    def _some_gradient_steps(cls, v):
+        if v == 0:
+            raise ValueError("must be -1 (as many as the rollout's steps) or >= 1; 0 never updates the model")
         return v
+
+    @field_validator("ent_coef")
+    @classmethod
+    def _positive_ent_coef(cls, v):
+        if v != "auto" and v < 0:
+            raise ValueError(f"must be 'auto' or a number >= 0, got {v!r}")
+        return v
+
+    @field_validator("policy_kwargs")
+    @classmethod
+    def _policy_kwargs(cls, v):
+        return _check_policy_kwargs(v, "sac")
+
+
+class PretrainParams(Strict):
+    """Planner-guided pretraining (DAgger; farm.alloc.training.pretrain): before RL, the learner's
+    actor is fitted to an expert's actions on the states visited by a mixture of the expert and
+    the learner, then RL fine-tunes from there.
+
+    expert: an allocator of the registry (farm.alloc.policies: any planner or baseline) and
+    expert_options its options; iterations: DAgger iterations; episodes: episodes played per
+    iteration; expert_share: the share of steps the expert drives in each iteration (one number
+    per iteration, or one number p for the schedule 1, p, p^2, ...: the first iteration is the
+    expert's alone); epochs, batch_size, learning_rate: the fit of each iteration (mean squared
+    error to the expert's actions, Adam) over the states labelled so far; episodes_per_task:
+    the episodes of one labelling task (on Ray: one task per batch of episodes)."""
+
+    expert: str = "receding_horizon"
+    expert_options: dict[str, Any] = {}
+    iterations: int = Field(4, ge=1, le=1000)
+    episodes: int = Field(16, ge=1)
+    expert_share: float | list[float] = 0.5
+    loss: Literal["flows", "actions"] = "flows"
+    epochs: int = Field(30, ge=1)
+    batch_size: int = Field(128, ge=1)
+    learning_rate: float = Field(1e-3, gt=0)
+    episodes_per_task: int = Field(4, ge=1)
+
+    @field_validator("expert")
+    @classmethod
+    def _known_expert(cls, v):
+        from farm.alloc.policies import policy_names
+
+        choices = policy_names(("baseline", "planner"))
+        if v not in choices:
+            raise ValueError(f"unknown expert {v!r} (choose from the baselines and planners: {', '.join(choices)})")
+        return v
+
+    @field_validator("expert_share")
+    @classmethod
+    def _shares(cls, v):
+        shares = v if isinstance(v, list) else [v]
+        if not shares or not all(0 <= x <= 1 for x in shares):
+            raise ValueError(f"must be a number in [0, 1] or a list of them, one per iteration, got {v!r}")
+        return v
+
+    @model_validator(mode="after")
+    def _schedule_length(self):
+        if isinstance(self.expert_share, list) and len(self.expert_share) != self.iterations:
+            raise ValueError(f"expert_share: {len(self.expert_share)} shares for {self.iterations} iterations")
+        return self
+
+    def schedule(self) -> list[float]:
+        """The share of steps the expert drives, per iteration."""
+        if isinstance(self.expert_share, list):
+            return list(self.expert_share)
+        return [self.expert_share ** i for i in range(self.iterations)]
 
 
 class EvalParams(Strict):
@@ -118,7 +261,13 @@ class TrainConfig(Strict):
     seed: int = Field(0, ge=0)
     scenario: str | None = None  # SCENARIOS' name: its env settings are the base of `env`
     env: AllocConfig = AllocConfig()
+    algo: Literal["td3", "ppo", "sac"] = "td3"  # stable-baselines3's algorithm; its section holds its settings
     td3: TD3Params = TD3Params()
+    ppo: PPOParams = PPOParams()
+    sac: SACParams = SACParams()
+    n_envs: int = Field(1, ge=1, le=1024)  # episodes stepped at once (> 1: the batched vector env)
+    pretrain: PretrainParams | None = None
+    keep: Literal["final", "best"] = "final"  # model.zip: the final model, or the best of the periodic evaluations
     eval: EvalParams = EvalParams()
     checkpoint_freq: int = Field(5000, ge=1)
     log_interval: int = Field(100, ge=1)  # episodes between TensorBoard rollout records
@@ -136,6 +285,28 @@ class TrainConfig(Strict):
             if env is None or isinstance(env, dict):
                 data = {**data, "env": {**SCENARIOS[data["scenario"]].env, **(env or {})}}
         return data
+
+    @model_validator(mode="after")
+    def _sections_of_algo(self):
+        # Another algorithm's section is ignored when algo is named (an experiment may grid over
+        # algo with settings for each); without algo it is a forgotten `algo:`.
+        for other in ALGOS:
+            if other != self.algo and other in self.model_fields_set and "algo" not in self.model_fields_set:
+                raise ValueError(f"{other}: settings of {other}, but algo is {self.algo} by default "
+                                 f"(set algo: {other})")
+        if self.algo == "ppo" and self.ppo.n_steps * self.n_envs < 2:
+            raise ValueError(f"ppo.n_steps: a rollout of n_steps x n_envs = {self.ppo.n_steps * self.n_envs} "
+                             f"step; PPO needs at least 2")
+        return self
+
+    @property
+    def learner(self) -> TD3Params | PPOParams | SACParams:
+        """The chosen algorithm's section."""
+        return getattr(self, self.algo)
+
+    def with_timesteps(self, n: int) -> "TrainConfig":
+        """This config with the learner's n_timesteps set to n."""
+        return self.model_copy(update={self.algo: self.learner.model_copy(update={"n_timesteps": n})})
 
     @field_validator("scenario")
     @classmethod

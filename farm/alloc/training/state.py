@@ -6,9 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from stable_baselines3 import TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import EvalCallback
-from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import VecMonitor
 
 from farm.alloc.env import SwarmAllocationEnv
 from farm.alloc.training.callbacks import UpdateTimer
@@ -25,9 +25,10 @@ class RunState:
       action noise, the replay buffer's samples), torch's (TD3's target smoothing noise),
       python's (SB3 seeds it) and the model's action space's (the warm-up's random actions).
       Loading a model seeds them all again (SB3's set_random_seed), so they are set after;
-    - the training env's episode in progress, generator and counters
-      (SwarmAllocationEnv.get_state) and the Monitor's rewards of that episode (they only make
-      the episode's logged return whole);
+    - the training env's episodes in progress, generators and counters (get_state of the
+      SwarmAllocationEnv, or of the batched vector env with n_envs > 1) and its monitor's
+      figures of those episodes (the Monitor's rewards, the VecMonitor's returns and lengths:
+      they only make the episodes' logged returns whole);
     - the eval env's state (evaluations go on drawing from its generator, seeded once at the
       start), and the periodic evaluation's history (EvalCallback's public attributes: the
       steps, returns and lengths of evaluations.npz, the best and the last mean return, and
@@ -35,15 +36,31 @@ class RunState:
     - the wall and update seconds so far (UpdateTimer), so that metrics.json's timings
       describe the whole run: the earlier parts up to the checkpoint and the resumed part.
 
-    train_env, monitor: the training env and the Monitor around it; eval_env: the periodic
-    evaluation's env; evaluation: its EvalCallback; timer: the run's UpdateTimer."""
+    train_env, monitor: the training env (a SwarmAllocationEnv, or the batched vector env) and
+    the Monitor (VecMonitor) around it; eval_env: the periodic evaluation's env; evaluation: its
+    EvalCallback; timer: the run's UpdateTimer; n_envs: the episodes stepped at once."""
 
-    def __init__(self, train_env: SwarmAllocationEnv, monitor: Monitor, eval_env: SwarmAllocationEnv,
-                 evaluation: EvalCallback, timer: UpdateTimer):
+    def __init__(self, train_env, monitor, eval_env: SwarmAllocationEnv, evaluation: EvalCallback,
+                 timer: UpdateTimer, n_envs: int = 1):
         self.train_env, self.monitor, self.eval_env = train_env, monitor, eval_env
-        self.evaluation, self.timer = evaluation, timer
+        self.evaluation, self.timer, self.n_envs = evaluation, timer, n_envs
 
-    def capture(self, model: TD3) -> dict:
+    def _monitor_state(self):
+        m = self.monitor
+        if isinstance(m, VecMonitor):
+            return {"returns": m.episode_returns.copy(), "lengths": m.episode_lengths.copy(),
+                    "count": m.episode_count}
+        return list(m.rewards)
+
+    def _restore_monitor(self, saved) -> None:
+        m = self.monitor
+        if isinstance(m, VecMonitor):
+            m.episode_returns, m.episode_lengths = saved["returns"].copy(), saved["lengths"].copy()
+            m.episode_count = saved["count"]
+        else:
+            m.rewards = list(saved)
+
+    def capture(self, model: BaseAlgorithm) -> dict:
         """The state now, as a picklable dict (restore's input)."""
         import random
 
@@ -54,7 +71,7 @@ class RunState:
             "steps": int(model.num_timesteps),
             "numpy_rng": np.random.get_state(), "torch_rng": torch.get_rng_state(), "python_rng": random.getstate(),
             "action_space_rng": model.action_space.np_random.bit_generator.state,
-            "train_env": self.train_env.get_state(), "episode_rewards": list(self.monitor.rewards),
+            "train_env": self.train_env.get_state(), "episode_rewards": self._monitor_state(),
             "eval_env": self.eval_env.get_state(),
             "evaluations": {"timesteps": list(e.evaluations_timesteps), "results": list(e.evaluations_results),
                             "ep_lengths": list(e.evaluations_length), "best_mean_reward": e.best_mean_reward,
@@ -62,7 +79,7 @@ class RunState:
             "wall_seconds": self.timer.wall_seconds, "update_seconds": self.timer.update_seconds,
         }
 
-    def restore(self, model: TD3, state: dict) -> None:
+    def restore(self, model: BaseAlgorithm, state: dict) -> None:
         """Put a captured state back, into a model just loaded from the same checkpoint (its
         training env reset: the Monitor accepts steps again); rewrites evaluations.npz with
         the evaluations up to the checkpoint (removes it when there were none)."""
@@ -71,14 +88,14 @@ class RunState:
         import torch
 
         self.train_env.set_state(state["train_env"])
-        self.monitor.rewards = list(state["episode_rewards"])
+        self._restore_monitor(state["episode_rewards"])
         self.eval_env.set_state(state["eval_env"])
         e, history = self.evaluation, state["evaluations"]
         e.evaluations_timesteps = list(history["timesteps"])
         e.evaluations_results = list(history["results"])
         e.evaluations_length = list(history["ep_lengths"])
         e.best_mean_reward, e.last_mean_reward = history["best_mean_reward"], history["last_mean_reward"]
-        e.n_calls = state["steps"]  # one env: a call per step, so it evaluates where an uninterrupted run does
+        e.n_calls = state["steps"] // self.n_envs  # a call per vector step: it evaluates where an uninterrupted run does
         if e.log_path is not None:  # the stopped part's later evaluations go: the resumed run redoes them
             if e.evaluations_timesteps:  # EvalCallback's own layout
                 np.savez(e.log_path, timesteps=e.evaluations_timesteps, results=e.evaluations_results,

@@ -1,10 +1,12 @@
-"""`farm train CONFIG`: an allocator trained with stable-baselines3 on the allocation env,
+"""`farm train CONFIG`: an allocator trained with stable-baselines3 (TD3, PPO or SAC, the
+config's `algo`, after planner-guided pretraining when it has `pretrain:`) on the allocation env,
 rewards from the capture-time service, into a run folder (farm.alloc.runs). The design (the
 config, checkpoints and exact resume, divergence) is docs/training.md."""
 
 from __future__ import annotations
 
 import pickle
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -16,14 +18,16 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from farm.alloc.env import SwarmAllocationEnv
 from farm.alloc.lattice import lattice_groups, warm_lattices
+from farm.alloc.policies.learned import algorithm_class
 from farm.alloc.runs import RunFolder, RunMetrics, checkpoint_files, latest_checkpoint
 from farm.alloc.training.callbacks import Checkpointer, DivergenceGuard, StepProgress, UpdateTimer
 from farm.alloc.training.config import TrainConfig, store_of
+from farm.alloc.training.pretrain import pretrain
 from farm.alloc.training.state import RunState
 from farm.core.config import ConfigError
 from farm.core.errors import ActionError, TrainingDiverged
 
-__all__ = ["train", "EVAL_SEED_OFFSET"]
+__all__ = ["train", "make_model", "policy_kwargs", "EVAL_SEED_OFFSET"]
 
 EVAL_SEED_OFFSET = 1_000_000  # the periodic evaluation's episodes: seeded apart from training's
 
@@ -49,7 +53,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
         before = run.read_config()  # parsed: fields added since compare equal at their defaults
 
         def comparable(c: TrainConfig) -> dict:  # the length of training and the threads may change on resume
-            return c.model_copy(update={"td3": c.td3.model_copy(update={"n_timesteps": 0}), "threads": None}).model_dump()
+            return c.with_timesteps(0).model_copy(update={"threads": None}).model_dump()
 
         if comparable(before) != comparable(config):
             raise ConfigError(f"resume: {run_dir} was trained with another config", field="resume")
@@ -71,44 +75,98 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         return _learn(config, run_dir, resume, show_progress, client, extra)
 
 
+_ACTIVATIONS = {"relu": "ReLU", "tanh": "Tanh", "elu": "ELU", "leaky_relu": "LeakyReLU", "gelu": "GELU"}
+
+
+def policy_kwargs(values: dict) -> dict:
+    """A config's policy_kwargs as SB3 takes them: activation_fn's name as torch.nn's class."""
+    import torch
+
+    kwargs = dict(values)
+    if "activation_fn" in kwargs:
+        kwargs["activation_fn"] = getattr(torch.nn, _ACTIVATIONS[kwargs["activation_fn"]])
+    return kwargs
+
+
+def make_model(config: TrainConfig, env, run_dir: Path):
+    """A new SB3 model of config's algo and section, on env (an SB3 VecEnv), seeded config.seed."""
+    from stable_baselines3 import PPO, SAC
+
+    p = config.learner
+    common = dict(policy=p.policy, env=env, learning_rate=p.learning_rate, gamma=p.gamma,
+                  policy_kwargs=policy_kwargs(p.policy_kwargs), tensorboard_log=str(run_dir / "tb"),
+                  seed=config.seed, verbose=0, device="cpu")
+    if config.algo == "ppo":
+        return PPO(**common, n_steps=p.n_steps, batch_size=p.batch_size, n_epochs=p.n_epochs,
+                   gae_lambda=p.gae_lambda, clip_range=p.clip_range, ent_coef=p.ent_coef, vf_coef=p.vf_coef,
+                   max_grad_norm=p.max_grad_norm, target_kl=p.target_kl, normalize_advantage=p.normalize_advantage)
+    off_policy = dict(buffer_size=p.buffer_size, learning_starts=p.learning_starts, batch_size=p.batch_size,
+                      tau=p.tau, train_freq=p.train_freq, gradient_steps=p.gradient_steps)
+    if config.algo == "sac":
+        return SAC(**common, **off_policy, ent_coef=p.ent_coef, target_entropy=p.target_entropy)
+    n_act = env.action_space.shape[0]
+    noise = NormalActionNoise(np.zeros(n_act), p.noise_std * np.ones(n_act)) if p.noise_type == "normal" else None
+    return TD3(**common, **off_policy, policy_delay=p.policy_delay, action_noise=noise)
+
+
+def _training_envs(config: TrainConfig, client):
+    """(the SB3 VecEnv trained on, the env whose state a checkpoint keeps, its monitor): one env
+    in a DummyVecEnv under Monitor, or n_envs > 1 episodes in the batched vector env under VecMonitor."""
+    if config.n_envs == 1:
+        train_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+        monitor = Monitor(train_env)
+        return DummyVecEnv([lambda: monitor]), train_env, monitor
+    from farm.alloc.sb3_vec import make_vec_env
+
+    monitor = make_vec_env(config.env, config.n_envs, client, config.service.estimates)
+    return monitor, monitor.venv.env, monitor
+
+
+def _eval_envs(config: TrainConfig, client):
+    """(the periodic evaluation's env, as EvalCallback takes it, the env whose state a checkpoint
+    keeps), seeded once (config.seed + EVAL_SEED_OFFSET)."""
+    eval_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+    if config.n_envs == 1:
+        eval_monitor = Monitor(eval_env)
+        # EvalCallback resets without a seed, which would leave the curve's episodes to OS entropy:
+        # seeding once here makes evaluations.npz the same on every run of the same config.
+        eval_monitor.reset(seed=config.seed + EVAL_SEED_OFFSET)
+        return eval_monitor, eval_env
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    eval_env.reset(seed=config.seed + EVAL_SEED_OFFSET)
+    return VecMonitor(DummyVecEnv([lambda: eval_env])), eval_env  # the training env's type: EvalCallback's check
+
+
 def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list) -> dict:
     if config.service.warm_lattice:
         warm_lattices(client, lattice_groups([config.env]), show_progress)
-    train_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
-    monitor = Monitor(train_env)
-    env = DummyVecEnv([lambda: monitor])
-    eval_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
-    eval_monitor = Monitor(eval_env)
-    # EvalCallback resets without a seed, which would leave the curve's episodes to OS entropy:
-    # seeding once here makes evaluations.npz the same on every run of the same config.
-    eval_monitor.reset(seed=config.seed + EVAL_SEED_OFFSET)
-    p = config.td3
-    n_act = env.action_space.shape[0]
-    noise = NormalActionNoise(np.zeros(n_act), p.noise_std * np.ones(n_act)) if p.noise_type == "normal" else None
+    env, train_env, monitor = _training_envs(config, client)
+    eval_vec, eval_env = _eval_envs(config, client)
+    p = config.learner
     timer = UpdateTimer()
-    evaluation = EvalCallback(eval_monitor, eval_freq=config.eval.freq, n_eval_episodes=config.eval.episodes,
-                              log_path=str(run_dir), best_model_save_path=str(run_dir / "best"), deterministic=True,
-                              verbose=0)
-    state = RunState(train_env, monitor, eval_env, evaluation, timer)
+    evaluation = EvalCallback(eval_vec, eval_freq=max(1, config.eval.freq // config.n_envs),
+                              n_eval_episodes=config.eval.episodes, log_path=str(run_dir),
+                              best_model_save_path=str(run_dir / "best"), deterministic=True, verbose=0)
+    state = RunState(train_env, monitor, eval_env, evaluation, timer, config.n_envs)
+    cls = algorithm_class(config.algo)
 
-    done_steps = 0
-    checkpoint = latest_checkpoint(run_dir) if resume else None
+    done_steps, pretrained = 0, None
+    checkpoint = latest_checkpoint(run_dir, replay_buffer=config.algo != "ppo") if resume else None
     if checkpoint:
         path, done_steps = checkpoint
         _, buffer, state_file = checkpoint_files(run_dir, done_steps)
         # force_reset=False keeps the saved last observation: training goes on with the episode in progress
-        model = TD3.load(path, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
-        model.load_replay_buffer(buffer)
+        model = cls.load(path, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
+        if buffer.exists():
+            model.load_replay_buffer(buffer)
         env.reset()  # through the wrappers (the Monitor refuses a step before a reset); the state replaces the episode
         state.restore(model, pickle.loads(state_file.read_bytes()))
     else:
-        model = TD3(
-            p.policy, env, learning_rate=p.learning_rate, buffer_size=p.buffer_size,
-            learning_starts=p.learning_starts, batch_size=p.batch_size, tau=p.tau, gamma=p.gamma,
-            train_freq=p.train_freq, gradient_steps=p.gradient_steps, policy_delay=p.policy_delay,
-            action_noise=noise, policy_kwargs=dict(p.policy_kwargs), tensorboard_log=str(run_dir / "tb"),
-            seed=config.seed, verbose=0, device="cpu",
-        )
+        model = make_model(config, env, run_dir)
+        if config.pretrain is not None:
+            pretrained = pretrain(model, config, client, run_dir, show_progress=show_progress)
+            _evaluate_pretrained(model, evaluation, eval_vec, config, run_dir)
     remaining = max(0, p.n_timesteps - done_steps)
     callbacks = CallbackList([
         timer,  # first: it times the updates alone
@@ -121,20 +179,28 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
     try:
         try:
             model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=not checkpoint,
-                        tb_log_name="td3", log_interval=config.log_interval)
+                        tb_log_name=config.algo, log_interval=config.log_interval)
         except ActionError as e:  # the env refuses a non-finite action before the guard sees it
             raise TrainingDiverged(f"training diverged at step {model.num_timesteps + 1}: the policy's action is "
-                                   f"not finite (lower td3.learning_rate?): {e}") from None
+                                   f"not finite (lower {config.algo}.learning_rate?): {e}") from None
     except TrainingDiverged as e:  # the folder says so, for farm report and whoever looks
         RunFolder(run_dir).mark_diverged(str(e))
         raise
     wall = timer.wall_seconds  # the whole run's, as the other figures: a resumed run's earlier parts too
     run = RunFolder(run_dir)
-    model.save(run.model_path())
+    best = run_dir / "best" / "best_model.zip"
+    kept = "final"
+    if config.keep == "best" and best.exists() and evaluation.best_mean_reward > evaluation.last_mean_reward:
+        shutil.copyfile(best, run.model_path())
+        kept = "best"
+    else:
+        model.save(run.model_path())
     evals = run.evaluations()
     steps, results = evals if evals is not None else (None, None)
+    previous = run.read_metrics() if checkpoint else None  # a resumed run keeps its pretraining's figures
     metrics = RunMetrics(**{
         "name": config.name,
+        "algo": config.algo,
         "timesteps": int(model.num_timesteps),
         "resumed_from": done_steps if checkpoint else None,
         "wall_seconds": wall,
@@ -146,6 +212,8 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         "final_eval_mean_return": float(results[-1].mean()) if evals is not None else None,
         "final_eval_std_return": float(results[-1].std()) if evals is not None else None,
         "best_eval_mean_return": float(results.mean(axis=1).max()) if evals is not None else None,
+        "kept": kept,
+        **_pretrain_metrics(pretrained, previous, evals),
     })
     run.write_metrics(metrics)
     if evals is not None:
@@ -153,3 +221,32 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
 
         plot_training_curve(steps, results, run.file("training_curve.png"), config.name)
     return metrics.model_dump()
+
+
+def _evaluate_pretrained(model, evaluation: EvalCallback, eval_vec, config: TrainConfig, run_dir: Path) -> None:
+    """Evaluate the pretrained model as EvalCallback would (its episodes, from the eval env's
+    generator) and put it first in the evaluation's history, at step 0, as the best so far (so
+    that `keep: best` keeps it unless RL does better)."""
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    returns, lengths = evaluate_policy(model, eval_vec, n_eval_episodes=config.eval.episodes, deterministic=True,
+                                       return_episode_rewards=True)
+    evaluation.evaluations_timesteps.append(0)
+    evaluation.evaluations_results.append(list(returns))
+    evaluation.evaluations_length.append(list(lengths))
+    np.savez(evaluation.log_path, timesteps=evaluation.evaluations_timesteps,
+             results=evaluation.evaluations_results, ep_lengths=evaluation.evaluations_length)
+    evaluation.best_mean_reward = evaluation.last_mean_reward = float(np.mean(returns))
+    (run_dir / "best").mkdir(parents=True, exist_ok=True)
+    model.save(run_dir / "best" / "best_model.zip")
+
+
+def _pretrain_metrics(pretrained, previous, evals) -> dict:
+    if pretrained is not None:
+        return {"pretrain_states": pretrained.states, "pretrain_seconds": pretrained.seconds,
+                "pretrain_loss": pretrained.loss,
+                "pretrained_eval_mean_return": float(evals[1][0].mean()) if evals is not None else None}
+    if previous is not None:
+        return {k: getattr(previous, k) for k in ("pretrain_states", "pretrain_seconds", "pretrain_loss",
+                                                  "pretrained_eval_mean_return")}
+    return {}

@@ -3,6 +3,7 @@ grid may set (field_problem); docs/experiments.md shows one."""
 
 from __future__ import annotations
 
+import types
 import typing
 from typing import Any
 
@@ -98,6 +99,9 @@ def field_problem(path: str) -> str | None:
             where = ".".join(parts[:depth]) or "a training config"
             return f"not a field of {where} (choose from {', '.join(f for f in fields if depth or f not in RESERVED_FIELDS)})"
         model = fields[part].annotation
+        if typing.get_origin(model) in (typing.Union, types.UnionType):  # an optional section (pretrain)
+            models = [a for a in typing.get_args(model) if isinstance(a, type) and issubclass(a, BaseModel)]
+            model = models[0] if len(models) == 1 else model
     return None
 
 

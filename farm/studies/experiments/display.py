@@ -20,7 +20,9 @@ class Display:
     def __init__(self, plan, enabled: bool, finished: list[str]):
         from farm.core.progress import GameProgress
 
-        self.total = {t.key: t.config["td3"]["n_timesteps"] for t in plan.trials}
+        from farm.alloc.training.config import TrainConfig
+
+        self.total = {t.key: TrainConfig(**t.config).learner.n_timesteps for t in plan.trials}
         self.steps = {key: (self.total[key] if key in finished else 0) for key in self.total}
         self.done: set[str] = set(finished)
         self.running: set[str] = set()

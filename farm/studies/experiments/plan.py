@@ -63,6 +63,15 @@ def _set(raw: dict, path: str, value) -> None:
     node[parts[-1]] = value
 
 
+def _added_defaults() -> dict:
+    """The training config's fields added since 0.5 (the learners), at their defaults, as
+    plain values: a trial's config holding one at its default decides what it did before."""
+    from farm.alloc.training import TrainConfig
+
+    defaults = json.loads(TrainConfig(name="x").model_dump_json())
+    return {name: defaults[name] for name in ("algo", "ppo", "sac", "n_envs", "pretrain", "keep")}
+
+
 def _base_raw(config: ExperimentConfig, source: str) -> dict:
     """The base training config as plain values (validated once as a whole, its own errors
     naming the base file)."""
@@ -113,6 +122,9 @@ def plan(config: ExperimentConfig, source: str = "experiments") -> Plan:
                "eval_seed": config.eval_seed}
     for t in decided["trials"]:  # the store's place does not change a result
         t["config"]["service"] = {k: v for k, v in t["config"]["service"].items() if k != "store"}
+        for name, default in _added_defaults().items():  # an experiment from before them keeps its digest
+            if t["config"].get(name) == default:
+                del t["config"][name]
     digest = hashlib.sha256(json.dumps(decided, sort_keys=True).encode()).hexdigest()[:16]
     return Plan(name=config.name, fields=fields, trials=trials, store=store, episodes=config.episodes,
                 eval_seed=config.eval_seed, digest=digest)

@@ -7,17 +7,19 @@ from pathlib import Path
 
 import pandas as pd
 
-from farm.alloc.runs import LEARNER
 from farm.core.stats import ci_columns, format_ci
 from farm.studies.experiments.folder import ExperimentFolder
 from farm.studies.experiments.plan import Plan
 
-__all__ = ["trials_table", "summary_table", "summary_view", "format_summary", "manifest_trials", "TIMING_COLUMNS",
+__all__ = ["LEARNED", "trials_table", "summary_table", "summary_view", "format_summary", "manifest_trials", "TIMING_COLUMNS",
            "METRICS_COLUMNS"]
 
 TIMING_COLUMNS = ("wall_seconds", "steps_per_second", "update_seconds", "outside_update_share", "train_seconds",
                   "evaluate_seconds")
-METRICS_COLUMNS = ("timesteps", "resumed_from", "engagements", "estimated_share", *TIMING_COLUMNS[:4])
+LEARNED = "learned"  # trials.csv's prefix of the trained allocator's columns (its algo in column `algo`)
+OLD_LEARNED = "td3"  # the prefix of trials finished before `algo`
+METRICS_COLUMNS = ("timesteps", "resumed_from", "engagements", "estimated_share", *TIMING_COLUMNS[:4],
+                   "pretrain_states", "pretrain_seconds")
 
 
 def manifest_trials(plan: Plan) -> list[dict]:
@@ -36,13 +38,16 @@ def summary_table(fields: list[str], trials: pd.DataFrame) -> pd.DataFrame:
     grid's dotted fields (Plan.fields), trials: trials.csv's table."""
     if trials.empty:
         return pd.DataFrame()
+    learned = LEARNED if f"{LEARNED}_return" in trials.columns else OLD_LEARNED  # before `algo`: td3's columns
     others = [c[: -len("_return")] for c in trials.columns
-              if c.endswith("_return") and c not in (f"{LEARNER}_return", "final_eval_return", "best_eval_return")]
+              if c.endswith("_return") and c not in (f"{learned}_return", "final_eval_return", "best_eval_return")]
     rows = []
     for point, g in trials.groupby("point", sort=True):
         row = {"point": int(point), **{f: g[f].iloc[0] for f in fields}, "seeds": len(g)}
+        if "algo" in g and "algo" not in fields:
+            row["algo"] = g["algo"].iloc[0]
         row.update(ci_columns({name: g[col].to_numpy(dtype=float) for name, col in (
-            ("return", f"{LEARNER}_return"), ("eliminated", f"{LEARNER}_eliminated"),
+            ("return", f"{learned}_return"), ("eliminated", f"{learned}_eliminated"),
             ("final_eval_return", "final_eval_return"))}))
         for name in others:
             row[f"{name}_return"] = float(g[f"{name}_return"].mean())
@@ -53,15 +58,15 @@ def summary_table(fields: list[str], trials: pd.DataFrame) -> pd.DataFrame:
 
 def summary_view(summary: pd.DataFrame) -> pd.DataFrame:
     """summary.csv as shown (format_summary, farm report): point, the point's fields, seeds,
-    td3's return and eliminated as `mean ± CI` strings, and the baseline or planner eliminating
+    the learner's return and eliminated as `mean ± CI` strings, and the baseline or planner eliminating
     the most (`name value`); an empty frame for an empty summary."""
 
     if summary.empty:
         return pd.DataFrame()
     fields = list(summary.columns[1: list(summary.columns).index("seeds") + 1])
     view = summary[["point", *fields]].copy()
-    view[f"{LEARNER} return"] = [format_ci(m, h) for m, h in zip(summary["return_mean"], summary["return_ci95"])]
-    view[f"{LEARNER} eliminated"] = [format_ci(m, h) for m, h in zip(summary["eliminated_mean"],
+    view["learned return"] = [format_ci(m, h) for m, h in zip(summary["return_mean"], summary["return_ci95"])]
+    view["learned eliminated"] = [format_ci(m, h) for m, h in zip(summary["eliminated_mean"],
                                                                      summary["eliminated_ci95"])]
     others = [c[: -len("_eliminated")] for c in summary.columns if c.endswith("_eliminated")]
     if others:

@@ -12,7 +12,7 @@ from farm.alloc.evaluation import allocators, evaluate_trained, reference_specs
 from farm.alloc.runs import RunFolder
 from farm.studies.experiments.folder import ExperimentFolder
 from farm.studies.experiments.plan import Trial
-from farm.studies.experiments.tables import METRICS_COLUMNS
+from farm.studies.experiments.tables import LEARNED, METRICS_COLUMNS
 
 __all__ = ["run_trial", "trial_dirname"]
 
@@ -45,7 +45,7 @@ def run_trial(params: dict) -> None:
         return
     config = TrainConfig(**trial.config)
     run = RunFolder(folder.run_dir(trial.key))
-    every = max(1, min(config.checkpoint_freq, config.td3.n_timesteps // 10 or 1))
+    every = max(1, min(config.checkpoint_freq, config.learner.n_timesteps // 10 or 1))
     t0 = time.perf_counter()
     metrics = train(config, run.path, resume=run.is_run(), show_progress=False,
                     callbacks=[TuneReport(run.path, every)])
@@ -53,12 +53,13 @@ def run_trial(params: dict) -> None:
     specs = spec.get("policies")
     table = _evaluate(config, run, spec["episodes"], spec["eval_seed"], reference_specs() if specs is None else specs)
     t2 = time.perf_counter()
-    result = {"trial": trial.key, "point": trial.point, "seed": trial.seed, **trial.values,
+    result = {"trial": trial.key, "point": trial.point, "seed": trial.seed, **trial.values, "algo": config.algo,
               "final_eval_return": metrics.get("final_eval_mean_return"),
               "best_eval_return": metrics.get("best_eval_mean_return")}
     for row in table.itertuples():
-        result[f"{row.policy}_return"] = float(row.return_mean)
-        result[f"{row.policy}_eliminated"] = float(row.eliminated_mean)
+        name = LEARNED if row.policy == config.algo else row.policy
+        result[f"{name}_return"] = float(row.return_mean)
+        result[f"{name}_eliminated"] = float(row.eliminated_mean)
     result.update({name: metrics.get(name) for name in METRICS_COLUMNS})
     result.update(train_seconds=t1 - t0, evaluate_seconds=t2 - t1)
     folder.write_result(trial.key, result)

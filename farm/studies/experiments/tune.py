@@ -41,7 +41,7 @@ class TuneReport(AfterUpdates):
         from farm.alloc.runs import latest_checkpoint
 
         metrics = {"timesteps": steps, "phase": "train"}
-        last = latest_checkpoint(self.run_dir)
+        last = latest_checkpoint(self.run_dir, replay_buffer=getattr(self.model, "replay_buffer", None) is not None)
         if last is None or last[1] != steps:
             tune.report(metrics)
             return

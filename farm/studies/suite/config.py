@@ -9,7 +9,6 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.policies import policy_entry, policy_names
-from farm.alloc.runs import LEARNER
 from farm.alloc.scenarios import SCENARIOS
 from farm.core.config import StrictFile, first_line, load_yaml_model
 
@@ -65,7 +64,7 @@ class SuiteConfig(StrictFile):
             raise ValueError(f"must name at least one policy (choose from {_choices(choices)})")
         for name in v:
             if name not in choices:
-                hint = "; trained runs come from `runs`" if name == LEARNER else ""
+                hint = "; trained runs come from `runs`" if name in policy_names("learned") else ""
                 raise ValueError(f"unknown policy {name!r} (choose from {_choices(choices)}){hint}")
         _no_repeats(v)
         return v

@@ -14,7 +14,7 @@ import pandas as pd
 from farm.alloc.config import AllocConfig
 from farm.alloc.lattice import lattice_groups, warm_lattices
 from farm.alloc.policies import PolicySpec, make_policy, policy_entry
-from farm.alloc.runs import LEARNER, RunFolder
+from farm.alloc.runs import RunFolder
 from farm.alloc.scenarios import SCENARIOS
 from farm.core.errors import ConfigError
 from farm.studies.suite.config import SuiteConfig
@@ -24,8 +24,8 @@ __all__ = ["run_suite"]
 
 
 def _run_folder(config: SuiteConfig, scenario: str, env: AllocConfig):
-    """The trained policy of a scenario's run folder, or None when it is missing and missing runs
-    are skipped; ConfigError (one line naming runs.<scenario>) otherwise."""
+    """(algo, trained policy) of a scenario's run folder, or None when it is missing and missing
+    runs are skipped; ConfigError (one line naming runs.<scenario>) otherwise."""
     run_dir = Path(config.runs[scenario])
     run = RunFolder(run_dir)
     field = f"runs.{scenario}"
@@ -36,16 +36,16 @@ def _run_folder(config: SuiteConfig, scenario: str, env: AllocConfig):
         raise ConfigError(f"{field}: {run_dir} {what}; train it (farm train configs/train/suite_{scenario}.yaml "
                           f"--out {run_dir}) or set skip_missing_runs: true", field=field)
     try:
-        trained = run.read_config().env
+        trained_config = run.read_config()
     except ConfigError as e:
         raise ConfigError(f"{field}: {e}", field=field) from None
-    ours, theirs = env.model_dump(), trained.model_dump()
+    ours, theirs = env.model_dump(), trained_config.env.model_dump()
     for name in ours:
         if name not in ("games", "seed") and ours[name] != theirs.get(name):
             raise ConfigError(f"{field}: {run_dir} was trained on another env ({name}: {theirs.get(name)!r}, "
                               f"the scenario's {ours[name]!r})", field=field)
     try:
-        return make_policy(LEARNER, env, None, run=run_dir)
+        return trained_config.algo, make_policy(trained_config.algo, env, None, run=run_dir)
     except ConfigError as e:
         raise ConfigError(f"{field}: {e}", field=field) from None
 
@@ -59,11 +59,12 @@ def _plan(config: SuiteConfig) -> tuple[dict[str, AllocConfig], list[tuple[str, 
     for scenario, env in envs.items():
         jobs += [(scenario, spec) for spec in specs]
         if scenario in config.runs:
-            policy = _run_folder(config, scenario, env)
-            if policy is None:
+            trained = _run_folder(config, scenario, env)
+            if trained is None:
                 skipped[scenario] = config.runs[scenario]
             else:
-                jobs.append((scenario, PolicySpec(policy_entry(LEARNER), {"policy": policy})))
+                algo, policy = trained
+                jobs.append((scenario, PolicySpec(policy_entry(algo), {"policy": policy})))
     return envs, jobs, skipped
 
 
@@ -212,7 +213,7 @@ def _write_manifest(config: SuiteConfig, envs: dict, jobs: list, skipped: dict, 
                                  "env": env.model_dump(mode="json")} for name, env in envs.items()},
             "policies": config.policy_names(),
             "planner_options": config.planner_options,
-            "runs": {scenario: config.runs[scenario] for scenario, spec in jobs if spec.name == LEARNER},
+            "runs": {scenario: config.runs[scenario] for scenario, spec in jobs if spec.entry.kind == "learned"},
             "skipped_runs": skipped,
             "episodes": config.episodes,
             "seeds": [config.seed, config.seed + config.episodes - 1],

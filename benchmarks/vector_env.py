@@ -1,0 +1,150 @@
+"""Batched allocation env against one env per episode, side by side, one process, one core.
+
+1. env steps/s, random actions, B = 16 episodes: farm.alloc.vector_env.SwarmAllocationVectorEnv
+   against gymnasium's SyncVectorEnv of 16 SwarmAllocationEnv (both SAME_STEP autoreset), the
+   same config and in-process client over a warmed store (every lookup a memo hit); a 3x3 and a
+   5x5 config.                                                          target >= 5x at 16 envs
+2. PPO training steps/s (stable-baselines3 PPO, MlpPolicy, n_steps 64 per env, 16 envs, the
+   3x3 config): farm.alloc.sb3_vec.make_vec_env (the batched env adapted, in a VecMonitor)
+   against SB3's DummyVecEnv of 16 Monitor-wrapped single envs; learn()'s steps/s, and its time
+   split into rollouts (the env's part) and updates, with SB3's (and the project's) default
+   updates, batch_size 64 and n_epochs 10, and with lighter ones, n_epochs 1.   target >= 2x
+Rates are of this process's CPU time (time.process_time: other load on the machine does not
+count), the best of --repeats runs, the two sides of a row run in turn.
+Usage: python benchmarks/vector_env.py [--steps 1500] [--ppo-steps 8192] [--repeats 3]   (about 4 min)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
+import numpy as np  # noqa: E402
+
+ENVS = 16
+
+
+def env_seconds(env, actions: np.ndarray, steps: int) -> float:
+    """CPU seconds of `steps` vector steps of a vector env (ENVS env steps each), after a warm-up."""
+    env.reset(seed=0)
+    for t in range(200):
+        env.step(actions[t % len(actions)])
+    t0 = time.process_time()
+    for t in range(steps):
+        env.step(actions[t % len(actions)])
+    return time.process_time() - t0
+
+
+def ppo_seconds(make_env, steps: int, n_epochs: int) -> tuple[float, float]:
+    """(CPU seconds of PPO.learn(steps) on a fresh SB3 VecEnv from make_env(), of which in its
+    updates, PPO.train), after a warm-up rollout and update."""
+    from stable_baselines3 import PPO
+
+    class TimedPPO(PPO):
+        train_seconds = 0.0
+
+        def train(self):
+            t = time.process_time()
+            super().train()
+            self.train_seconds += time.process_time() - t
+
+    model = TimedPPO("MlpPolicy", make_env(), n_steps=64, batch_size=64, n_epochs=n_epochs, seed=0, device="cpu",
+                     verbose=0)
+    model.learn(total_timesteps=64 * ENVS)
+    model.train_seconds = 0.0
+    t0 = time.process_time()
+    model.learn(total_timesteps=steps, reset_num_timesteps=False)
+    return time.process_time() - t0, model.train_seconds
+
+
+def best_of(repeats: int, runs: dict) -> dict:
+    """Each run's least result over `repeats` turns, the runs taken in turn each time (runs:
+    name -> a function returning seconds, or a tuple whose first entry is compared)."""
+    best: dict = {}
+    for _ in range(repeats):
+        for name, run in runs.items():
+            got = run()
+            key = got[0] if isinstance(got, tuple) else got
+            if name not in best or key < best[name][0]:
+                best[name] = (key, got)
+    return {name: got for name, (_, got) in best.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=1500, help="vector steps per env run (x16 env steps)")
+    ap.add_argument("--ppo-steps", type=int, default=8192, help="PPO.learn steps per PPO run")
+    ap.add_argument("--repeats", type=int, default=3, help="runs of each side, the best counted")
+    a = ap.parse_args()
+    import gymnasium
+    import torch
+    from gymnasium.vector import AutoresetMode
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from farm.alloc import AllocConfig, SwarmAllocationEnv
+    from farm.alloc.lattice import lattice_groups, warm_lattices
+    from farm.alloc.sb3_vec import make_vec_env
+    from farm.alloc.vector_env import SwarmAllocationVectorEnv
+    from farm.service import CaptureTimeClient
+
+    torch.set_num_threads(1)
+    configs = {
+        "3x3, 100 v 50": AllocConfig(grid_size=3, n_defenders=100, n_intruders=50, c_capture=1.5,
+                                     team_sizes="lattice", games=4),
+        "5x5, 100 v 50": AllocConfig(grid_size=5, n_defenders=100, n_intruders=50, c_capture=1.5, max_steps=16,
+                                     team_sizes="lattice", games=4),
+    }
+    env_rows, ppo_rows = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        first = next(iter(configs.values()))
+        client = CaptureTimeClient(first.service_settings(), local_store=Path(tmp) / "s.sqlite")
+        t0 = time.perf_counter()
+        cases = warm_lattices(client, lattice_groups(configs.values()), show_progress=False)
+        t_warm = time.perf_counter() - t0
+        for label, config in configs.items():
+            single = SwarmAllocationEnv(config, client=client)
+            actions = np.random.default_rng(0).uniform(-1, 1, (512, ENVS) + single.action_space.shape)
+            actions = actions.astype(np.float32)
+            batched = SwarmAllocationVectorEnv(config, num_envs=ENVS, client=client)
+            sync = gymnasium.vector.SyncVectorEnv([lambda: SwarmAllocationEnv(config, client=client)] * ENVS,
+                                                  autoreset_mode=AutoresetMode.SAME_STEP)
+            best = best_of(a.repeats, {"batched": lambda: env_seconds(batched, actions, a.steps),
+                                       "sync": lambda: env_seconds(sync, actions, a.steps)})
+            env_rows.append((label, a.steps * ENVS / best["batched"], a.steps * ENVS / best["sync"]))
+        label, config = next(iter(configs.items()))
+
+        def dummy():
+            return DummyVecEnv([lambda: Monitor(SwarmAllocationEnv(config, client=client))] * ENVS)
+
+        for n_epochs in (10, 1):
+            best = best_of(a.repeats, {
+                "batched": lambda: ppo_seconds(lambda: make_vec_env(config, ENVS, client, seed=0), a.ppo_steps,
+                                               n_epochs),
+                "dummy": lambda: ppo_seconds(dummy, a.ppo_steps, n_epochs)})
+            ppo_rows.append((f"{label}, n_epochs {n_epochs}", best["batched"], best["dummy"]))
+        client.close()
+    print(f"lattice warm-up (in-process, {cases} cases, 4 games each): {t_warm:.1f} s; torch threads 1; "
+          f"CPU time, best of {a.repeats}")
+    print(f"{'env steps/s, 16 envs, random actions':<40}{'batched':>9}{'SyncVectorEnv':>15}{'ratio':>8}"
+          f"   (target >= 5x)")
+    for label, ours, sync in env_rows:
+        print(f"{label:<40}{ours:>9.0f}{sync:>15.0f}{ours / sync:>7.1f}x")
+    print(f"{'PPO, 16 envs, n_steps 64, batch 64':<40}{'batched':>9}{'DummyVecEnv':>15}{'ratio':>8}"
+          f"   (target >= 2x)")
+    steps = a.ppo_steps
+    for label, (ours, ours_train), (other, other_train) in ppo_rows:
+        print(f"{label + ': learn steps/s':<40}{steps / ours:>9.0f}{steps / other:>15.0f}{other / ours:>7.1f}x")
+        print(f"{'  rollouts alone, steps/s':<40}{steps / (ours - ours_train):>9.0f}"
+              f"{steps / (other - other_train):>15.0f}{(other - other_train) / (ours - ours_train):>7.1f}x")
+        print(f"{'  updates, s of learn s':<40}{f'{ours_train:.1f}/{ours:.1f}':>9}"
+              f"{f'{other_train:.1f}/{other:.1f}':>15}")
+
+
+if __name__ == "__main__":
+    main()

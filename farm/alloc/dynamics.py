@@ -1,0 +1,243 @@
+"""One step of the allocation MDP for B episodes at once: the one definition of a step.
+
+The single env (farm.alloc.env.SwarmAllocationEnv) steps through step() with B = 1 and the
+batched one (farm.alloc.vector_env.SwarmAllocationVectorEnv) with B episodes, so episode k
+of a batch gets, to the last bit, the numbers it would get alone: every operation here is
+elementwise, or a sum over one episode's entries that does not depend on the other episodes
+(np.add.reduceat over each cell's moves, np.bincount in entry order, and farm.alloc.model's
+row_sums and segment_sums, which sum as numpy sums one episode's 1-D array), and the
+engagements of all B episodes are answered by one lookup (EngagementModel.engage_many).
+
+- moves, n_actions, Layout: the action layout of an N x N grid;
+- check_actions: the action refusal rule (ActionError);
+- move_probabilities, move_defenders: the defenders' move (the `action_map` and D' = T D);
+- start_densities: an episode's start; observe: the observation; episode_end: termination
+  and truncation;
+- step: a whole step (StepResult).
+
+Densities are (B, N^2) float64, one episode a row, cells in cell order c = row * N + col.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from farm.alloc.config import AllocConfig
+from farm.alloc.model import EngagementModel, advance_intruders_many, row_sums, segment_sums
+from farm.core.errors import ActionError
+
+__all__ = ["moves", "n_actions", "Layout", "check_actions", "move_probabilities", "move_defenders",
+           "start_densities", "observe", "episode_end", "StepResult", "step"]
+
+
+def moves(n: int):
+    """The feasible moves of an n x n grid, in the action vector's order.
+
+    A cell may stay or move to any of its 8 neighbours inside the grid; cells come in
+    cell order (c = row * n + col), each cell's moves in row-major (d_row, d_col) order.
+    Returns (src, dst, start): src: (A,) int64 and dst: (A,) int64 the source and
+    destination cell of each move, A = n_actions(n); start: (n*n,) int64 the offset of
+    each cell's slice in the action vector.
+    """
+    src, dst, start = [], [], []
+    for r in range(n):
+        for c in range(n):
+            start.append(len(src))
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    rr, cc = r + dr, c + dc
+                    if 0 <= rr < n and 0 <= cc < n:
+                        src.append(r * n + c)
+                        dst.append(rr * n + cc)
+    return np.array(src), np.array(dst), np.array(start)
+
+
+def n_actions(n: int) -> int:
+    """The number of feasible moves A of an n x n grid (n >= 2): the action's length.
+
+    Corners have 4 moves, other edge cells 6, inner cells 9: A = 4*4 + 6*4(n-2) + 9(n-2)^2
+    (49 for n = 3).
+    """
+    return 4 * 4 + 6 * 4 * (n - 2) + 9 * (n - 2) ** 2
+
+
+class Layout:
+    """The action layout of an N x N grid, and its offsets for batches of B episodes.
+
+    n: the grid side N. Attributes: n; cells: int, N^2; src, dst: (A,) int64 and start:
+    (N^2,) int64 as moves(n) returns them; n_moves: (N^2,) int64 the moves of each cell;
+    base: int, the base cell (row N//2, col 0); right: (N,) int64 the right-most column's
+    cells, top to bottom.
+    """
+
+    def __init__(self, n: int):
+        self.n = n
+        self.cells = n * n
+        self.src, self.dst, self.start = moves(n)
+        self.n_moves = np.diff(np.append(self.start, len(self.src)))
+        self.base = (n // 2) * n
+        self.right = np.arange(n) * n + (n - 1)
+        self._offsets: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def offsets(self, B: int) -> tuple[np.ndarray, np.ndarray]:
+        """(starts: (B N^2,) int64 each cell's slice in the flattened (B A,) actions, dst: (B A,)
+        int64 each move's destination in the flattened (B N^2,) densities), made once per B."""
+        if B not in self._offsets:
+            A = len(self.src)
+            starts = ((np.arange(B) * A)[:, None] + self.start).reshape(-1)
+            dst = ((np.arange(B) * self.cells)[:, None] + self.dst).reshape(-1)
+            self._offsets[B] = (starts, dst)
+        return self._offsets[B]
+
+
+def check_actions(action, shape: tuple[int, ...], name: str = "action") -> np.ndarray:
+    """The action(s) as float64 of `shape`, values as given (the step clips them), or ActionError.
+
+    Refused: anything that is not an array of real numbers (integers or floats) of shape
+    `shape` ((A,) for one episode, (B, A) for a batch), and NaN or infinite values; name:
+    the argument's name in the message.
+    """
+    expected = f"{name}: expected shape {tuple(shape)} of finite numbers in the action space"
+    try:
+        a = np.asarray(action)
+    except (TypeError, ValueError, OverflowError):
+        raise ActionError(f"{expected}, got a {type(action).__name__} that is not an array of numbers") from None
+    if a.dtype.kind not in "iuf":
+        raise ActionError(f"{expected}, got dtype {a.dtype}")
+    if a.shape != tuple(shape):
+        raise ActionError(f"{expected}, got shape {a.shape}")
+    with np.errstate(over="ignore"):  # a float128 beyond float64 becomes inf, refused below
+        a = a.astype(np.float64)
+    finite = np.isfinite(a)
+    if not finite.all():
+        bad = np.flatnonzero(~finite)
+        at = np.unravel_index(bad[0], a.shape)
+        where = at[0] if len(at) == 1 else tuple(int(i) for i in at)
+        raise ActionError(f"{expected}, got {a[at]} at index {where} ({len(bad)} value(s) not finite)")
+    return a
+
+
+def move_probabilities(layout: Layout, config: AllocConfig, action: np.ndarray) -> np.ndarray:
+    """Map actions to the probabilities of the feasible moves (the config's `action_map`).
+
+    action: (B, A) float, clipped to [-1, 1] -> p: (B, A) float64 in the same order, each
+    cell's slice summing to 1: `softmax`, p = softmax(beta a) per cell (beta =
+    `softmax_beta`); `shifted`, p = (a + 1) / sum(a + 1), uniform when every entry is -1.
+    """
+    a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64), -1.0), 1.0)
+    B = len(a)
+    starts, _ = layout.offsets(B)
+    src = layout.src
+    if config.action_map == "softmax":
+        z = config.softmax_beta * a
+        z = z - np.maximum.reduceat(z.reshape(-1), starts).reshape(B, layout.cells)[:, src]
+        w = np.exp(z)
+    else:
+        w = a + 1.0
+    total = np.add.reduceat(w.reshape(-1), starts).reshape(B, layout.cells)
+    uniform = total <= 0
+    total = np.where(uniform, 1.0, total)
+    p = w / total[:, src]
+    if uniform.any():
+        p = np.where(uniform[:, src], 1.0 / layout.n_moves[src], p)
+    return p
+
+
+def move_defenders(layout: Layout, D: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """The defenders after their move, D' = T D: D: (B, N^2) float64, p: (B, A) float64 the
+    move probabilities -> (B, N^2) float64 (each destination's inflow summed in move order)."""
+    B = len(D)
+    _, dst = layout.offsets(B)
+    flow = p * D[:, layout.src]
+    return np.bincount(dst, weights=flow.reshape(-1), minlength=B * layout.cells).reshape(B, layout.cells)
+
+
+def start_densities(layout: Layout, shares: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The densities at an episode's start: all defenders at the base, the intruders over the
+    right-most column. shares: (B, N) float64 the intruders' row shares (a flat Dirichlet
+    draw each) -> (D, I): (B, N^2) float64 each."""
+    B = len(shares)
+    D = np.zeros((B, layout.cells))
+    D[:, layout.base] = 1.0
+    I = np.zeros((B, layout.cells))
+    I[:, layout.right] = shares
+    return D, I
+
+
+def observe(D: np.ndarray, I: np.ndarray) -> np.ndarray:
+    """The observations: D, I: (B, N^2) float64 -> (B, 2 N^2) float32 [D, I] clipped to [0, 1]."""
+    return np.minimum(np.maximum(np.concatenate([D, I], axis=1), 0.0), 1.0).astype(np.float32)
+
+
+def episode_end(config: AllocConfig, steps: np.ndarray, remaining: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(terminated, truncated): (B,) bool each, of episodes after steps: (B,) int steps taken
+    with remaining: (B,) float64 intruder mass; terminated when the mass is below `epsilon`,
+    else truncated at `max_steps` steps."""
+    terminated = remaining < config.epsilon
+    return terminated, ~terminated & (steps >= config.max_steps)
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """One step of B episodes: the new densities and each episode's measures.
+
+    D, I: (B, N^2) float64 the densities after the step; breach: (B,) float64 the intruder
+    mass breached; eliminated: (B,) float64 the mass eliminated; score: (B,) float64 the
+    capture score S; engaged: (B,) int64 the engaged cells; estimates: (B,) int64 of them
+    the interpolated answers; coverage: (B,) float64 the share of the intruder mass (after
+    its advance) in engaged cells; per_engaged: (B,) float64 the mean n_p over the engaged
+    cells (0.0 with none); remaining: (B,) float64 the intruder mass left, sum(I); reward:
+    (B,) float64.
+    """
+
+    D: np.ndarray
+    I: np.ndarray
+    breach: np.ndarray
+    eliminated: np.ndarray
+    score: np.ndarray
+    engaged: np.ndarray
+    estimates: np.ndarray
+    coverage: np.ndarray
+    per_engaged: np.ndarray
+    remaining: np.ndarray
+    reward: np.ndarray
+
+
+def step(layout: Layout, config: AllocConfig, model: EngagementModel, D: np.ndarray, I: np.ndarray,
+         action: np.ndarray) -> StepResult:
+    """One step of the MDP (SwarmAllocationEnv's Description) for B episodes.
+
+    D, I: (B, N^2) float64 the densities before the step (not changed); action: (B, A)
+    float64, checked (check_actions); model: the config's EngagementModel, asked once (its
+    engage_many) for every engaged cell of the B episodes. Returns the StepResult; the
+    caller keeps the episodes' counters.
+    """
+    p = move_probabilities(layout, config, action)
+    D = move_defenders(layout, D, p)
+    I, breach = advance_intruders_many(I, layout.n, config.vertical_drift)
+    e = model.engage_many(D, I)
+    B = len(D)
+    total = row_sums(I)
+    engaged = e.counts
+    if len(e.cells):
+        flat = e.episode * layout.cells + e.cells
+        values = np.empty((3, len(flat)))  # the masses before, the scores, the masses eliminated
+        before = values[0]
+        np.take(I.reshape(-1), flat, out=before)
+        after = before * (1.0 - e.removed)
+        np.multiply(before, e.score, out=values[1])
+        np.subtract(before, after, out=values[2])
+        I.reshape(-1)[flat] = after
+        mass, score, eliminated = segment_sums(values, engaged)
+        coverage = np.divide(mass, total, out=np.zeros(B), where=total > 0)
+        per_engaged = np.divide(np.bincount(e.episode, weights=e.n_p, minlength=B), engaged, out=np.zeros(B),
+                                where=engaged > 0)
+        estimates = np.bincount(e.episode[e.estimated], minlength=B)
+    else:
+        score = eliminated = coverage = per_engaged = np.zeros(B)
+        estimates = np.zeros(B, dtype=np.int64)
+    remaining = row_sums(I)
+    reward = -config.c_distribution * remaining + config.c_capture * score - config.breach_penalty * breach
+    return StepResult(D, I, breach, eliminated, score, engaged, estimates, coverage, per_engaged, remaining, reward)

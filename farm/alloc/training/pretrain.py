@@ -1,0 +1,288 @@
+"""Planner-guided pretraining: DAgger (Ross, Gordon and Bagnell 2011) on stable-baselines3's
+public API, before RL fine-tunes the learner (a config's `pretrain:` section, PretrainParams).
+
+The algorithm, and why it is right:
+
+- Iteration i plays `episodes` episodes with a mixture policy: at each step the expert drives
+  with probability beta_i (the schedule, beta_0 = 1: the first iteration is the expert's
+  alone), else the learner (its deterministic action). Every visited state is labelled with
+  the expert's action, whoever drove: the learner is taught what to do in the states its own
+  mistakes lead to, which is what plain behaviour cloning misses (its errors compound over the
+  episode; DAgger's do not).
+- The labels are the expert's predict() on the state's observation, exactly the action the
+  expert would take there (the planners read only the observation), so a label is a pure
+  function of the observation and the expert's settings.
+- After each iteration the learner's actor is fitted with Adam to every label gathered so
+  far (the aggregated data set): TD3's and SAC's actor (SAC's deterministic, squashed action)
+  and PPO's mean action (its distribution's mode), PPO's value function to the episodes'
+  discounted returns beside it. The loss (`loss`) is either the mean squared error to the
+  expert's action vector (`actions`) or, by default, what the action does (`flows`): the
+  env turns each cell's slice of the action into the probabilities of its moves (the
+  `action_map`) and only the cells holding defenders move anything, so the loss is the
+  cross-entropy from the expert's move probabilities to the learner's, each cell weighted by
+  its defenders' density (plus FLOW_FLOOR, so that empty cells are learnt a little too).
+  Mean squared error spends the network on the action components of empty cells, which
+  change nothing, and treats a small error in a cell holding all the defenders as small. TD3's target actor is set to
+  the fitted actor. After the last iteration the visited transitions enter an off-policy
+  learner's replay buffer, so that its critics start from the expert's kind of play.
+- Labels cost the expert's time a step (10 to 70 ms for a planner), so episodes are played in
+  tasks of `episodes_per_task` each: on the farm (service.mode ray) each task is one Ray task
+  (farm.alloc.training.label_tasks) and at most one per CPU of the cluster runs at once;
+  locally, and in an experiment's trial (a Ray actor that holds its CPU, so that tasks of its
+  own could wait for CPUs the trials hold), they run one after another in this process. An episode and its coin flips are seeded by the run's
+  seed, the iteration and the episode's index alone, and results are put together in task
+  order, so the data set is the same whatever the number of workers.
+- Exact resume: after each iteration the data set, the learner's parameters and the fit's
+  generator are written whole (pretrain/iteration_<i>.pkl, atomically). A run resumed after a
+  stop loads the last one and goes on; nothing else is random (the fit draws its minibatches
+  from its own generator, the networks have no dropout), so the pretrained policy is
+  bit-identical to an uninterrupted run's.
+"""
+
+from __future__ import annotations
+
+import pickle
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+
+from farm.alloc.policies import PolicySpec, policy_entry
+from farm.alloc.training.labels import concat, play_labelled
+
+__all__ = ["PRETRAIN_SEED_OFFSET", "FLOW_FLOOR", "MoveMap", "imitation_loss", "label_all", "fit_actor", "actor_action", "pretrain",
+           "iteration_file", "latest_iteration", "Pretrained"]
+
+PRETRAIN_SEED_OFFSET = 2_000_000  # pretraining's episodes: seeded apart from training's and evaluation's
+FLOW_FLOOR = 0.01  # the weight of a cell without defenders in the `flows` loss
+
+
+def label_all(config, params, learner, share: float, iteration: int, seed: int, client, gamma: float,
+              progress=None) -> dict[str, np.ndarray]:
+    """One iteration's episodes (play_labelled), in tasks of params.episodes_per_task: Ray tasks
+    on the farm when client answers from the service actor (its backend has an `actor`),
+    else in this process; results in task order. params: PretrainParams; seed: the run's."""
+    spec = PolicySpec(policy_entry(params.expert, "pretrain.expert"), dict(params.expert_options))
+    first = PRETRAIN_SEED_OFFSET + seed * 100_003 + iteration * params.episodes
+    seeds = list(range(first, first + params.episodes))
+    tasks = [(k, seeds[s: s + params.episodes_per_task])
+             for k, s in enumerate(range(0, len(seeds), params.episodes_per_task))]
+
+    coin_key = [seed, iteration, PRETRAIN_SEED_OFFSET]
+
+    actor = getattr(client.backend, "actor", None)
+    results: dict[int, dict] = {}
+    if actor is None or _inside_ray_actor():
+        expert = spec.make(config, client)
+        for k, task_seeds in tasks:
+            results[k] = play_labelled(config, expert, learner, share, task_seeds, coin_key, client, gamma)
+            if progress is not None:
+                progress(len(task_seeds), len(results[k]["obs"]))
+    else:
+        import ray
+
+        from farm.alloc.training.label_tasks import remote_label
+        from farm.runtime import bounded
+
+        learner_ref = ray.put(learner)  # once, not once per task
+
+        def submit(task):
+            k, task_seeds = task
+            return remote_label.remote(config, spec, learner_ref, share, task_seeds, coin_key, actor, gamma)
+
+        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))  # the labelling keeps every CPU busy
+        for (k, task_seeds), ref in bounded(submit, tasks, cpus):
+            results[k] = ray.get(ref)
+            if progress is not None:
+                progress(len(task_seeds), len(results[k]["obs"]))
+    return concat([results[k] for k, _ in tasks])
+
+
+def _inside_ray_actor() -> bool:
+    """Whether this runs in a Ray actor (an experiment's Tune trial): it holds its CPU while it
+    waits, so tasks of its own could wait for CPUs the trials hold; it labels in its process."""
+    import ray
+
+    return ray.is_initialized() and ray.get_runtime_context().get_actor_id() is not None
+
+
+def actor_action(model, algo: str, obs):
+    """The learner's deterministic action of a batch of observations, differentiable: TD3's
+    actor, SAC's deterministic (squashed) action, PPO's mean action. obs: (S, 2 N^2) float32
+    tensor -> (S, A) tensor."""
+    if algo == "td3":
+        return model.actor(obs)
+    if algo == "sac":
+        return model.actor(obs, deterministic=True)
+    return model.policy.get_distribution(obs).mode()
+
+
+class MoveMap:
+    """The env's map from an action to move probabilities (SwarmAllocationEnv.move_probabilities),
+    in torch for a batch: config: the AllocConfig (its grid_size, action_map, softmax_beta)."""
+
+    def __init__(self, config):
+        import torch
+
+        from farm.alloc.env import moves
+
+        src, _, _ = moves(config.grid_size)
+        self.src = torch.as_tensor(src)
+        self.cells = config.grid_size ** 2
+        self.softmax = config.action_map == "softmax"
+        self.beta = float(config.softmax_beta)
+
+    def log_probabilities(self, action):
+        """action: (S, A) tensor (clipped to [-1, 1], as the env does) -> (S, A) the log of each
+        move's probability within its cell."""
+        import torch
+
+        a = action.clamp(-1.0, 1.0)
+        index = self.src.expand(a.shape[0], -1)
+        if self.softmax:
+            z = self.beta * a
+            top = torch.full((a.shape[0], self.cells), -torch.inf, dtype=a.dtype).scatter_reduce(1, index, z, reduce="amax")
+            z = z - top.gather(1, index)
+            total = torch.zeros(a.shape[0], self.cells, dtype=a.dtype).scatter_add(1, index, torch.exp(z))
+            return z - torch.log(total.gather(1, index))
+        w = a + 1.0 + 1e-6  # `shifted`; the env's uniform row for all -1 is this one's limit
+        total = torch.zeros(a.shape[0], self.cells, dtype=a.dtype).scatter_add(1, index, w)
+        return torch.log(w) - torch.log(total.gather(1, index))
+
+
+def imitation_loss(kind: str, moves: MoveMap, action, labels, obs):
+    """The pretraining loss of a batch (the module doc): `actions`, mean squared error of action
+    to labels; `flows`, the density-weighted cross-entropy of the move probabilities. action,
+    labels: (S, A) tensors; obs: (S, 2 N^2) the observations (their first N^2 entries, the
+    defenders' density, weigh the cells)."""
+    import torch
+
+    if kind == "actions":
+        return torch.nn.functional.mse_loss(action, labels)
+    with torch.no_grad():
+        target = torch.exp(moves.log_probabilities(labels))
+        weight = (obs[:, : moves.cells] + FLOW_FLOOR).gather(1, moves.src.expand(obs.shape[0], -1))
+    return -(weight * target * moves.log_probabilities(action)).sum(dim=1).mean()
+
+
+def fit_actor(model, algo: str, data: dict[str, np.ndarray], epochs: int, batch_size: int, learning_rate: float,
+              rng: np.random.Generator, loss: str = "actions", env_config=None) -> float:
+    """Fit the learner's actor (actor_action) to data's labels with Adam, epochs passes over data
+    in minibatches drawn from rng, by imitation_loss `loss` (`flows` needs env_config, the
+    AllocConfig); PPO: its value function to data's returns too. Returns the last epoch's
+    mean imitation loss."""
+    import torch
+
+    moves = MoveMap(env_config) if loss == "flows" else None
+    obs = torch.as_tensor(data["obs"])
+    labels = torch.as_tensor(data["labels"])
+    returns = torch.as_tensor(data["returns"], dtype=torch.float32)
+    params = list(model.actor.parameters()) if algo in ("td3", "sac") else list(model.policy.parameters())
+    optimizer = torch.optim.Adam(params, lr=learning_rate)
+    model.policy.set_training_mode(True)
+    last = float("nan")
+    for _ in range(epochs):
+        order = rng.permutation(len(obs))
+        total = 0.0
+        for start in range(0, len(order), batch_size):
+            idx = torch.as_tensor(order[start: start + batch_size])
+            error = imitation_loss(loss, moves, actor_action(model, algo, obs[idx]), labels[idx], obs[idx])
+            total_loss = error
+            if algo == "ppo":
+                total_loss = total_loss + torch.nn.functional.mse_loss(model.policy.predict_values(obs[idx]).flatten(),
+                                                                       returns[idx])
+            optimizer.zero_grad()
+            total_loss.backward()
+            optimizer.step()
+            total += float(error.detach()) * len(idx)
+        last = total / len(order)
+    model.policy.set_training_mode(False)
+    if algo == "td3":
+        model.actor_target.load_state_dict(model.actor.state_dict())
+    return last
+
+
+def iteration_file(run_dir, iteration: int) -> Path:
+    """A pretraining iteration's state in a run folder: pretrain/iteration_<i>.pkl."""
+    return Path(run_dir) / "pretrain" / f"iteration_{iteration}.pkl"
+
+
+def latest_iteration(run_dir) -> int | None:
+    """The last pretraining iteration saved whole in a run folder, or None."""
+    found = [int(m.group(1)) for p in (Path(run_dir) / "pretrain").glob("iteration_*.pkl")
+             if (m := re.fullmatch(r"iteration_(\d+)\.pkl", p.name))]
+    return max(found) if found else None
+
+
+class Pretrained:
+    """What pretraining did: states (labelled), seconds (wall), loss (the last fit's mean action
+    error), data (the aggregated data set, play_labelled's arrays)."""
+
+    def __init__(self, states: int, seconds: float, loss: float, data: dict):
+        self.states, self.seconds, self.loss, self.data = states, seconds, loss, data
+
+
+def pretrain(model, config, client, run_dir, *, show_progress: bool = True) -> Pretrained:
+    """DAgger (the module doc) on a new model of config (a TrainConfig with `pretrain:`), its
+    episodes answered by client, resuming from run_dir's last saved iteration when there is one;
+    then the replay buffer of an off-policy model is filled with the visited transitions."""
+    import torch
+
+    from farm.core.output import atomic_write_bytes
+    from farm.core.progress import GameProgress
+
+    params, algo = config.pretrain, config.algo
+    gamma = config.learner.gamma
+    schedule = params.schedule()
+    rng = np.random.default_rng([config.seed, PRETRAIN_SEED_OFFSET])
+    parts: list[dict] = []
+    seconds, loss, first = 0.0, float("nan"), 0
+    done = latest_iteration(run_dir)
+    if done is not None:
+        state = pickle.loads(iteration_file(run_dir, done).read_bytes())
+        parts, seconds, loss = [state["data"]], state["seconds"], state["loss"]
+        model.policy.load_state_dict(state["policy"])
+        rng.bit_generator.state = state["rng"]
+        first = done + 1
+    total = params.iterations * params.episodes
+    bar = GameProgress(total, first * params.episodes, enabled=show_progress, desc="pretrain episodes",
+                       unit="episode")
+    try:
+        for iteration in range(first, params.iterations):
+            t0 = time.perf_counter()
+            learner = None if schedule[iteration] >= 1 else model.policy
+            parts.append(label_all(config.env, params, learner, schedule[iteration], iteration, config.seed, client,
+                                   gamma, progress=lambda episodes, states: bar.update(episodes)))
+            data = concat(parts)
+            parts = [data]
+            loss = fit_actor(model, algo, data, params.epochs, params.batch_size, params.learning_rate, rng,
+                             params.loss, config.env)
+            seconds += time.perf_counter() - t0
+            state = {"iteration": iteration, "data": data, "policy": model.policy.state_dict(),
+                     "rng": rng.bit_generator.state, "seconds": seconds, "loss": loss}
+            path = iteration_file(run_dir, iteration)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(path, pickle.dumps(state))
+    finally:
+        bar.close()
+    data = concat(parts)
+    if algo == "td3":  # a resumed run's fresh model: its target actor as the fitted actor
+        with torch.no_grad():
+            model.actor_target.load_state_dict(model.actor.state_dict())
+    if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
+        _fill_replay_buffer(model, data)
+    return Pretrained(len(data["obs"]), seconds, loss, data)
+
+
+def _fill_replay_buffer(model, data: dict) -> None:
+    """Add the visited transitions to an off-policy model's replay buffer, n_envs at a time (SB3's
+    ReplayBuffer.add; a last group smaller than n_envs is left out)."""
+    n = model.n_envs
+    for start in range(0, len(data["obs"]) - n + 1, n):
+        s = slice(start, start + n)
+        done = data["terminated"][s] | data["truncated"][s]
+        infos = [{"TimeLimit.truncated": bool(tr and not te)}
+                 for te, tr in zip(data["terminated"][s], data["truncated"][s])]
+        model.replay_buffer.add(data["obs"][s], data["next_obs"][s], data["actions"][s], data["rewards"][s], done,
+                                infos)
