@@ -222,7 +222,7 @@ def test_ray_job_submit_smoke_experiment(job_head, tmp_path):
     assert f"wrote {out / 'trials.csv'}" in logs
     trials = pd.read_csv(out / "trials.csv")
     assert trials["trial"].tolist() == ["p0_s0"] and trials["seed"].tolist() == [0]
-    assert np.isfinite(trials["td3_return"]).all() and (trials["timesteps"] == 300).all()
+    assert np.isfinite(trials["learned_return"]).all() and (trials["timesteps"] == 300).all()
     summary = pd.read_csv(out / "summary.csv")
     assert summary["seeds"].tolist() == [1] and np.isfinite(summary["return_mean"]).all()
     services = list_actors(address=job_head, filters=[("name", "=", SERVICE_NAME)], raise_on_missing_output=False)

@@ -193,7 +193,7 @@ def test_smoke_grid_then_a_rerun_trains_nothing(cold):
 
     _, trials, info, _, path, out = cold
     summary = pd.read_csv(out / "summary.csv")
-    for policy in ("td3", "stay_at_base", "intercept", "receding_horizon"):
+    for policy in ("learned", "stay_at_base", "intercept", "receding_horizon"):
         assert trials[f"{policy}_eliminated"].between(0, 1).all()
     assert summary["seeds"].tolist() == [2, 2] and summary["env.c_capture"].tolist() == [0.0, 1.5]
     assert [p.name for p in info["claims"]] == ["claims.csv", "claims_seeds.csv"] and info["learning_curves"].exists()
