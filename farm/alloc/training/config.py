@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -81,11 +81,24 @@ def _check_policy_kwargs(v: dict, algo: str) -> dict:
     return v
 
 
-class TD3Params(Strict):
-    """stable-baselines3 TD3's hyperparameters, RL-Zoo style."""
+class _Params(Strict):
+    """What every algorithm's section has: its length, and the policy_kwargs of its SB3 policy
+    (checked for ALGO's policy, _check_policy_kwargs)."""
+
+    ALGO: ClassVar[str] = ""
 
     n_timesteps: int = Field(30_000, ge=1)
     policy: Literal["MlpPolicy"] = "MlpPolicy"
+
+    @field_validator("policy_kwargs", check_fields=False)
+    @classmethod
+    def _policy_kwargs(cls, v):
+        return _check_policy_kwargs(v, cls.ALGO)
+
+
+class _OffPolicyParams(_Params):
+    """The settings TD3 and SAC share (stable-baselines3's OffPolicyAlgorithm's)."""
+
     learning_rate: float = Field(1e-3, gt=0)
     buffer_size: int = Field(200_000, ge=1)
     learning_starts: int = Field(1000, ge=0)
@@ -94,10 +107,6 @@ class TD3Params(Strict):
     gamma: float = Field(0.95, ge=0, le=1)
     train_freq: int = Field(1, ge=1)
     gradient_steps: int = Field(1, ge=-1)
-    policy_delay: int = Field(2, ge=1)
-    noise_type: Literal["normal", "none"] = "normal"
-    noise_std: float = Field(0.2, ge=0)
-    policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}
 
     @field_validator("gradient_steps")
     @classmethod
@@ -106,18 +115,25 @@ class TD3Params(Strict):
             raise ValueError("must be -1 (as many as the rollout's steps) or >= 1; 0 never updates the model")
         return v
 
-    @field_validator("policy_kwargs")
-    @classmethod
-    def _policy_kwargs(cls, v):
-        return _check_policy_kwargs(v, "td3")
+
+class TD3Params(_OffPolicyParams):
+    """stable-baselines3 TD3's hyperparameters, RL-Zoo style."""
+
+    ALGO: ClassVar[str] = "td3"
+
+    policy_delay: int = Field(2, ge=1)
+    noise_type: Literal["normal", "none"] = "normal"
+    noise_std: float = Field(0.2, ge=0)
+    policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}
 
 
-class PPOParams(Strict):
+class PPOParams(_Params):
     """stable-baselines3 PPO's hyperparameters, RL-Zoo style (SB3's defaults, but gamma and the
     rollout's length, which suit episodes of 12 to 16 steps)."""
 
+    ALGO: ClassVar[str] = "ppo"
+
     n_timesteps: int = Field(100_000, ge=1)
-    policy: Literal["MlpPolicy"] = "MlpPolicy"
     learning_rate: float = Field(3e-4, gt=0)
     n_steps: int = Field(256, ge=1)  # per env: a rollout is n_steps x n_envs steps
     batch_size: int = Field(64, ge=2)
@@ -132,36 +148,17 @@ class PPOParams(Strict):
     normalize_advantage: bool = True
     policy_kwargs: dict[str, Any] = {}
 
-    @field_validator("policy_kwargs")
-    @classmethod
-    def _policy_kwargs(cls, v):
-        return _check_policy_kwargs(v, "ppo")
 
-
-class SACParams(Strict):
+class SACParams(_OffPolicyParams):
     """stable-baselines3 SAC's hyperparameters, RL-Zoo style (SB3's defaults, but gamma, the
     buffer and the warm-up, as TD3's here)."""
 
-    n_timesteps: int = Field(30_000, ge=1)
-    policy: Literal["MlpPolicy"] = "MlpPolicy"
+    ALGO: ClassVar[str] = "sac"
+
     learning_rate: float = Field(3e-4, gt=0)
-    buffer_size: int = Field(200_000, ge=1)
-    learning_starts: int = Field(1000, ge=0)
-    batch_size: int = Field(256, ge=1)
-    tau: float = Field(0.005, gt=0, le=1)
-    gamma: float = Field(0.95, ge=0, le=1)
-    train_freq: int = Field(1, ge=1)
-    gradient_steps: int = Field(1, ge=-1)
     ent_coef: float | Literal["auto"] = "auto"  # a number: fixed; auto: learned, starting at 1
     target_entropy: float | Literal["auto"] = "auto"
     policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}
-
-    @field_validator("gradient_steps")
-    @classmethod
-    def _some_gradient_steps(cls, v):
-        if v == 0:
-            raise ValueError("must be -1 (as many as the rollout's steps) or >= 1; 0 never updates the model")
-        return v
 
     @field_validator("ent_coef")
     @classmethod
@@ -169,11 +166,6 @@ class SACParams(Strict):
         if v != "auto" and v < 0:
             raise ValueError(f"must be 'auto' or a number >= 0, got {v!r}")
         return v
-
-    @field_validator("policy_kwargs")
-    @classmethod
-    def _policy_kwargs(cls, v):
-        return _check_policy_kwargs(v, "sac")
 
 
 class PretrainParams(Strict):
