@@ -238,12 +238,11 @@ def holder(folder: Path) -> int | None:
     return None
 
 
-def stopped_when(what: str, ready, stop, resume, run_for: float = 0.02):
+def stopped_when(what: str, ready, stop, resume, run_for: float = 0.02, alive=lambda: True):
     """Let processes run in slices of run_for seconds, stopped (stop()) between them, until
     ready(), checked while they are stopped, returns something true; returns it with the
     processes left stopped. However fast the machine, they have gone on at most one slice past
-    the moment ready() first held (a poll of running processes races them: an idle machine
-    trained on from the checkpoint of step 150 to the end at 300 before a kill landed)."""
+    the moment ready() first held."""
     deadline = time.monotonic() + DEADLINE
     while time.monotonic() < deadline:
         stop()
@@ -251,8 +250,40 @@ def stopped_when(what: str, ready, stop, resume, run_for: float = 0.02):
         if value:
             return value
         resume()
+        if not alive():
+            raise AssertionError(f"ended before {what}")
         time.sleep(run_for)
     raise AssertionError(f"no {what} within {DEADLINE} s")
+
+
+def ray_workers() -> list[int]:
+    return [pid for pid in processes() if cmdline(pid).startswith(b"ray::")]
+
+
+def held_at_checkpoint(run: Path, step: int, alive=lambda: True) -> int:
+    """The pid of the Ray worker training run, left SIGSTOPped once run's checkpoint of step
+    is on disk. Every Ray worker runs in slices and is stopped while we look, from before the
+    trainer starts: a poll of running processes races them (an idle machine trained on from
+    the checkpoint of step 150 to the end at 300 before a kill landed; on a loaded CI machine
+    finding the trainer took as long), so here the trainer goes at most one slice past it."""
+    stopped: list[int] = []
+
+    def stop():
+        stopped[:] = ray_workers()
+        signal_all(stopped, signal.SIGSTOP)
+
+    def trainer_past_the_step():
+        pid = holder(run)
+        return pid if pid is not None and checkpointed(run, step) else None
+
+    try:
+        pid = stopped_when(f"checkpoint of step {step}", trainer_past_the_step, stop,
+                           lambda: signal_all(stopped, signal.SIGCONT), alive=alive)
+    except BaseException:
+        signal_all(stopped, signal.SIGCONT)
+        raise
+    signal_all([p for p in stopped if p != pid], signal.SIGCONT)
+    return pid
 
 
 def wait_for(what: str, ready, alive=lambda: True):
@@ -304,9 +335,7 @@ def test_a_trials_worker_killed_mid_training_goes_on_from_its_checkpoint(cold, t
 
     def kill_after_the_checkpoint():
         try:
-            pid = wait_for("trial worker", lambda: holder(run))
-            stopped_when("checkpoint of step 150", lambda: checkpointed(run, 150),
-                         lambda: os.kill(pid, signal.SIGSTOP), lambda: os.kill(pid, signal.SIGCONT))
+            pid = held_at_checkpoint(run, 150)
             os.kill(pid, signal.SIGKILL)
             killed.append(pid)
         except (AssertionError, ProcessLookupError) as e:
@@ -348,9 +377,7 @@ def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, t
         driver = subprocess.Popen(command, env=env, start_new_session=True, stdout=log, stderr=subprocess.STDOUT)
         running = lambda: driver.poll() is None  # noqa: E731
         try:
-            pid = wait_for(f"{unfinished}'s worker", lambda: holder(runs[unfinished]), alive=running)
-            stopped_when(f"{unfinished}'s checkpoint of step 150", lambda: checkpointed(runs[unfinished], 150),
-                         lambda: os.kill(pid, signal.SIGSTOP), lambda: os.kill(pid, signal.SIGCONT))
+            held_at_checkpoint(runs[unfinished], 150, alive=running)
             wait_for(f"{finished} finished", lambda: (out / "trials" / finished / RESULT).exists(), alive=running)
         finally:
             kill_session(driver)
