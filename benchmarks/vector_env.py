@@ -8,7 +8,9 @@
    3x3 config): farm.alloc.sb3_vec.make_vec_env (the batched env adapted, in a VecMonitor)
    against SB3's DummyVecEnv of 16 Monitor-wrapped single envs; learn()'s steps/s, and its time
    split into rollouts (the env's part) and updates, with SB3's (and the project's) default
-   updates, batch_size 64 and n_epochs 10, and with lighter ones, n_epochs 1.   target >= 2x
+   updates, batch_size 64 and n_epochs 10, with lighter ones, n_epochs 1, and with the
+   learners' recipe (configs/train/best_<scenario>.yaml: 400-300 tanh networks, n_steps 256,
+   batch_size 512, n_epochs 10; 4 rollouts of 4,096 steps).                       target >= 2x
 Rates are of this process's CPU time (time.process_time: other load on the machine does not
 count), the best of --repeats runs, the two sides of a row run in turn.
 Usage: python benchmarks/vector_env.py [--steps 1500] [--ppo-steps 8192] [--repeats 3]   (about 4 min)
@@ -27,6 +29,9 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__)
 import numpy as np  # noqa: E402
 
 ENVS = 16
+# configs/train/best_<scenario>.yaml's PPO (its 400-300 tanh networks, log_std_init -1)
+RECIPE = dict(n_steps=256, batch_size=512, n_epochs=10, learning_rate=1e-4, gamma=0.99,
+              policy_kwargs=dict(net_arch=dict(pi=[400, 300], vf=[400, 300]), log_std_init=-1.0))
 
 
 def env_seconds(env, actions: np.ndarray, steps: int) -> float:
@@ -40,9 +45,9 @@ def env_seconds(env, actions: np.ndarray, steps: int) -> float:
     return time.process_time() - t0
 
 
-def ppo_seconds(make_env, steps: int, n_epochs: int) -> tuple[float, float]:
+def ppo_seconds(make_env, steps: int, **ppo) -> tuple[float, float]:
     """(CPU seconds of PPO.learn(steps) on a fresh SB3 VecEnv from make_env(), of which in its
-    updates, PPO.train), after a warm-up rollout and update."""
+    updates, PPO.train), after a warm-up rollout and update; ppo: PPO's keyword arguments."""
     from stable_baselines3 import PPO
 
     class TimedPPO(PPO):
@@ -53,9 +58,8 @@ def ppo_seconds(make_env, steps: int, n_epochs: int) -> tuple[float, float]:
             super().train()
             self.train_seconds += time.process_time() - t
 
-    model = TimedPPO("MlpPolicy", make_env(), n_steps=64, batch_size=64, n_epochs=n_epochs, seed=0, device="cpu",
-                     verbose=0)
-    model.learn(total_timesteps=64 * ENVS)
+    model = TimedPPO("MlpPolicy", make_env(), seed=0, device="cpu", verbose=0, **ppo)
+    model.learn(total_timesteps=model.n_steps * ENVS)
     model.train_seconds = 0.0
     t0 = time.process_time()
     model.learn(total_timesteps=steps, reset_num_timesteps=False)
@@ -122,12 +126,15 @@ def main() -> None:
         def dummy():
             return DummyVecEnv([lambda: Monitor(SwarmAllocationEnv(config, client=client))] * ENVS)
 
-        for n_epochs in (10, 1):
+        settings = {"n_epochs 10": dict(n_steps=64, batch_size=64, n_epochs=10),
+                    "n_epochs 1": dict(n_steps=64, batch_size=64, n_epochs=1),
+                    "learners' recipe": RECIPE}
+        for name, ppo in settings.items():
+            steps = a.ppo_steps if ppo["n_steps"] * ENVS <= a.ppo_steps else 4 * ppo["n_steps"] * ENVS
             best = best_of(a.repeats, {
-                "batched": lambda: ppo_seconds(lambda: make_vec_env(config, ENVS, client, seed=0), a.ppo_steps,
-                                               n_epochs),
-                "dummy": lambda: ppo_seconds(dummy, a.ppo_steps, n_epochs)})
-            ppo_rows.append((f"{label}, n_epochs {n_epochs}", best["batched"], best["dummy"]))
+                "batched": lambda: ppo_seconds(lambda: make_vec_env(config, ENVS, client, seed=0), steps, **ppo),
+                "dummy": lambda: ppo_seconds(dummy, steps, **ppo)})
+            ppo_rows.append((f"{label}, {name}", steps, best["batched"], best["dummy"]))
         client.close()
     print(f"lattice warm-up (in-process, {cases} cases, 4 games each): {t_warm:.1f} s; torch threads 1; "
           f"CPU time, best of {a.repeats}")
@@ -135,10 +142,9 @@ def main() -> None:
           f"   (target >= 5x)")
     for label, ours, sync in env_rows:
         print(f"{label:<40}{ours:>9.0f}{sync:>15.0f}{ours / sync:>7.1f}x")
-    print(f"{'PPO, 16 envs, n_steps 64, batch 64':<40}{'batched':>9}{'DummyVecEnv':>15}{'ratio':>8}"
+    print(f"{'PPO, 16 envs':<40}{'batched':>9}{'DummyVecEnv':>15}{'ratio':>8}"
           f"   (target >= 2x)")
-    steps = a.ppo_steps
-    for label, (ours, ours_train), (other, other_train) in ppo_rows:
+    for label, steps, (ours, ours_train), (other, other_train) in ppo_rows:
         print(f"{label + ': learn steps/s':<40}{steps / ours:>9.0f}{steps / other:>15.0f}{other / ours:>7.1f}x")
         print(f"{'  rollouts alone, steps/s':<40}{steps / (ours - ours_train):>9.0f}"
               f"{steps / (other - other_train):>15.0f}{(other - other_train) / (ours - ours_train):>7.1f}x")

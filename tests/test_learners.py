@@ -104,10 +104,10 @@ def test_the_share_decides_who_drives(client):
 
 @pytest.mark.parametrize("algo", ["td3", "sac", "ppo"])
 def test_the_fit_brings_the_actor_to_the_labels(store, client, algo):
-    from farm.alloc.training.train import _training_envs, make_model
+    from farm.alloc.training.train import training_envs, make_model
 
     cfg = config(store, algo)
-    env, _, _ = _training_envs(cfg, client)
+    env, _, _ = training_envs(cfg, client)
     model = make_model(cfg, env, Path("/nonexistent"))
     data = play_labelled(cfg.env, make_policy("intercept", cfg.env, client), None, 1.0, list(range(20)), [0],
                          client, gamma=0.9)
@@ -270,10 +270,10 @@ def test_the_flows_loss_reads_actions_as_the_env_does(action_map, tmp_path):
 
 def test_the_flows_fit_moves_the_defenders_as_the_expert_does(store, client):
     from farm.alloc.training.pretrain import MoveMap
-    from farm.alloc.training.train import _training_envs, make_model
+    from farm.alloc.training.train import training_envs, make_model
 
     cfg = config(store, "ppo")
-    env, _, _ = _training_envs(cfg, client)
+    env, _, _ = training_envs(cfg, client)
     model = make_model(cfg, env, Path("/nonexistent"))
     data = play_labelled(cfg.env, make_policy("intercept", cfg.env, client), None, 1.0, list(range(20)), [0],
                          client, gamma=0.9)

@@ -27,7 +27,7 @@ from farm.alloc.training.state import RunState
 from farm.core.config import ConfigError
 from farm.core.errors import ActionError, TrainingDiverged
 
-__all__ = ["train", "make_model", "policy_kwargs", "EVAL_SEED_OFFSET"]
+__all__ = ["train", "make_model", "policy_kwargs", "training_envs", "EVAL_SEED_OFFSET"]
 
 EVAL_SEED_OFFSET = 1_000_000  # the periodic evaluation's episodes: seeded apart from training's
 
@@ -109,7 +109,7 @@ def make_model(config: TrainConfig, env, run_dir: Path):
     return TD3(**common, **off_policy, policy_delay=p.policy_delay, action_noise=noise)
 
 
-def _training_envs(config: TrainConfig, client):
+def training_envs(config: TrainConfig, client):
     """(the SB3 VecEnv trained on, the env whose state a checkpoint keeps, its monitor): one env
     in a DummyVecEnv under Monitor, or n_envs > 1 episodes in the batched vector env under VecMonitor."""
     if config.n_envs == 1:
@@ -141,7 +141,7 @@ def _eval_envs(config: TrainConfig, client):
 def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list) -> dict:
     if config.service.warm_lattice:
         warm_lattices(client, lattice_groups([config.env]), show_progress)
-    env, train_env, monitor = _training_envs(config, client)
+    env, train_env, monitor = training_envs(config, client)
     eval_vec, eval_env = _eval_envs(config, client)
     p = config.learner
     timer = UpdateTimer()
