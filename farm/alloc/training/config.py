@@ -31,6 +31,8 @@ POLICY_KWARGS = {
     "ppo": ("net_arch", "share_features_extractor", "normalize_images", "optimizer_kwargs", "activation_fn",
             "log_std_init", "ortho_init", "full_std", "use_expln", "squash_output"),
 }
+# CellPolicy's (farm.alloc.training.cell_policy, PPO only): its sizes and ActorCriticPolicy's plain values
+CELL_POLICY_KWARGS = ("channels", "layers", "log_std_init", "ortho_init", "optimizer_kwargs")
 ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu")  # torch.nn's ReLU, Tanh, ELU, LeakyReLU, GELU
 
 
@@ -42,12 +44,17 @@ def _number(x) -> bool:
     return is_number(x) and math.isfinite(x)
 
 
-def _check_policy_kwargs(v: dict, algo: str) -> dict:
-    """policy_kwargs of algo's SB3 policy as a config may set them (POLICY_KWARGS), checked."""
-    unknown = sorted(set(v) - set(POLICY_KWARGS[algo]))
+def _check_policy_kwargs(v: dict, algo: str, policy: str = "MlpPolicy") -> dict:
+    """policy_kwargs of algo's SB3 policy as a config may set them (POLICY_KWARGS; CellPolicy's:
+    CELL_POLICY_KWARGS), checked."""
+    allowed = CELL_POLICY_KWARGS if policy == "CellPolicy" else POLICY_KWARGS[algo]
+    unknown = sorted(set(v) - set(allowed))
     if unknown:
-        raise ValueError(f"{unknown[0]}: not a {algo.upper()} policy argument a config can set "
-                         f"(choose from {', '.join(POLICY_KWARGS[algo])})")
+        what = "CellPolicy" if policy == "CellPolicy" else f"{algo.upper()} policy"
+        raise ValueError(f"{unknown[0]}: not a {what} argument a config can set (choose from {', '.join(allowed)})")
+    for name in ("channels", "layers"):
+        if name in v and not (_whole(v[name]) and 1 <= v[name] <= 512):
+            raise ValueError(f"{name}: must be a whole number from 1 to 512, got {v[name]!r}")
     for name in ("share_features_extractor", "normalize_images", "ortho_init", "full_std", "use_expln",
                  "squash_output"):
         if name in v and not isinstance(v[name], bool):
@@ -92,8 +99,8 @@ class _Params(Strict):
 
     @field_validator("policy_kwargs", check_fields=False)
     @classmethod
-    def _policy_kwargs(cls, v):
-        return _check_policy_kwargs(v, cls.ALGO)
+    def _policy_kwargs(cls, v, info):
+        return _check_policy_kwargs(v, cls.ALGO, info.data.get("policy", "MlpPolicy"))
 
 
 class _OffPolicyParams(_Params):
@@ -134,6 +141,7 @@ class PPOParams(_Params):
     ALGO: ClassVar[str] = "ppo"
 
     n_timesteps: int = Field(100_000, ge=1)
+    policy: Literal["MlpPolicy", "CellPolicy"] = "MlpPolicy"  # CellPolicy: farm.alloc.training.cell_policy
     learning_rate: float = Field(3e-4, gt=0)
     n_steps: int = Field(256, ge=1)  # per env: a rollout is n_steps x n_envs steps
     batch_size: int = Field(64, ge=2)

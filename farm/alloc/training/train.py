@@ -93,7 +93,10 @@ def make_model(config: TrainConfig, env, run_dir: Path):
     from stable_baselines3 import PPO, SAC
 
     p = config.learner
-    common = dict(policy=p.policy, env=env, learning_rate=p.learning_rate, gamma=p.gamma,
+    policy = p.policy
+    if policy == "CellPolicy":
+        from farm.alloc.training.cell_policy import CellPolicy as policy
+    common = dict(policy=policy, env=env, learning_rate=p.learning_rate, gamma=p.gamma,
                   policy_kwargs=policy_kwargs(p.policy_kwargs), tensorboard_log=str(run_dir / "tb"),
                   seed=config.seed, verbose=0, device="cpu")
     if config.algo == "ppo":
