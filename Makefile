@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-stamp
 CONSTRAINTS ?= -c constraints-cpu.txt
 RESULTS ?= results/demo
 
-.PHONY: demo test bench experiments experiments-learners suite install browser clean
+.PHONY: demo test bench experiments experiments-learners experiments-learners-hard suite install browser clean
 
 $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -66,6 +66,11 @@ experiments: $(STAMP)
 # The learners' recipe (PPO pretrained by DAgger from receding_horizon) on every scenario, 3 seeds.
 experiments-learners: $(STAMP)
 	$(VENV)/bin/farm experiments configs/experiments/learners.yaml --out results/experiments/learners
+	$(VENV)/bin/farm report results
+
+# The long recipe on the four hard 3 x 3 and 5 x 5 maps, 3 seeds (about 45 minutes on 2 cores).
+experiments-learners-hard: $(STAMP)
+	$(VENV)/bin/farm experiments configs/experiments/learners_hard.yaml --out results/experiments/learners_hard
 	$(VENV)/bin/farm report results
 
 clean:
