@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from conftest import cmdline, free_port, session, signal_all, write_sweep
+from conftest import cmdline, free_port, processes, session, signal_all, write_sweep
 
 from farm.games.sweep import SweepRun, load_sweep_config, run_sweep
 
@@ -128,18 +128,27 @@ def test_driver_sigkill_then_rerun_equals_uninterrupted(groups, config_path, tmp
 def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
     """A sweep on a head and a second node (1 CPU each); the second node SIGKILLed while one of
     its workers plays a shard: the sweep finishes, every shard once, with the in-process games.
-    (Whether the second node also stored shards before it died depends on how soon its worker
-    started, so it is not asserted: on a loaded machine the head stored all 32.)"""
+    The head's shard workers are held stopped until the second node's worker plays a shard (on a
+    loaded machine the head played all 32 before the second node's worker started); whether
+    the second node stored shards before it died is not asserted."""
     address = start_head(groups, cpus=1)
     second = ray_start(groups, f"--address={address}", "--num-cpus=1")
     out = tmp_path / "out"
     driver = groups.popen([sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out),
                            "--address", address, "--workers", "2", "--quiet"])
     deadline = time.time() + 180
-    while not any(cmdline(pid).startswith(b"ray::_remote_shard") for pid in session(second)):
-        assert time.time() < deadline and driver.poll() is None, "the second node ran no shard"
-        time.sleep(0.02)
-    signal_all(session(second), signal.SIGKILL)  # the second node (its raylet and workers) mid-shard
+    held = set()  # the head's shard workers, stopped until the second node plays a shard
+    try:
+        while not any(cmdline(pid).startswith(b"ray::_remote_shard") for pid in session(second)):
+            assert time.time() < deadline and driver.poll() is None, "the second node ran no shard"
+            on_second = set(session(second))
+            head = {p for p in processes() if p not in on_second and cmdline(p).startswith(b"ray::_remote_shard")}
+            signal_all(head - held, signal.SIGSTOP)  # on a loaded machine the head played all 32 first
+            held |= head
+            time.sleep(0.02)
+        signal_all(session(second), signal.SIGKILL)  # the second node (its raylet and workers) mid-shard
+    finally:
+        signal_all(held, signal.SIGCONT)
     text, _ = driver.communicate(timeout=600)
     assert driver.returncode == 0, text
     run = json.loads((out / "runs.jsonl").read_text().splitlines()[-1])

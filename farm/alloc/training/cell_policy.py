@@ -74,13 +74,16 @@ class CellNet(nn.Module):
         self.latent_dim_vf = 2 * channels
 
     def forward_actor(self, obs: torch.Tensor) -> torch.Tensor:
+        """(B, 2 N^2) float32 observations -> (B, A) move scores in the action's order."""
         return self.scores(self.actor(obs)).flatten(1)[:, self.index]
 
     def forward_critic(self, obs: torch.Tensor) -> torch.Tensor:
+        """(B, 2 N^2) float32 observations -> (B, 2 channels) the critic's features, mean and max over cells."""
         h = self.critic(obs)
         return torch.cat([h.mean(dim=(2, 3)), h.amax(dim=(2, 3))], dim=1)
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(forward_actor(obs), forward_critic(obs)), as SB3's extractors return them."""
         return self.forward_actor(obs), self.forward_critic(obs)
 
 
