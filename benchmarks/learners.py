@@ -110,25 +110,15 @@ def main() -> None:
     a = ap.parse_args()
     import torch
 
-    from farm.alloc.lattice import lattice_pairs
+    from farm.alloc.lattice import memo_client
     from farm.alloc.policies import make_policy
     from farm.alloc.scenarios import SCENARIOS
-    from farm.service import CaptureTimeClient
-    from farm.service.client import open_client
 
     torch.set_num_threads(1)
     configs = {name: SCENARIOS[name].config() for name in SCENARIO_NAMES}
-    settings = configs[SCENARIO_NAMES[0]].service_settings()
-    assert all(c.service_settings() == settings for c in configs.values())
-    pairs = sorted({p for c in configs.values() for p in lattice_pairs(c)})
-    t0 = time.perf_counter()
-    with open_client(settings, mode=a.mode, store=a.store) as warm_client:
-        warm_client.warm(pairs)
-    t_warm = time.perf_counter() - t0
+    client, pairs, t_warm = memo_client(configs.values(), a.mode, a.store)  # every lattice pair in its memo
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core from here on
-    client = CaptureTimeClient(settings, local_store=a.store)
-    client.get_many(pairs)  # the memo: every lattice pair, no store reads while timing
     print(f"store {a.store}: {len(pairs)} lattice pairs warm ({a.mode}) in {t_warm:.1f} s; timing on one core, "
           f"torch threads {torch.get_num_threads()} (load average {os.getloadavg()[0]:.1f} over "
           f"{os.cpu_count()} cores)")

@@ -243,6 +243,11 @@ def test_the_pretrained_model_is_evaluated_first_and_kept_when_best(store, tmp_p
 def test_a_bad_learner_setting_is_one_line_naming_the_field(tmp_path, changes, field):
     raw = yaml.safe_load((REPO / "configs" / "train" / "tiny.yaml").read_text())
     raw.update(changes)
+    assert_refused_in_one_line(tmp_path, raw, field)
+
+
+def assert_refused_in_one_line(tmp_path: Path, raw: dict, field: str) -> None:
+    """`farm train` of the training config raw: one line on stderr naming field, no run folder."""
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(raw))
     r = subprocess.run([sys.executable, "-m", "farm.cli", "train", str(path), "--out", str(tmp_path / "run")],

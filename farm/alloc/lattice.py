@@ -10,7 +10,7 @@ from typing import Iterable
 from farm.alloc.config import AllocConfig
 from farm.alloc.model import LATTICE, snap
 
-__all__ = ["lattice_pairs", "lattice_groups", "warm_lattices"]
+__all__ = ["lattice_pairs", "lattice_groups", "warm_lattices", "memo_client"]
 
 
 def lattice_pairs(env: AllocConfig) -> list[tuple[int, int]]:
@@ -51,3 +51,28 @@ def warm_lattices(client, groups: list[tuple[AllocConfig, list[tuple[int, int]]]
     finally:
         bar.close()
     return total
+
+
+def memo_client(envs: Iterable[AllocConfig], mode: str, store) -> tuple:
+    """(an in-process CaptureTimeClient over store whose memo holds every lattice pair of envs,
+    the pairs, the seconds the warm-up took): the store warmed first through a client of `mode`
+    (local, or ray: on the farm), so that the returned client answers each lattice query from
+    memory, never by a game or a store read (the benchmarks time policies on it). envs must
+    share their service settings."""
+    import time
+
+    from farm.service import CaptureTimeClient
+    from farm.service.client import open_client
+
+    envs = list(envs)
+    settings = envs[0].service_settings()
+    if any(env.service_settings() != settings for env in envs):
+        raise ValueError("memo_client: the configs' service settings differ")
+    pairs = sorted({p for env in envs for p in lattice_pairs(env)})
+    t0 = time.perf_counter()
+    with open_client(settings, mode=mode, store=store) as warm_client:
+        warm_client.warm(pairs)
+    seconds = time.perf_counter() - t0
+    client = CaptureTimeClient(settings, local_store=store)
+    client.get_many(pairs)
+    return client, pairs, seconds
