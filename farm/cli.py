@@ -334,8 +334,12 @@ def cmd_eval(a) -> int:
     from farm.alloc.evaluation import evaluate_run, fidelity_lines
 
     run_dir = Path(a.run_dir)
-    with flags("episodes", "seed", "fidelity"):
-        result = evaluate_run(run_dir, episodes=a.episodes, seed=a.seed, fidelity=a.fidelity)
+    references = None if a.references is None else [n for n in a.references.split(",") if n and n != "none"]
+    with flags("episodes", "seed", "fidelity", "scenario", "references"):
+        result = evaluate_run(run_dir, episodes=a.episodes, seed=a.seed, fidelity=a.fidelity, scenario=a.scenario,
+                              references=references)
+    if a.scenario is not None:
+        run_dir = run_dir / "scenarios" / a.scenario
     print(result.table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     if result.games_table is not None:
         print("\n--fidelity games (every engaged cell's game simulated each step):")
@@ -509,6 +513,10 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--episodes", type=int, default=20)
     ev.add_argument("--seed", type=int, default=1000)
     ev.add_argument("--fidelity", choices=["service", "games"], default="service")
+    ev.add_argument("--scenario", help="evaluate on this suite scenario's map instead of the run's own (a CellPolicy "
+                                       "acts on any map size); files go to RUN_DIR/scenarios/NAME/")
+    ev.add_argument("--references", help="the baselines and planners to compare with, comma-separated, or 'none' "
+                                         "(default: every one)")
     ev.set_defaults(func=cmd_eval)
 
     su = sub.add_parser("suite", help="every policy on every scenario, same seeded episodes: a leaderboard")

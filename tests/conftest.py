@@ -32,7 +32,7 @@ WITHOUT_RAY = {"test_alloc_env", "test_alloc_td3", "test_alloc_train", "test_all
                "test_claims", "test_cli", "test_compiled", "test_docstrings", "test_engine", "test_env_api",
                "test_escapes", "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners", "test_montecarlo",
                "test_planners", "test_policy_registry", "test_reference_selfcheck", "test_refuses_configs",
-               "test_refuses_training", "test_refuses_workers", "test_sweep_config", "test_train_resume", "test_vector_env",
+               "test_refuses_training", "test_refuses_workers", "test_size_free", "test_sweep_config", "test_train_resume", "test_vector_env",
                "test_workers_layout"}
 
 

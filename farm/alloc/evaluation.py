@@ -26,7 +26,7 @@ class RunEvaluation:
     """What evaluate_run measured: table (rollout.measure_table by policy), per (per-episode
     rows), steps ({policy: list of (T, 3) per-step measures}), and under fidelity "games"
     games_table and differences (farm.alloc.fidelity.evaluate_fidelity); games_per_case: the
-    service's games per case."""
+    service's games per case; live: how the games were played (FreshGames.live())."""
 
     table: pd.DataFrame
     per: pd.DataFrame
@@ -34,6 +34,7 @@ class RunEvaluation:
     games_per_case: int
     games_table: pd.DataFrame | None = None
     differences: pd.DataFrame | None = None
+    live: dict | None = None
 
 
 def reference_specs() -> list[PolicySpec]:
@@ -66,31 +67,54 @@ def evaluate_trained(run: RunFolder, config, policies: dict, client, episodes: i
     return table, per, steps
 
 
-def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str = "service") -> RunEvaluation:
+def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str = "service",
+                 scenario: str | None = None, references: list[str] | None = None) -> RunEvaluation:
     """`farm eval`: evaluate a run folder's trained allocator (see the module doc) with the
     capture-time service of its config (service.mode local: in this process, the games of
-    fidelity "games" too, no Ray). ConfigError (one line naming the field) for bad input,
-    before any episode: not a run, episodes or seed not whole numbers >= 1 (>= 0), an unknown fidelity."""
+    fidelity "games" too, no Ray). scenario: a suite scenario's name, to evaluate the run on
+    that map instead of its own (a CellPolicy acts on any map size; the service's games and
+    seed stay the run's), the tables and figures
+    then written into the run's scenarios/<name>/. references: the baselines and planners to
+    compare with, by name (default: every one; [] none). ConfigError (one line naming the
+    field) for bad input, before any episode: not a run, episodes or seed not whole numbers
+    >= 1 (>= 0), an unknown fidelity, scenario or reference, a model that cannot act on the
+    scenario's map."""
+    from farm.alloc.scenarios import SCENARIOS
     from farm.alloc.training.config import store_of
     from farm.service.client import open_client
 
     run = RunFolder(run_dir)
     config = run.read_config()
+    if scenario is not None:
+        if scenario not in SCENARIOS:
+            raise ConfigError(f"scenario: unknown scenario {scenario!r} (choose from {', '.join(SCENARIOS)})",
+                              field="scenario")
+        own = config.env  # the run's service games and seed stay, as farm suite keeps them
+        config = config.model_copy(update={"env": SCENARIOS[scenario].config(games=own.games, seed=own.seed)})
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError(f"episodes: must be a whole number >= 1, got {episodes!r}", field="episodes")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError(f"seed: must be a whole number >= 0, got {seed!r}", field="seed")
     if fidelity not in FIDELITIES:
         raise ConfigError(f"fidelity: must be one of {', '.join(FIDELITIES)}, got {fidelity!r}", field="fidelity")
+    choices = policy_names(("baseline", "planner"))
+    for name in references or []:
+        if name not in choices:
+            raise ConfigError(f"references: {name!r} is not a baseline or planner (choose from {', '.join(choices)}, "
+                              f"or none)", field="references")
+    specs = None if references is None else [PolicySpec(policy_entry(name)) for name in references]
     learned = make_policy(config.algo, config.env, None, run=run.path)  # a bad model.zip: one line, before Ray starts
+    if scenario is not None:
+        run = RunFolder(run.path / "scenarios" / scenario)  # where this evaluation's files go
+        run.path.mkdir(parents=True, exist_ok=True)
     settings = config.env.service_settings()
     mode = config.service.mode  # local: the service and the games of fidelity "games" in this process, no Ray
     with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
-        policies = allocators(run, config, client, learned=learned)
+        policies = allocators(run, config, client, specs, learned=learned)
         table, per, steps = evaluate_trained(run, config, policies, client, episodes, seed)
         result = RunEvaluation(table, per, steps, settings.games)
         if fidelity == "games":
-            result.games_table, result.differences = evaluate_fidelity(config.env, policies, client, episodes, seed,
+            result.games_table, result.differences, result.live = evaluate_fidelity(config.env, policies, client, episodes, seed,
                                                                        in_process=mode == "local")
             run.write_fidelity(result.games_table, result.differences)
     return result
@@ -104,7 +128,11 @@ def fidelity_lines(result: RunEvaluation) -> list[str]:
     from farm.core.stats import mean_ci95
 
     merged = result.table.merge(result.games_table, on="policy", suffixes=("_service", "_games"))
-    lines = ["return, games minus service: " + ", ".join(
+    live = result.live or {}
+    lines = [f"live engagements: {live.get('games', 0)} games in {live.get('tasks', 0) or 'no'} Ray task(s) "
+             f"({'in this process' if not live.get('tasks') else 'coarse tasks'}), "
+             f"{live.get('games_per_second', float('nan')):.0f} games/s"] if live else []
+    lines += ["return, games minus service: " + ", ".join(
         f"{r.policy} {r.return_mean_games - r.return_mean_service:+.3f}" for r in merged.itertuples())]
     if len(result.differences):
         d = (result.differences["game_frac_tau"] - result.differences["service_frac_tau"]).to_numpy(dtype=float)

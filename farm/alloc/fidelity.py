@@ -1,7 +1,12 @@
 """`farm eval --fidelity games`: the service's statistics replaced by simulating every engaged
-cell's PE game at each step (all cells' games of a step in parallel as Ray tasks; in this
-process, one after another, for a run whose service.mode is local), and how far those
-outcomes are from the service's. Each engagement of a case plays the case's next fresh game:
+cell's PE game at each step, and how far those outcomes are from the service's.
+
+The evaluation's episodes are stepped together (farm.alloc.rollout.play), so a step asks for
+the games of every engaged cell of every episode at once. They are played as coarse Ray tasks
+of about TASK_SECONDS of work each by the engine's cost model (farm.games.sizes.game_seconds;
+pack_games), at most twice the cluster's CPUs pending (backpressure with ray.wait); in this
+process, one after another, for a run whose service.mode is local. Both play the same games,
+so they give the same outcomes, game for game. Each engagement of a case plays the case's next fresh game:
 game g of the case with the service's seed, g counting up from the service's number of
 games, so that these are games the service did not average and any game can be replayed by
 run_games."""
@@ -18,13 +23,30 @@ from farm.alloc.rollout import evaluate_policies
 from farm.service.client import CaptureTimeClient
 from farm.service.lookup import Lookup
 
-__all__ = ["FreshGames", "evaluate_fidelity"]
+__all__ = ["TASK_SECONDS", "FreshGames", "pack_games", "evaluate_fidelity"]
+
+TASK_SECONDS = 0.5  # a live-engagement task's work by the engine's cost model
+
+
+def pack_games(costs: list[float], target: float = TASK_SECONDS) -> list[list[int]]:
+    """The games (their costs, seconds each) cut into consecutive tasks of about target seconds:
+    a task closes once its games reach target; returns each task's game indices, in order."""
+    tasks, current, total = [], [], 0.0
+    for k, cost in enumerate(costs):
+        current.append(k)
+        total += cost
+        if total >= target:
+            tasks.append(current)
+            current, total = [], 0.0
+    if current:
+        tasks.append(current)
+    return tasks
 
 
 class FreshGames(Lookup):
     """The games-fidelity backend: the lookup's core without a store, each ask computed as
-    the case's next fresh game (see the module doc), a step's games in parallel as Ray
-    tasks; each answer is recorded beside the service's for the same cell (`differences`).
+    the case's next fresh game (see the module doc), a step's games as coarse Ray tasks;
+    each answer is recorded beside the service's for the same cell (`differences`).
 
     service_client: the CaptureTimeClient of the service being checked; first_game: the
     number of a case's first fresh game (default: the service's games per case);
@@ -39,6 +61,9 @@ class FreshGames(Lookup):
         self.first_game = service_client.settings.games if first_game is None else first_game
         self.played: dict[str, int] = {}  # case key -> games played so far
         self.differences: list[dict] = []
+        self.games = 0  # games played
+        self.tasks = 0  # Ray tasks they were played in
+        self.seconds = 0.0  # wall seconds spent playing them
         super().__init__(None, self._play)
 
     def _play(self, keys: list) -> Iterator[tuple[int, CaptureStats]]:
@@ -60,36 +85,60 @@ class FreshGames(Lookup):
             yield k, stats
 
     def _games(self, keys: list, numbers: list[int]) -> dict[int, pd.DataFrame]:
-        """Game numbers[k] of keys[k]'s case for every k (play_shard's rows), here or as Ray tasks."""
+        """Game numbers[k] of keys[k]'s case for every k (play_shard's rows), here or as coarse
+        Ray tasks (the module doc)."""
+        import time
+
         from farm.games.shards import play_shard
 
-        jobs = list(range(len(keys)))
+        t0 = time.perf_counter()
+        jobs = [(key.case, key.seed, g, g + 1) for key, g in zip(keys, numbers)]
         if self.in_process:
-            return {k: play_shard(keys[k].case, keys[k].seed, numbers[k], numbers[k] + 1, detail=True) for k in jobs}
+            rows = {k: play_shard(*job, detail=True) for k, job in enumerate(jobs)}
+        else:
+            rows = self._on_ray(jobs)
+        self.games += len(jobs)
+        self.seconds += time.perf_counter() - t0
+        return rows
+
+    def _on_ray(self, jobs: list) -> dict[int, pd.DataFrame]:
         import ray
 
+        from farm.games.sizes import game_seconds
+        from farm.games.tasks import _remote_games
         from farm.runtime import bounded
-        from farm.games.tasks import _remote_shard
 
-        def submit(k):
-            return _remote_shard.remote(keys[k].case, keys[k].seed, numbers[k], numbers[k] + 1, True)
+        tasks = pack_games([game_seconds(case) for case, *_ in jobs])
+        self.tasks += len(tasks)
+        limit = max(1, 2 * int(ray.cluster_resources().get("CPU", 1)))
+        rows = {}
+        for task, ref in bounded(lambda t: _remote_games.remote([jobs[k] for k in t]), tasks, limit):
+            rows.update(zip(task, ray.get(ref)))
+        return rows
 
-        return {k: ray.get(ref)[0] for k, ref in bounded(submit, jobs, max(1, len(jobs)))}  # a step's cells at once
+    def live(self) -> dict:
+        """What playing the games took: games, tasks (0 in process), seconds and games/s."""
+        return {"games": self.games, "tasks": self.tasks, "seconds": self.seconds,
+                "games_per_second": self.games / self.seconds if self.seconds > 0 else float("nan")}
 
     def warm(self, keys, progress=None) -> None:
         """Nothing to fill: every ask is a fresh game."""
 
 
 def evaluate_fidelity(config, policies: dict, client, episodes: int, seed: int,
-                      in_process: bool = False) -> tuple[pd.DataFrame, pd.DataFrame]:
+                      in_process: bool = False) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
     """`farm eval --fidelity games`: every policy on the same seeded episodes with each engaged
     cell's game simulated (each policy meets the same fresh games; in_process: played here,
     else as Ray tasks); returns (the evaluation table, one row per engagement: the game's and
-    the service's outcomes)."""
+    the service's outcomes, FreshGames.live() summed over the policies)."""
     tables, differences = [], []
+    live = {"games": 0, "tasks": 0, "seconds": 0.0}
     for name, policy in policies.items():
         games = FreshGames(client, in_process=in_process)
         games_client = CaptureTimeClient(client.settings, backend=games)
         tables.append(evaluate_policies(config, {name: policy}, games_client, episodes, seed)[0])
         differences += [{"policy": name, **d} for d in games.differences]
-    return pd.concat(tables, ignore_index=True), pd.DataFrame(differences)
+        for key in live:
+            live[key] += games.live()[key]
+    live["games_per_second"] = live["games"] / live["seconds"] if live["seconds"] > 0 else float("nan")
+    return pd.concat(tables, ignore_index=True), pd.DataFrame(differences), live

@@ -1,7 +1,7 @@
 """The one rollout and evaluation loop: allocators on the same seeded episodes.
 
-run_episode plays one episode of an allocator (its predict() timed, its first observation
-kept); play runs episodes seeded seed .. seed + episodes - 1 on one env; evaluate_policies
+play runs an allocator on episodes seeded seed .. seed + episodes - 1, stepped together (its
+predict() timed, each episode's first observation kept), run_episode on one; evaluate_policies
 runs several allocators so and measure_table turns the per-episode rows into a table of
 `<measure>_mean` and `<measure>_ci95` (the 95% t interval over episodes, farm.core.stats).
 `farm eval`, `farm suite` and the experiments' trials all evaluate through here.
@@ -26,7 +26,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from farm.alloc.dynamics import Layout, check_actions, episode_end, observe, start_densities, step
 from farm.alloc.env import SwarmAllocationEnv
+from farm.alloc.model import EngagementModel
 from farm.alloc.plots import plot_episode
 from farm.core.stats import ci_columns
 
@@ -58,41 +60,64 @@ class Episode:
 
 
 def run_episode(env: SwarmAllocationEnv, policy, seed: int, record: bool = False) -> Episode:
-    """One episode of policy (predict(obs, deterministic=True) -> (action, state)) on env, reset with seed."""
-    obs, _ = env.reset(seed=seed)
-    first_obs = np.array(obs, copy=True)
-    total, frames, steps, per_step, seconds = 0.0, [], 0, [], 0.0
-    n = env.n
-    if record:
-        frames.append((env.D.reshape(n, n).copy(), env.I.reshape(n, n).copy()))
-    while True:
-        t0 = time.perf_counter()
-        action, _ = policy.predict(obs, deterministic=True)
-        seconds += time.perf_counter() - t0
-        obs, r, term, trunc, info = env.step(action)
-        total += r
-        steps += 1
-        per_step.append([info["coverage"], info["engaged_cells"],
-                         info["defenders_per_engaged"] if info["engaged_cells"] else np.nan])
-        if record:
-            frames.append((env.D.reshape(n, n).copy(), env.I.reshape(n, n).copy()))
-        if term or trunc:
-            m = np.array(per_step)
-            engaged_steps = m[:, 1] > 0
-            summary = {"return": total, "eliminated": info["eliminated"], "breached": info["breached"],
-                       "length": steps, "coverage": float(m[:, 0].mean()), "engaged": float(m[:, 1].mean()),
-                       "defenders_per_engaged": float(np.mean(m[engaged_steps, 2])) if engaged_steps.any() else np.nan}
-            return Episode(summary, m, frames, seconds, first_obs)
+    """One episode of policy (predict(obs, deterministic=True) -> (action, state)) on env's
+    settings and client, started as env.reset(seed=seed) starts it (play, for one episode)."""
+    return play(env.config, policy, env.client, 1, seed, record_first=record)[0]
 
 
 def play(config, policy, client, episodes: int, seed: int, record_first: bool = False) -> list[Episode]:
-    """policy on episodes seeded seed .. seed + episodes - 1 of one env of the AllocConfig config
-    (its engagements answered by client); record_first: keep episode 0's density frames."""
-    env = SwarmAllocationEnv(config, client=client)
-    try:
-        return [run_episode(env, policy, seed + k, record=record_first and k == 0) for k in range(episodes)]
-    finally:
-        env.close()
+    """policy on episodes seeded seed .. seed + episodes - 1 of the AllocConfig config (their
+    engagements answered by client); record_first: keep episode 0's density frames.
+
+    The episodes are stepped together, by farm.alloc.dynamics.step (the env's own step) over
+    the ones still running, so that each step's engagements of every episode are one ask of the
+    client (one batch of games under `farm eval --fidelity games`); episode k is, to the last
+    bit, SwarmAllocationEnv(config).reset(seed=seed + k) stepped with the policy's actions
+    (tests/test_vector_env.py), and the policy is asked for each episode's observation alone.
+    """
+    from gymnasium.utils import seeding
+
+    layout = Layout(config.grid_size)
+    model = EngagementModel(config, client, False)
+    n, A = config.grid_size, len(layout.src)
+    shares = np.stack([seeding.np_random(seed + k)[0].dirichlet(np.ones(n)) for k in range(episodes)])
+    D, I = start_densities(layout, shares)
+    obs = observe(D, I)
+    first = obs.copy()
+    totals, steps = np.zeros(episodes), np.zeros(episodes, dtype=np.int64)
+    breached, eliminated, seconds = np.zeros(episodes), np.zeros(episodes), np.zeros(episodes)
+    per_step: list[list] = [[] for _ in range(episodes)]
+    frames = [(D[0].reshape(n, n).copy(), I[0].reshape(n, n).copy())] if record_first else []
+    running = np.arange(episodes)
+    while len(running):
+        actions = np.empty((len(running), A))
+        for row, k in enumerate(running.tolist()):
+            t0 = time.perf_counter()
+            action, _ = policy.predict(obs[k], deterministic=True)
+            seconds[k] += time.perf_counter() - t0
+            actions[row] = check_actions(action, (A,))
+        r = step(layout, config, model, D[running], I[running], actions)
+        D[running], I[running] = r.D, r.I
+        obs[running] = observe(r.D, r.I)
+        totals[running] += r.reward
+        breached[running] += r.breach
+        eliminated[running] += r.eliminated
+        steps[running] += 1
+        for row, k in enumerate(running.tolist()):
+            per_step[k].append([r.coverage[row], r.engaged[row], r.per_engaged[row] if r.engaged[row] else np.nan])
+        if record_first and running[0] == 0:
+            frames.append((D[0].reshape(n, n).copy(), I[0].reshape(n, n).copy()))
+        terminated, truncated = episode_end(config, steps[running], r.remaining)
+        running = running[~(terminated | truncated)]
+    played = []
+    for k in range(episodes):
+        m = np.array(per_step[k], dtype=np.float64)
+        engaged_steps = m[:, 1] > 0
+        summary = {"return": float(totals[k]), "eliminated": float(eliminated[k]), "breached": float(breached[k]),
+                   "length": int(steps[k]), "coverage": float(m[:, 0].mean()), "engaged": float(m[:, 1].mean()),
+                   "defenders_per_engaged": float(np.mean(m[engaged_steps, 2])) if engaged_steps.any() else np.nan}
+        played.append(Episode(summary, m, frames if k == 0 else [], float(seconds[k]), first[k]))
+    return played
 
 
 def measure_table(per: pd.DataFrame, by: list[str], measures=MEASURES) -> pd.DataFrame:

@@ -43,7 +43,7 @@ from typing import Any, Mapping
 
 from farm.alloc.config import AllocConfig
 
-__all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "VECTOR_ENTRY_POINT", "gym_id", "register_scenarios"]
+__all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "THEATRES", "VECTOR_ENTRY_POINT", "gym_id", "register_scenarios"]
 
 VECTOR_ENTRY_POINT = "farm.alloc.vector_env:SwarmAllocationVectorEnv"  # the batched env of every id
 
@@ -117,10 +117,17 @@ _ALL = [
     Scenario("wide_front_8x8", "8x8, 6 defenders v 400 intruders: an eight-row front, fewer defenders than rows",
              {"grid_size": 8, **_BIG, "n_defenders": 6, "n_intruders": 400, "c_distribution": 1.0,
               "c_capture": 1.5, **_LATTICE}),
+    # Theatres: wide fronts of drifting intruders, fewer defenders than rows, on maps of any size.
+    *[Scenario(f"theatre_{n}x{n}", f"{n}x{n}, {d} defenders v {e:,} intruders drifting between rows (0.25 to each "
+               "neighbour a step) on a front of " + f"{n} rows", {"grid_size": n, "max_steps": n, "n_defenders": d,
+                                                                  "n_intruders": e, "vertical_drift": 0.25,
+                                                                  "c_distribution": 1.0, "c_capture": 1.5, **_LATTICE})
+      for n, d, e in ((8, 6, 400), (16, 10, 1600), (32, 16, 5000))],
 ]
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in _ALL}
 PAPER_SCENARIOS = ("paper_3x3_c1_0", "paper_3x3_c1_1.5", "paper_3x3_100v100", "larger_5x5", "larger_8x8")
+THEATRES = ("theatre_8x8", "theatre_16x16", "theatre_32x32")  # the size-free learner's maps
 
 
 def register_scenarios() -> list[str]:

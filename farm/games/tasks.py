@@ -17,7 +17,7 @@ from workers import Case
 from farm.runtime import metrics
 from farm.games.shards import play_shard
 
-__all__ = ["MAX_RETRIES", "_remote_shard"]
+__all__ = ["MAX_RETRIES", "_remote_shard", "_remote_games"]
 
 MAX_RETRIES = 3
 
@@ -32,3 +32,10 @@ def _remote_shard(case: Case, seed, start: int, stop: int, detail: bool = False,
     if sweep is not None:
         metrics.record_shard(sweep, stop - start, int(df["steps"].sum()), time.perf_counter() - t0)
     return df, ray.get_runtime_context().get_node_id()
+
+
+@ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)
+def _remote_games(jobs: list):
+    """play_shard(case, seed, start, stop, detail=True) of each job (case, seed, start, stop) on a
+    worker, one after another (a coarse task of many small games); returns their rows, in order."""
+    return [play_shard(case, seed, start, stop, detail=True) for case, seed, start, stop in jobs]

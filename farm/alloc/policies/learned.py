@@ -48,26 +48,40 @@ def load_model(run_dir, algorithm: str = "td3"):
     return model
 
 
-def learned(algo: str, policy=None, run: str | None = None):
-    """A trained allocator of algorithm algo: policy (a loaded SB3 policy, model.policy) as it
-    is, or the model of the run folder `run` (load_model)."""
+def learned(algo: str, policy=None, run: str | None = None, config=None):
+    """A trained allocator of algorithm algo: policy (a loaded SB3 policy, model.policy), or the
+    model of the run folder `run` (load_model), for the map of config (an AllocConfig; None: the
+    model's own). A CellPolicy acts on a map of any size and teams (cell_policy.resized); a policy
+    whose size is its map's is refused on another map size (ConfigError, one line)."""
     if policy is None:
         if run is None:
             raise ConfigError(f"{algo}: needs a trained model: the run folder (run=...) or its policy (policy=...)")
         policy = load_model(run, algo).policy
+    if config is None:
+        return policy
+    if type(policy).__name__ == "CellPolicy":
+        from farm.alloc.training.cell_policy import resized
+
+        return resized(policy, config)
+    trained = int(round((policy.observation_space.shape[0] / 2) ** 0.5))
+    if trained != config.grid_size:
+        n = config.grid_size
+        raise ConfigError(f"scenario: the model was trained on a {trained}x{trained} map and its "
+                          f"{type(policy).__name__}'s size is its map's, so it cannot act on a {n}x{n} map "
+                          f"(train it with ppo.policy: CellPolicy, whose weights fit any map)", field="scenario")
     return policy
 
 
 def td3(config, client=None, *, policy=None, run: str | None = None):
     """A trained TD3 allocator (learned)."""
-    return learned("td3", policy, run)
+    return learned("td3", policy, run, config)
 
 
 def ppo(config, client=None, *, policy=None, run: str | None = None):
     """A trained PPO allocator (learned)."""
-    return learned("ppo", policy, run)
+    return learned("ppo", policy, run, config)
 
 
 def sac(config, client=None, *, policy=None, run: str | None = None):
     """A trained SAC allocator (learned)."""
-    return learned("sac", policy, run)
+    return learned("sac", policy, run, config)

@@ -1,28 +1,41 @@
-"""CellPolicy: PPO's actor-critic as one small network shared by every cell of the map.
+"""CellPolicy: PPO's actor-critic as one small network shared by every cell of the map, of
+any size.
 
 The allocation action is, for each cell, a score for each of its feasible moves (stay or one of
 its 8 neighbours: farm.alloc.dynamics.moves; the env turns a cell's scores into its move
 probabilities). An MLP over the flat observation learns each cell's scores separately, with a
 parameter count that grows with N^2, and must learn the same rule once per cell. CellPolicy
-computes them the way they are defined, per cell:
+computes them the way they are defined, per cell, with weights that do not depend on N:
 
-- the observation (B, 2 N^2) float32, [D, I] in cell order, is read as a (B, 5, N, N) image:
-  D, I, a channel of ones (so that the zero padding beyond the map's edge is seen as outside,
-  unlike an empty cell inside it) and the cell's column and row, each scaled to [0, 1];
-- `layers` 3 x 3 convolutions of `channels` channels, each followed by adding a linear map of
-  the mean over the map of its output (every cell hears a summary of the whole map) and a ReLU;
+- the observation (B, 2 N^2) float32, [D, I] in cell order, is read as a (B, 7, N, N) image of
+  what is the same on any map: the cell's defenders and intruders as team counts (D_c
+  n_defenders, I_c n_intruders, the engagement's own inputs) and its row's totals, each
+  log1p-scaled by log1p(256) (the lattice's largest team); a channel of ones (so that the zero
+  padding beyond the map's edge is seen as outside, unlike an empty cell inside it); the cell's
+  column and row scaled to [0, 1], unless `positions` is false;
+- `layers` 3 x 3 convolutions of `channels` channels, each followed by adding linear maps of
+  four summaries and a ReLU: the maximum over the cell's row (what its row holds, however far),
+  the maximum over the rows above it and over the rows below it (where to send defenders, up or
+  down, on a map of any height), and the maximum over the map. Maxima, not means: a mean over a
+  row of N cells dilutes one cell's signal by N, so what a network learnt on an 8 x 8 map would
+  read four times weaker on a 32 x 32 one; a maximum reads the same on any map;
 - the actor: a 1 x 1 convolution to 9 scores per cell, one per move (d_row, d_col) in row-major
-  order, of which each cell's feasible moves are gathered in the action vector's order; the
-  moves off the map are never in the action, so no mask is needed;
+  order, of which each cell's feasible moves are gathered in the action vector's order: the
+  moves off the map are masked by never being in the action;
 - the critic: the same trunk (a second copy: the value's gradients do not move the actor's
   features) pooled by mean and max over the cells into the value head.
 
-Its weights do not depend on N but for PPO's state-independent log_std, one per action entry
-(SB3's DiagGaussianDistribution). It plugs into stable-baselines3 through the documented route
-for custom networks, a policy class overriding `_build_mlp_extractor`: the extractor's
-latent_dim_pi is the action's length, and the action net that SB3 puts after it is an identity
-(the scores are the Gaussian's means), the optimizer built again over the parameters that
-remain. config: `ppo: {policy: CellPolicy, policy_kwargs: {channels: 32, layers: 3}}`.
+The teams' sizes (`teams`: n_defenders, n_intruders) are the env's, given by the trainer
+(farm.alloc.training.train.make_model), not learned. Every weight is the same tensor on any
+map but PPO's state-independent log_std, one per action entry (SB3's
+DiagGaussianDistribution), which only the exploration noise uses: resized() makes the policy
+for another map (another N, other teams) with the same weights and log_std at its mean, which
+`farm eval RUN --scenario NAME` evaluates deterministically. It plugs into stable-baselines3
+through the documented route for custom networks, a policy class overriding
+`_build_mlp_extractor`: the extractor's latent_dim_pi is the action's length, and the action
+net that SB3 puts after it is an identity (the scores are the Gaussian's means), the optimizer
+built again over the parameters that remain. config: `ppo: {policy: CellPolicy, policy_kwargs:
+{channels: 32, layers: 3}}`.
 """
 
 from __future__ import annotations
@@ -34,52 +47,92 @@ from torch import nn
 
 from farm.alloc.dynamics import moves
 
-__all__ = ["CellPolicy", "CellNet"]
+__all__ = ["CellPolicy", "CellNet", "MapGeometry", "resized"]
+
+COUNT_SCALE = float(np.log1p(256.0))  # the lattice's largest team, log1p-scaled to 1
+
+
+class MapGeometry:
+    """What CellPolicy's network needs to know of one map, none of it learnt: n, the grid side;
+    teams, (n_defenders, n_intruders); place: (1, 3, n, n) float32 the ones, column and row
+    channels; scale: (1, 2, 1, 1) float32 the teams; index: (A,) int64 each action entry's place in the
+    flattened (9, n, n) move scores (the feasible moves, in moves(n)'s order)."""
+
+    def __init__(self, n: int, teams: tuple[int, int]):
+        self.n, self.teams = n, (int(teams[0]), int(teams[1]))
+        axis = torch.linspace(0.0, 1.0, n) if n > 1 else torch.zeros(1)
+        rows, cols = torch.meshgrid(axis, axis, indexing="ij")
+        self.place = torch.stack([torch.ones(n, n), cols, rows])[None]
+        self.scale = torch.tensor([float(teams[0]), float(teams[1])]).reshape(1, 2, 1, 1)
+        src, dst, _ = moves(n)
+        move = (dst // n - src // n + 1) * 3 + (dst % n - src % n + 1)  # (d_row, d_col) in row-major order
+        self.index = torch.as_tensor(move * n * n + src)
 
 
 class _Trunk(nn.Module):
-    """(B, 2 N^2) observations -> (B, channels, N, N) per-cell features (the module doc)."""
+    """(B, 2 N^2) observations of a map (its MapGeometry) -> (B, channels, N, N) per-cell
+    features (the module doc)."""
 
-    def __init__(self, n: int, channels: int, layers: int):
+    def __init__(self, channels: int, layers: int, positions: bool = True):
         super().__init__()
-        self.n = n
-        self.convs = nn.ModuleList(nn.Conv2d(5 if i == 0 else channels, channels, 3, padding=1) for i in range(layers))
-        self.mix = nn.ModuleList(nn.Linear(channels, channels) for _ in range(layers))
-        axis = torch.linspace(0.0, 1.0, n) if n > 1 else torch.zeros(1)
-        rows, cols = torch.meshgrid(axis, axis, indexing="ij")
-        self.register_buffer("place", torch.stack([torch.ones(n, n), cols, rows])[None], persistent=False)
+        self.positions = positions
+        inputs = 7 if positions else 5
+        self.convs = nn.ModuleList(nn.Conv2d(inputs if i == 0 else channels, channels, 3, padding=1)
+                                   for i in range(layers))
+        self.row = nn.ModuleList(nn.Conv1d(channels, channels, 1) for _ in range(layers))
+        self.above = nn.ModuleList(nn.Conv1d(channels, channels, 1, bias=False) for _ in range(layers))
+        self.below = nn.ModuleList(nn.Conv1d(channels, channels, 1, bias=False) for _ in range(layers))
+        self.top = nn.ModuleList(nn.Linear(channels, channels, bias=False) for _ in range(layers))
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        n = self.n
-        h = torch.cat([obs.reshape(-1, 2, n, n), self.place.expand(len(obs), -1, -1, -1)], dim=1)
-        for conv, mix in zip(self.convs, self.mix):
+    def forward(self, obs: torch.Tensor, geometry: MapGeometry) -> torch.Tensor:
+        n = geometry.n
+        counts = obs.reshape(-1, 2, n, n) * geometry.scale
+        rows = counts.sum(dim=3, keepdim=True).expand(-1, -1, -1, n)
+        place = geometry.place if self.positions else geometry.place[:, :1]
+        h = torch.cat([torch.log1p(counts) / COUNT_SCALE, torch.log1p(rows) / COUNT_SCALE,
+                       place.expand(len(obs), -1, -1, -1)], dim=1)
+        for conv, row, above, below, top in zip(self.convs, self.row, self.above, self.below, self.top):
             h = conv(h)
-            h = torch.relu(h + mix(h.mean(dim=(2, 3)))[:, :, None, None])
+            r = h.amax(dim=3)  # (B, C, N) each row's maximum
+            low = torch.full_like(r[:, :, :1], -1e4)  # "nothing there": above the top row, below the bottom one
+            before = torch.cat([low, torch.cummax(r, dim=2).values[:, :, :-1]], dim=2)  # over the rows above
+            after = torch.cat([torch.cummax(r.flip(2), dim=2).values.flip(2)[:, :, 1:], low], dim=2)  # below
+            summary = (row(r) + above(torch.relu(before)) + below(torch.relu(after)))[..., None]
+            h = torch.relu(h + summary + top(h.amax(dim=(2, 3)))[:, :, None, None])
         return h
 
 
 class CellNet(nn.Module):
     """SB3's mlp_extractor for CellPolicy: forward_actor gives (B, A) move scores,
-    forward_critic (B, 2 channels) pooled features, from (B, 2 N^2) float32 observations."""
+    forward_critic (B, 2 channels) pooled features, from (B, 2 N^2) float32 observations of
+    the map it is on (use(); first the map of n and teams). Its parameters fit any map."""
 
-    def __init__(self, n: int, channels: int, layers: int):
+    def __init__(self, n: int, channels: int, layers: int, teams: tuple[int, int] = (1, 1), positions: bool = True):
         super().__init__()
-        src, dst, _ = moves(n)
-        move = (dst // n - src // n + 1) * 3 + (dst % n - src % n + 1)  # (d_row, d_col) in row-major order
-        self.register_buffer("index", torch.as_tensor(move * n * n + src), persistent=False)
-        self.actor = _Trunk(n, channels, layers)
+        self.actor = _Trunk(channels, layers, positions)
         self.scores = nn.Conv2d(channels, 9, 1)
-        self.critic = _Trunk(n, channels, layers)
-        self.latent_dim_pi = len(src)
+        self.critic = _Trunk(channels, layers, positions)
         self.latent_dim_vf = 2 * channels
+        self._maps: dict[tuple, MapGeometry] = {}
+        self.use(n, teams)
+        self.latent_dim_pi = len(self.index)
+
+    def use(self, n: int, teams: tuple[int, int]) -> "CellNet":
+        """Act on the map of grid side n and teams (n_defenders, n_intruders) from now on; returns self."""
+        key = (int(n), int(teams[0]), int(teams[1]))
+        if key not in self._maps:
+            self._maps[key] = MapGeometry(n, teams)
+        self.geometry = self._maps[key]
+        self.n, self.index = self.geometry.n, self.geometry.index
+        return self
 
     def forward_actor(self, obs: torch.Tensor) -> torch.Tensor:
         """(B, 2 N^2) float32 observations -> (B, A) move scores in the action's order."""
-        return self.scores(self.actor(obs)).flatten(1)[:, self.index]
+        return self.scores(self.actor(obs, self.geometry)).flatten(1)[:, self.index]
 
     def forward_critic(self, obs: torch.Tensor) -> torch.Tensor:
         """(B, 2 N^2) float32 observations -> (B, 2 channels) the critic's features, mean and max over cells."""
-        h = self.critic(obs)
+        h = self.critic(obs, self.geometry)
         return torch.cat([h.mean(dim=(2, 3)), h.amax(dim=(2, 3))], dim=1)
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -89,11 +142,14 @@ class CellNet(nn.Module):
 
 class CellPolicy(ActorCriticPolicy):
     """PPO's policy of per-cell shared weights (the module doc). channels: int >= 1, layers:
-    int >= 1; the other arguments are ActorCriticPolicy's."""
+    int >= 1; teams: (n_defenders, n_intruders) of the env; the other arguments are
+    ActorCriticPolicy's."""
 
-    def __init__(self, observation_space, action_space, lr_schedule, channels: int = 32, layers: int = 3, **kwargs):
+    def __init__(self, observation_space, action_space, lr_schedule, channels: int = 32, layers: int = 3,
+                 teams: tuple[int, int] = (1, 1), positions: bool = True, **kwargs):
         self.grid = int(round(np.sqrt(observation_space.shape[0] / 2)))
-        self.channels, self.layers = channels, layers
+        self.channels, self.layers, self.teams = channels, layers, (int(teams[0]), int(teams[1]))
+        self.positions = positions
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
         self.action_net = nn.Identity()  # the scores are the means
         nn.init.orthogonal_(self.mlp_extractor.scores.weight, gain=0.01)  # as SB3 starts its action net
@@ -101,4 +157,28 @@ class CellPolicy(ActorCriticPolicy):
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def _build_mlp_extractor(self) -> None:
-        self.mlp_extractor = CellNet(self.grid, self.channels, self.layers)
+        self.mlp_extractor = CellNet(self.grid, self.channels, self.layers, self.teams, self.positions)
+
+
+def resized(policy: CellPolicy, config) -> CellPolicy:
+    """policy's weights as a CellPolicy for the map of config (an AllocConfig: its grid_size and
+    teams), log_std at the mean of policy's (the module doc); policy itself if it fits already.
+    The result acts in evaluation mode, deterministic actions being the policy's means."""
+    import gymnasium as gym
+
+    from farm.alloc.dynamics import n_actions
+
+    n = config.grid_size
+    teams = (config.n_defenders, config.n_intruders)
+    if policy.grid == n and policy.teams == teams:
+        return policy
+    obs_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
+    act_space = gym.spaces.Box(-1.0, 1.0, shape=(n_actions(n),), dtype=np.float32)
+    # The other constructor arguments (initialisation, optimizer) are of no use to loaded weights.
+    other = CellPolicy(obs_space, act_space, lambda _: 0.0, channels=policy.channels, layers=policy.layers,
+                       teams=teams, positions=policy.positions)
+    state = policy.state_dict()
+    state["log_std"] = torch.full((n_actions(n),), float(state["log_std"].mean()))
+    other.load_state_dict(state)
+    other.set_training_mode(False)
+    return other

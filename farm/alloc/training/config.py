@@ -32,7 +32,7 @@ POLICY_KWARGS = {
             "log_std_init", "ortho_init", "full_std", "use_expln", "squash_output"),
 }
 # CellPolicy's (farm.alloc.training.cell_policy, PPO only): its sizes and ActorCriticPolicy's plain values
-CELL_POLICY_KWARGS = ("channels", "layers", "log_std_init", "ortho_init", "optimizer_kwargs")
+CELL_POLICY_KWARGS = ("channels", "layers", "positions", "log_std_init", "ortho_init", "optimizer_kwargs")
 ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu")  # torch.nn's ReLU, Tanh, ELU, LeakyReLU, GELU
 
 
@@ -55,7 +55,7 @@ def _check_policy_kwargs(v: dict, algo: str, policy: str = "MlpPolicy") -> dict:
     for name in ("channels", "layers"):
         if name in v and not (_whole(v[name]) and 1 <= v[name] <= 512):
             raise ValueError(f"{name}: must be a whole number from 1 to 512, got {v[name]!r}")
-    for name in ("share_features_extractor", "normalize_images", "ortho_init", "full_std", "use_expln",
+    for name in ("positions", "share_features_extractor", "normalize_images", "ortho_init", "full_std", "use_expln",
                  "squash_output"):
         if name in v and not isinstance(v[name], bool):
             raise ValueError(f"{name}: must be true or false, got {v[name]!r}")
@@ -176,6 +176,35 @@ class SACParams(_OffPolicyParams):
         return v
 
 
+class MapParams(Strict):
+    """One map of a pretraining curriculum (pretrain.maps): a suite scenario, its env settings
+    replaced by `env`'s (AllocConfig fields), as a training config's `scenario` and `env`."""
+
+    scenario: str
+    env: dict[str, Any] = {}
+
+    @field_validator("scenario")
+    @classmethod
+    def _known(cls, v):
+        if v not in SCENARIOS:
+            raise ValueError(f"unknown scenario {v!r} (choose from {', '.join(SCENARIOS)})")
+        return v
+
+    @model_validator(mode="after")
+    def _settings(self):
+        try:
+            self.config()
+        except ValueError as e:  # pydantic's ValidationError: the first problem, in one line
+            first = e.errors()[0] if hasattr(e, "errors") else {"loc": (), "msg": str(e)}
+            where = ".".join(str(x) for x in first["loc"])
+            raise ValueError(f"env: {where + ': ' if where else ''}{first['msg']}") from None
+        return self
+
+    def config(self, **service) -> AllocConfig:
+        """The map's AllocConfig, service settings (games, seed) in `service` replacing the scenario's."""
+        return SCENARIOS[self.scenario].config(**{**self.env, **service})
+
+
 class PretrainParams(Strict):
     """Planner-guided pretraining (DAgger; farm.alloc.training.pretrain): before RL, the learner's
     actor is fitted to an expert's actions on the states visited by a mixture of the expert and
@@ -187,7 +216,10 @@ class PretrainParams(Strict):
     per iteration, or one number p for the schedule 1, p, p^2, ...: the first iteration is the
     expert's alone); epochs, batch_size, learning_rate: the fit of each iteration (mean squared
     error to the expert's actions, Adam) over the states labelled so far; episodes_per_task:
-    the episodes of one labelling task (on Ray: one task per batch of episodes)."""
+    the episodes of one labelling task (on Ray: one task per batch of episodes); maps: suite
+    scenarios whose episodes are labelled too, each iteration's `episodes` on each, and fitted
+    with the run's own (a curriculum of maps, for a policy whose weights fit any map:
+    ppo.policy CellPolicy)."""
 
     expert: str = "receding_horizon"
     expert_options: dict[str, Any] = {}
@@ -199,6 +231,12 @@ class PretrainParams(Strict):
     batch_size: int = Field(128, ge=1)
     learning_rate: float = Field(1e-3, gt=0)
     episodes_per_task: int = Field(4, ge=1)
+    maps: list[MapParams] = []
+
+    @field_validator("maps", mode="before")
+    @classmethod
+    def _names_are_maps(cls, v):
+        return [{"scenario": m} if isinstance(m, str) else m for m in v] if isinstance(v, list) else v
 
     @field_validator("expert")
     @classmethod
@@ -294,6 +332,10 @@ class TrainConfig(Strict):
             if other != self.algo and other in self.model_fields_set and "algo" not in self.model_fields_set:
                 raise ValueError(f"{other}: settings of {other}, but algo is {self.algo} by default "
                                  f"(set algo: {other})")
+        if self.pretrain is not None and self.pretrain.maps and not (self.algo == "ppo"
+                                                                    and self.ppo.policy == "CellPolicy"):
+            raise ValueError("pretrain.maps: a curriculum of maps needs a policy whose weights fit any map "
+                             "(algo: ppo with ppo.policy: CellPolicy)")
         if self.algo == "ppo" and self.ppo.n_steps * self.n_envs < 2:
             raise ValueError(f"ppo.n_steps: a rollout of n_steps x n_envs = {self.ppo.n_steps * self.n_envs} "
                              f"step; PPO needs at least 2")

@@ -32,6 +32,11 @@ The algorithm, and why it is right:
   own could wait for CPUs the trials hold), they run one after another in this process. An episode and its coin flips are seeded by the run's
   seed, the iteration and the episode's index alone, and results are put together in task
   order, so the data set is the same whatever the number of workers.
+- A curriculum of maps (`maps`, for CellPolicy, whose weights fit any map): each iteration
+  plays its episodes on the run's own map and on each named scenario (the learner driving
+  there through its weights moved to that map, cell_policy.resized), and the fit goes over
+  all the maps' labels, minibatches of one map each, in an order drawn from the fit's
+  generator (fit_maps), so the one network learns what the expert does on every map.
 - Exact resume: after each iteration the data set, the learner's parameters and the fit's
   generator are written whole (pretrain/iteration_<i>.pkl, atomically). A run resumed after a
   stop loads the last one and goes on; nothing else is random (the fit draws its minibatches
@@ -51,7 +56,8 @@ import numpy as np
 from farm.alloc.policies import PolicySpec, policy_entry
 from farm.alloc.training.labels import concat, play_labelled
 
-__all__ = ["PRETRAIN_SEED_OFFSET", "FLOW_FLOOR", "MoveMap", "imitation_loss", "label_all", "fit_actor", "actor_action", "pretrain",
+__all__ = ["PRETRAIN_SEED_OFFSET", "FLOW_FLOOR", "MoveMap", "imitation_loss", "label_all", "fit_actor", "fit_maps",
+           "actor_action", "pretrain",
            "iteration_file", "latest_iteration", "Pretrained"]
 
 PRETRAIN_SEED_OFFSET = 2_000_000  # pretraining's episodes: seeded apart from training's and evaluation's
@@ -203,6 +209,61 @@ def fit_actor(model, algo: str, data: dict[str, np.ndarray], epochs: int, batch_
     return last
 
 
+def fit_maps(model, datasets: list, epochs: int, batch_size: int, learning_rate: float, rng: np.random.Generator,
+             loss: str = "flows") -> float:
+    """fit_actor over several maps' labels for a CellPolicy PPO model: datasets, [(data, the map's
+    AllocConfig)]; each epoch's minibatches hold one map's states each, their order drawn from
+    rng; the network is switched to each minibatch's map (CellNet.use) and back to its own.
+    Returns the last epoch's mean imitation loss."""
+    import torch
+
+    policy = model.policy
+    net = policy.mlp_extractor
+    own = (net.n, net.geometry.teams)
+    maps = [(MoveMap(env), env, torch.as_tensor(d["obs"]), torch.as_tensor(d["labels"]),
+             torch.as_tensor(d["returns"], dtype=torch.float32)) for d, env in datasets]
+    optimizer = torch.optim.Adam(policy.parameters(), lr=learning_rate)
+    policy.set_training_mode(True)
+    last = float("nan")
+    try:
+        for _ in range(epochs):
+            batches = []
+            for j, (_, _, obs, _, _) in enumerate(maps):
+                order = rng.permutation(len(obs))
+                batches += [(j, order[start: start + batch_size]) for start in range(0, len(order), batch_size)]
+            total, count = 0.0, 0
+            for b in rng.permutation(len(batches)):
+                j, rows = batches[b]
+                moves, env, obs, labels, returns = maps[j]
+                idx = torch.as_tensor(rows)
+                net.use(env.grid_size, (env.n_defenders, env.n_intruders))
+                action = net.forward_actor(obs[idx])  # CellPolicy's action net is the identity: the mean action
+                error = imitation_loss(loss, moves, action, labels[idx], obs[idx])
+                values = policy.value_net(net.forward_critic(obs[idx])).flatten()
+                optimizer.zero_grad()
+                (error + torch.nn.functional.mse_loss(values, returns[idx])).backward()
+                optimizer.step()
+                total += float(error.detach()) * len(idx)
+                count += len(idx)
+            last = total / count
+    finally:
+        net.use(*own)
+        policy.set_training_mode(False)
+    return last
+
+
+def _maps(config, client) -> list[tuple]:
+    """[(AllocConfig, client)]: the maps pretraining plays, the run's own first, then pretrain.maps'
+    scenarios (the run's service games and seed), each with a client of its service settings."""
+    own = config.env
+    maps = [(own, client)]
+    for spec in config.pretrain.maps:
+        env = spec.config(games=own.games, seed=own.seed)
+        settings = env.service_settings()
+        maps.append((env, client if settings == client.settings else client.with_settings(settings)))
+    return maps
+
+
 def iteration_file(run_dir, iteration: int) -> Path:
     """A pretraining iteration's state in a run folder: pretrain/iteration_<i>.pkl."""
     return Path(run_dir) / "pretrain" / f"iteration_{iteration}.pkl"
@@ -235,30 +296,37 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True) -> P
     params, algo = config.pretrain, config.algo
     gamma = config.learner.gamma
     schedule = params.schedule()
+    maps = _maps(config, client)
     rng = np.random.default_rng([config.seed, PRETRAIN_SEED_OFFSET])
-    parts: list[dict] = []
+    parts: list[list[dict]] = [[] for _ in maps]  # each map's labels
     seconds, loss, first = 0.0, float("nan"), 0
     done = latest_iteration(run_dir)
     if done is not None:
         state = pickle.loads(iteration_file(run_dir, done).read_bytes())
-        parts, seconds, loss = [state["data"]], state["seconds"], state["loss"]
+        parts = [[d] for d in (state["data"] if len(maps) > 1 else [state["data"]])]
+        seconds, loss = state["seconds"], state["loss"]
         model.policy.load_state_dict(state["policy"])
         rng.bit_generator.state = state["rng"]
         first = done + 1
-    total = params.iterations * params.episodes
-    bar = GameProgress(total, first * params.episodes, enabled=show_progress, desc="pretrain episodes",
+    total = params.iterations * params.episodes * len(maps)
+    bar = GameProgress(total, first * params.episodes * len(maps), enabled=show_progress, desc="pretrain episodes",
                        unit="episode")
     try:
         for iteration in range(first, params.iterations):
             t0 = time.perf_counter()
-            learner = None if schedule[iteration] >= 1 else model.policy
-            parts.append(label_all(config.env, params, learner, schedule[iteration], iteration, config.seed, client,
-                                   gamma, progress=lambda episodes, states: bar.update(episodes)))
-            data = concat(parts)
-            parts = [data]
-            loss = fit_actor(model, algo, data, params.epochs, params.batch_size, params.learning_rate, rng,
-                             params.loss, config.env)
+            for j, (env, env_client) in enumerate(maps):
+                learner = None if schedule[iteration] >= 1 else _learner_on(model.policy, env, j)
+                parts[j] = [concat(parts[j] + [label_all(env, params, learner, schedule[iteration], iteration,
+                                                         config.seed, env_client, gamma,
+                                                         progress=lambda episodes, states: bar.update(episodes))])]
+            if len(maps) == 1:
+                loss = fit_actor(model, algo, parts[0][0], params.epochs, params.batch_size, params.learning_rate,
+                                 rng, params.loss, config.env)
+            else:
+                loss = fit_maps(model, [(parts[j][0], env) for j, (env, _) in enumerate(maps)], params.epochs,
+                                params.batch_size, params.learning_rate, rng, params.loss)
             seconds += time.perf_counter() - t0
+            data = parts[0][0] if len(maps) == 1 else [p[0] for p in parts]
             state = {"iteration": iteration, "data": data, "policy": model.policy.state_dict(),
                      "rng": rng.bit_generator.state, "seconds": seconds, "loss": loss}
             path = iteration_file(run_dir, iteration)
@@ -266,13 +334,25 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True) -> P
             atomic_write_bytes(path, pickle.dumps(state))
     finally:
         bar.close()
-    data = concat(parts)
+    states = sum(len(p[0]["obs"]) for p in parts)  # labelled on every map
+    data = parts[0][0]  # the run's own map's labels: the replay buffer's
+
     if algo == "td3":  # a resumed run's fresh model: its target actor as the fitted actor
         with torch.no_grad():
             model.actor_target.load_state_dict(model.actor.state_dict())
     if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
         _fill_replay_buffer(model, data)
-    return Pretrained(len(data["obs"]), seconds, loss, data)
+    return Pretrained(states, seconds, loss, data)
+
+
+def _learner_on(policy, env, j: int):
+    """The learner driving on map j: its own policy on its own map (j = 0), else its weights
+    moved to env's map (cell_policy.resized)."""
+    if j == 0:
+        return policy
+    from farm.alloc.training.cell_policy import resized
+
+    return resized(policy, env)
 
 
 def _fill_replay_buffer(model, data: dict) -> None:

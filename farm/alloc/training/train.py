@@ -93,11 +93,13 @@ def make_model(config: TrainConfig, env, run_dir: Path):
     from stable_baselines3 import PPO, SAC
 
     p = config.learner
-    policy = p.policy
+    policy, kwargs = p.policy, policy_kwargs(p.policy_kwargs)
     if policy == "CellPolicy":
         from farm.alloc.training.cell_policy import CellPolicy as policy
+
+        kwargs["teams"] = (config.env.n_defenders, config.env.n_intruders)  # the env's, not a setting
     common = dict(policy=policy, env=env, learning_rate=p.learning_rate, gamma=p.gamma,
-                  policy_kwargs=policy_kwargs(p.policy_kwargs), tensorboard_log=str(run_dir / "tb"),
+                  policy_kwargs=kwargs, tensorboard_log=str(run_dir / "tb"),
                   seed=config.seed, verbose=0, device="cpu")
     if config.algo == "ppo":
         return PPO(**common, n_steps=p.n_steps, batch_size=p.batch_size, n_epochs=p.n_epochs,

@@ -25,7 +25,8 @@ __all__ = ["run_suite"]
 
 def _run_folder(config: SuiteConfig, scenario: str, env: AllocConfig):
     """(algo, trained policy) of a scenario's run folder, or None when it is missing and missing
-    runs are skipped; ConfigError (one line naming runs.<scenario>) otherwise."""
+    runs are skipped; ConfigError (one line naming runs.<scenario>) otherwise, and for a run
+    trained on another env, unless its policy is a CellPolicy (size-free: it acts on any map)."""
     run_dir = Path(config.runs[scenario])
     run = RunFolder(run_dir)
     field = f"runs.{scenario}"
@@ -40,7 +41,8 @@ def _run_folder(config: SuiteConfig, scenario: str, env: AllocConfig):
     except ConfigError as e:
         raise ConfigError(f"{field}: {e}", field=field) from None
     ours, theirs = env.model_dump(), trained_config.env.model_dump()
-    for name in ours:
+    size_free = trained_config.learner.policy == "CellPolicy"  # its weights act on any map
+    for name in ([] if size_free else ours):
         if name not in ("games", "seed") and ours[name] != theirs.get(name):
             raise ConfigError(f"{field}: {run_dir} was trained on another env ({name}: {theirs.get(name)!r}, "
                               f"the scenario's {ours[name]!r})", field=field)

@@ -1,0 +1,199 @@
+"""Allocators at scale: each allocator's time per step on 3x3, 8x8, 16x16 and 32x32 maps, side by
+side, and the live engagements' games/s at 32x32 on 1 and 2 workers.
+
+Part 1, time per step. For each of outnumbered_3x3, theatre_8x8, theatre_16x16 and theatre_32x32
+(farm.alloc.scenarios), the states of --episodes seeded episodes (seeds 1000..) played by the
+intercept planner, --states of them evenly spaced, then every allocator's
+predict(obs, deterministic=True) on those same observations, timed one by one, in turn:
+  stay_at_base, greedy_nearest, spread_evenly, intercept, mmr, receding_horizon: the registry's
+      baselines and planners (default options);
+  ppo (CellPolicy): the size-free learner, a PPO model built exactly as
+      configs/train/size_free.yaml builds it (on theatre_8x8), its weights moved to each map by
+      the registry's learned entry (make_policy("ppo", config, policy=...): cell_policy.resized),
+      as `farm eval RUN --scenario NAME` does; --run RUN times a trained run's instead. A step's
+      time depends on the architecture and the map, not on the weights.
+ms/step is CPU ms per predict(), mean over the states, best of --repeats passes, after one
+untimed call each; one process pinned to one core, torch and the numerical libraries at one
+thread; every lattice pair is in the client's memo before timing (farm.alloc.lattice.memo_client),
+so no planner's query is a game or a store read.
+    target (issue 26): ppo's ms/step <= 1/20 of receding_horizon's on the theatres (printed)
+
+Part 2, live engagements (`farm eval --fidelity games`, farm.alloc.fidelity): --live-episodes
+episodes of theatre_32x32 under the intercept planner, stepped together, every engaged cell's game
+played live as coarse Ray tasks (about fidelity.TASK_SECONDS of work each by the engine's cost
+model, at most twice the CPUs pending), on a local Ray of 1 and then of 2 CPUs (one worker
+each); games/s is games over the wall seconds spent playing them. --address ADDR also runs it
+on a running cluster (e.g. two nodes of `ray start`).
+    target: games/s on 2 workers >= 1.8 x on 1 (printed)
+
+Usage: python benchmarks/theatre.py [--store /tmp/swarm-farm-planners.sqlite] [--episodes 1]
+         [--states 8] [--repeats 2] [--live-episodes 16] [--run RUN] [--address ADDR] [--skip-steps]
+         (about 10 minutes on a warm store: receding_horizon takes seconds a step at 32x32)
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(var, "1")
+# benchmarks/farm.py would shadow the farm package: drop this folder from the path.
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
+import numpy as np  # noqa: E402
+
+MAPS = ("outnumbered_3x3", "theatre_8x8", "theatre_16x16", "theatre_32x32")
+REFERENCES = ("stay_at_base", "greedy_nearest", "spread_evenly", "intercept", "mmr", "receding_horizon")
+CONFIG = Path(__file__).resolve().parent.parent / "configs" / "train" / "size_free.yaml"
+STEP_TARGET = 1 / 20  # the size-free learner's ms/step over receding_horizon's, at most
+LIVE_TARGET = 1.8  # games/s on 2 workers over 1, at least
+
+
+def states(config, client, episodes: int, keep: int) -> list[np.ndarray]:
+    """keep observations, evenly spaced, of episodes seeded 1000.. of config, intercept acting."""
+    from farm.alloc import SwarmAllocationEnv
+    from farm.alloc.policies import make_policy
+
+    planner = make_policy("intercept", config, client)
+    env = SwarmAllocationEnv(config, client=client)
+    out = []
+    for seed in range(1000, 1000 + episodes):
+        obs, _ = env.reset(seed=seed)
+        while True:
+            out.append(np.array(obs, copy=True))
+            obs, _, term, trunc, _ = env.step(planner.predict(obs)[0])
+            if term or trunc:
+                break
+    env.close()
+    return [out[int(k)] for k in np.linspace(0, len(out) - 1, min(keep, len(out)))]
+
+
+def size_free_policy(client, run: str | None):
+    """The size-free learner's policy: a trained run's, or an untrained one built as size_free.yaml builds it."""
+    if run is not None:
+        from farm.alloc.policies.learned import load_model
+
+        return load_model(run, "ppo").policy
+    from farm.alloc.training.config import load_train_config
+    from farm.alloc.training.train import make_model, training_envs
+
+    tc = load_train_config(CONFIG)
+    with tempfile.TemporaryDirectory() as tmp:
+        vec_env, _, _ = training_envs(tc, client)
+        return make_model(tc, vec_env, Path(tmp)).policy
+
+
+def timed(policies: dict, observations: list, repeats: int) -> dict:
+    """{policy: CPU ms per predict(), mean over observations, the best of `repeats` passes}."""
+    for policy in policies.values():
+        policy.predict(observations[0], deterministic=True)
+    best: dict = {}
+    for _ in range(repeats):
+        for name, policy in policies.items():
+            c0 = time.process_time()
+            for obs in observations:
+                policy.predict(obs, deterministic=True)
+            ms = 1e3 * (time.process_time() - c0) / len(observations)
+            best[name] = min(ms, best.get(name, np.inf))
+    return best
+
+
+def step_times(a) -> None:
+    import torch
+
+    from farm.alloc.lattice import memo_client
+    from farm.alloc.policies import make_policy
+    from farm.alloc.scenarios import SCENARIOS
+
+    torch.set_num_threads(1)
+    configs = {name: SCENARIOS[name].config() for name in MAPS}
+    client, pairs, t_warm = memo_client(configs.values(), "local", a.store)
+    trained = size_free_policy(client, a.run)
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core from here on
+    print(f"store {a.store}: {len(pairs)} lattice pairs warm in {t_warm:.1f} s; timing on one core (load average "
+          f"{os.getloadavg()[0]:.1f} over {os.cpu_count()} cores)")
+    table = {}
+    for name, config in configs.items():
+        observations = states(config, client, a.episodes, a.states)
+        policies = {p: make_policy(p, config, client) for p in REFERENCES}
+        policies["ppo"] = make_policy("ppo", config, client, policy=trained)
+        misses = client.stats()["misses"]
+        table[name] = timed(policies, observations, a.repeats)
+        assert client.stats()["misses"] == misses, "a service query missed the memo while timing"
+        print(f"  {name}: {len(observations)} states timed", flush=True)
+    client.close()
+    names = [*REFERENCES, "ppo"]
+    print(f"\nCPU ms per predict(obs), mean over {a.states} states of intercept's episodes, best of {a.repeats}; "
+          f"ppo: CellPolicy ({'run ' + a.run if a.run else 'untrained, as size_free.yaml builds it'})")
+    print(f"{'allocator':<18}" + "".join(f"{m:>17}" for m in MAPS))
+    for p in names:
+        print(f"{p:<18}" + "".join(f"{table[m][p]:>17.3f}" for m in MAPS))
+    ratios = {m: table[m]["ppo"] / table[m]["receding_horizon"] for m in MAPS}
+    print(f"{'ppo / rh':<18}" + "".join(f"{ratios[m]:>17.4f}" for m in MAPS))
+    met = all(ratios[m] <= STEP_TARGET for m in ("theatre_16x16", "theatre_32x32"))
+    print(f"target ppo <= {STEP_TARGET:.3f} x receding_horizon on the theatres: {'met' if met else 'NOT met'}")
+
+
+def live(a) -> None:
+    from farm.alloc.fidelity import TASK_SECONDS, evaluate_fidelity
+    from farm.alloc.lattice import memo_client
+    from farm.alloc.policies import make_policy
+    from farm.alloc.scenarios import SCENARIOS
+    from farm.runtime import ray_cluster
+
+    config = SCENARIOS["theatre_32x32"].config()
+    client, _, _ = memo_client([config], "local", a.store)
+    policies = {"intercept": make_policy("intercept", config, client)}
+    runs = [(f"local Ray, {w} CPU(s)", dict(num_cpus=w)) for w in (1, 2)]
+    if a.address:
+        runs.append((f"cluster {a.address}", dict(address=a.address)))
+    results = []
+    for label, options in runs:
+        with ray_cluster(**options):
+            import ray
+
+            cpus = int(ray.cluster_resources().get("CPU", 1))
+            _, _, got = evaluate_fidelity(config, policies, client, a.live_episodes, 1000)
+        results.append((label, cpus, got))
+        print(f"  {label}: {got['games']} games in {got['tasks']} tasks, {got['games_per_second']:.0f} games/s",
+              flush=True)
+    client.close()
+    base = results[0][2]["games_per_second"]
+    print(f"\nlive engagements, theatre_32x32, intercept, {a.live_episodes} episodes stepped together; tasks of about "
+          f"{TASK_SECONDS} s by the cost model")
+    print(f"{'where':<34}{'CPUs':>6}{'games':>8}{'tasks':>7}{'games/task':>12}{'games/s':>10}{'x 1 CPU':>9}")
+    for label, cpus, got in results:
+        print(f"{label:<34}{cpus:>6}{got['games']:>8}{got['tasks']:>7}{got['games'] / max(1, got['tasks']):>12.1f}"
+              f"{got['games_per_second']:>10.0f}{got['games_per_second'] / base:>9.2f}")
+    ratio = results[1][2]["games_per_second"] / base
+    print(f"target 2 workers >= {LIVE_TARGET} x 1: {'met' if ratio >= LIVE_TARGET else 'NOT met'} ({ratio:.2f}x)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--store", default="/tmp/swarm-farm-planners.sqlite", help="the capture-time store (warmed)")
+    ap.add_argument("--episodes", type=int, default=1, help="intercept episodes (seeds 1000..) whose states are timed")
+    ap.add_argument("--states", type=int, default=8, help="states timed per map, evenly spaced")
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--live-episodes", type=int, default=16, help="theatre_32x32 episodes of the live part")
+    ap.add_argument("--run", help="a trained size-free run folder to time instead of an untrained CellPolicy")
+    ap.add_argument("--address", help="also run the live part on this running Ray cluster")
+    ap.add_argument("--skip-steps", action="store_true", help="only the live part")
+    ap.add_argument("--skip-live", action="store_true", help="only the time per step")
+    a = ap.parse_args()
+    t0 = time.perf_counter()
+    if not a.skip_live:
+        live(a)  # first: part 1 pins this process to one core
+    if not a.skip_steps:
+        step_times(a)
+    print(f"({time.perf_counter() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()

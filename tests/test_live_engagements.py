@@ -1,0 +1,29 @@
+"""`farm eval --fidelity games` on a theatre: every engaged cell's game played live, a step's
+games of every episode packed into coarse Ray tasks; the same games, outcome for outcome, as
+the engine run in this process."""
+
+import numpy as np
+import pandas as pd
+
+from farm.alloc.scenarios import SCENARIOS
+
+
+def test_a_theatre_episode_plays_the_same_games_on_ray_as_in_process(ray_local, tmp_path):
+    from farm.alloc.fidelity import evaluate_fidelity
+    from farm.alloc.policies import make_policy
+    from farm.service import CaptureTimeClient
+    from workers import run_games
+
+    config = SCENARIOS["theatre_16x16"].config(games=2)
+    client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
+    policies = {name: make_policy(name, config, client) for name in ("intercept", "receding_horizon")}
+    ray_table, ray_games, live = evaluate_fidelity(config, policies, client, 2, 1000)
+    here_table, here_games, here = evaluate_fidelity(config, policies, client, 2, 1000, in_process=True)
+    pd.testing.assert_frame_equal(ray_table, here_table)
+    pd.testing.assert_frame_equal(ray_games, here_games)
+    assert len(ray_games) == live["games"] == here["games"] > 30 and here["tasks"] == 0
+    assert 1 <= live["tasks"] < live["games"] / 5  # coarse: many games a task
+    for row in ray_games.iloc[[0, len(ray_games) // 2, -1]].itertuples():  # the engine, game for game
+        key = config.service_settings().key(row.n_pursuers, row.n_evaders)
+        np.testing.assert_array_equal(run_games(key.case, key.seed, row.game, row.game + 1).capture_times[0],
+                                      np.array(row.capture_times))

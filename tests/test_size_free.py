@@ -1,0 +1,173 @@
+"""The size-independent learner: CellPolicy's weights act on a map of any size.
+
+- A model trained on the 8 x 8 theatre (configs/train/tiny_size_free.yaml) loads and acts on
+  other maps with the same weights; `farm eval RUN --scenario NAME` evaluates it there.
+- The moves off the map are masked: no score of one reaches the action.
+- A policy whose size is its map's (an MLP) is refused on another map in one line.
+- The live engagements' coarse tasks (farm.alloc.fidelity.pack_games).
+"""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+import yaml
+
+from farm.alloc.dynamics import moves, n_actions
+from farm.alloc.fidelity import pack_games
+from farm.alloc.scenarios import SCENARIOS
+from farm.alloc.training import load_train_config, train
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def farm(*args, cwd=REPO):
+    return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """configs/train/tiny_size_free.yaml trained (256 PPO steps on theatre_8x8), on a store of its own."""
+    tmp = tmp_path_factory.mktemp("size_free")
+    config = load_train_config(REPO / "configs" / "train" / "tiny_size_free.yaml")
+    config = config.model_copy(update={"service": config.service.model_copy(update={"store": str(tmp / "s.sqlite")})})
+    train(config, tmp / "run", show_progress=False)
+    return tmp / "run"
+
+
+def test_a_model_trained_on_one_map_acts_on_others_with_the_same_weights(run):
+    from farm.alloc.policies import make_policy
+    from farm.alloc.policies.learned import load_model
+    from farm.alloc.training.cell_policy import resized
+
+    trained = load_model(run, "ppo").policy
+    assert trained.grid == 8 and trained.teams == (6, 400)
+    own = SCENARIOS["theatre_8x8"].config(games=3)
+    assert resized(trained, own) is trained
+    rng = np.random.default_rng(0)
+    for name in ("theatre_16x16", "theatre_32x32", "paper_3x3_c1_0"):
+        config = SCENARIOS[name].config()
+        policy = make_policy("ppo", config, None, run=run)  # the registry's learned allocator, on that map
+        n = config.grid_size
+        assert policy.grid == n and policy.teams == (config.n_defenders, config.n_intruders)
+        same = {k: v for k, v in trained.state_dict().items() if k != "log_std"}
+        for key, value in same.items():
+            assert torch.equal(policy.state_dict()[key], value), key
+        assert policy.log_std.shape == (n_actions(n),)
+        assert torch.allclose(policy.log_std, trained.log_std.mean().expand(n_actions(n)))
+        obs = rng.uniform(0, 0.05, 2 * n * n).astype(np.float32)
+        action, _ = policy.predict(obs, deterministic=True)
+        assert action.shape == (n_actions(n),) and np.all(np.abs(action) <= 1)
+        again, _ = policy.predict(obs, deterministic=True)
+        np.testing.assert_array_equal(action, again)
+
+
+def test_the_moves_off_the_map_are_never_in_the_action(run):
+    from farm.alloc.policies.learned import load_model
+    from farm.alloc.training.cell_policy import resized
+
+    policy = resized(load_model(run, "ppo").policy, SCENARIOS["theatre_16x16"].config())
+    net, n = policy.mlp_extractor, 16
+    src, dst, _ = moves(n)
+    obs = torch.as_tensor(np.random.default_rng(1).uniform(0, 0.05, (3, 2 * n * n)), dtype=torch.float32)
+    with torch.no_grad():
+        features = net.actor(obs, net.geometry)
+        scores = net.scores(features)  # (3, 9, n, n): every direction of every cell
+        rows, cols = np.divmod(np.arange(n * n), n)
+        off = np.zeros((9, n * n), dtype=bool)
+        for k in range(9):
+            r, c = rows + k // 3 - 1, cols + k % 3 - 1
+            off[k] = (r < 0) | (r >= n) | (c < 0) | (c >= n)
+        assert off.sum() == 9 * n * n - n_actions(n)
+        flat = scores.flatten(1).clone()
+        action = flat[:, net.index]
+        flat[:, torch.as_tensor(off.reshape(-1))] = 1e6  # off-map scores changed beyond any range
+        np.testing.assert_array_equal(flat[:, net.index].numpy(), action.numpy())
+        np.testing.assert_array_equal(net.forward_actor(obs).numpy(), action.numpy())
+    assert not off.reshape(-1)[net.index.numpy()].any()
+
+
+def test_farm_eval_scenario_evaluates_the_run_on_another_map(run):
+    r = farm("eval", run, "--scenario", "theatre_16x16", "--episodes", 1, "--references", "intercept,receding_horizon")
+    assert r.returncode == 0, r.stderr
+    table = pd.read_csv(run / "scenarios" / "theatre_16x16" / "eval_table.csv")
+    assert list(table["policy"]) == ["ppo", "intercept", "receding_horizon"]
+    assert (table["length_mean"] == 16).all()
+    assert not (run / "eval_table.csv").exists()  # the run's own evaluation is another folder's
+    r = farm("eval", run, "--scenario", "theatre_16x16", "--references", "ppo")
+    assert r.returncode != 0 and r.stderr.startswith("farm: error: --references: 'ppo' is not a baseline or planner")
+    r = farm("eval", run, "--scenario", "theatre_64x64")
+    assert r.returncode != 0 and r.stderr.strip().startswith("farm: error: --scenario: unknown scenario 'theatre_64x64'")
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_a_policy_whose_size_is_its_maps_is_refused_on_another_map(tmp_path):
+    raw = yaml.safe_load((REPO / "configs" / "train" / "tiny.yaml").read_text())
+    raw["service"]["store"] = str(tmp_path / "s.sqlite")
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump(raw))
+    assert farm("train", config, "--out", tmp_path / "mlp", "--quiet").returncode == 0
+    r = farm("eval", tmp_path / "mlp", "--scenario", "theatre_16x16")
+    assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert r.stderr.startswith("farm: error: --scenario: the model was trained on a 3x3 map") and "CellPolicy" in r.stderr
+
+
+@pytest.mark.parametrize("costs, target", [([0.1] * 12, 0.5), ([0.6, 0.1, 0.2, 0.3, 2.0, 0.01], 0.5), ([0.2], 0.5), ([], 0.5)])
+def test_games_are_packed_into_tasks_of_about_the_target(costs, target):
+    tasks = pack_games(costs, target)
+    assert [k for t in tasks for k in t] == list(range(len(costs)))  # every game once, in order
+    sums = [sum(costs[k] for k in t) for t in tasks]
+    assert all(s >= target for s in sums[:-1])  # each task but the last reaches the target
+    assert all(s - costs[t[-1]] < target for s, t in zip(sums, tasks))  # and closes as soon as it does
+
+
+def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_path, monkeypatch):
+    import pickle
+
+    from farm.alloc.training import pretrain as pretrain_module
+    from test_learners import Stop, assert_same
+
+    raw = yaml.safe_load((REPO / "configs" / "train" / "tiny_size_free.yaml").read_text())
+    raw["service"]["store"] = str(tmp_path / "s.sqlite")
+    raw["pretrain"] = {"expert": "intercept", "iterations": 2, "episodes": 2, "epochs": 2, "episodes_per_task": 2,
+                       "maps": ["outnumbered_3x3", "theatre_16x16"]}
+    from farm.alloc.training import TrainConfig
+
+    cfg = TrainConfig(**raw)
+    whole = train(cfg, tmp_path / "whole", show_progress=False)
+    state = pickle.loads(pretrain_module.iteration_file(tmp_path / "whole", 1).read_bytes())
+    sizes = [d["obs"].shape[1] for d in state["data"]]
+    assert sizes == [2 * 8 * 8, 2 * 3 * 3, 2 * 16 * 16]  # the run's map first, then the curriculum's
+    assert all(len(d["obs"]) == len(d["labels"]) > 0 for d in state["data"])
+    assert whole["pretrain_states"] == sum(len(d["obs"]) for d in state["data"])
+    real, calls = pretrain_module.label_all, []
+
+    def stop_in_iteration_2(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 4:  # iteration 1's first map
+            raise Stop()
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pretrain_module, "label_all", stop_in_iteration_2)
+    with pytest.raises(Stop):
+        train(cfg, tmp_path / "stopped", show_progress=False)
+    monkeypatch.setattr(pretrain_module, "label_all", real)
+    train(cfg, tmp_path / "stopped", resume=True, show_progress=False)
+    assert_same(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
+
+
+def test_a_curriculum_needs_a_policy_that_fits_any_map(tmp_path):
+    from test_learners import assert_refused_in_one_line
+
+    raw = yaml.safe_load((REPO / "configs" / "train" / "tiny.yaml").read_text())
+    raw["algo"] = "ppo"
+    raw["ppo"] = {"n_timesteps": 256}
+    raw["pretrain"] = {"expert": "intercept", "maps": ["theatre_16x16"]}
+    assert_refused_in_one_line(tmp_path, raw, "pretrain.maps")
+    raw["ppo"] = {"n_timesteps": 256, "policy": "CellPolicy"}
+    raw["pretrain"] = {"expert": "intercept", "maps": ["theatre_64x64"]}
+    assert_refused_in_one_line(tmp_path, raw, "pretrain.maps")
