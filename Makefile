@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-stamp
 CONSTRAINTS ?= -c constraints-cpu.txt
 RESULTS ?= results/demo
 
-.PHONY: demo test bench experiments experiments-learners experiments-learners-hard suite install browser clean
+.PHONY: demo test bench experiments experiments-learners experiments-learners-hard experiments-learners-near experiments-size-free suite install browser clean
 
 $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -71,6 +71,18 @@ experiments-learners: $(STAMP)
 # The long recipe on the four hard 3 x 3 and 5 x 5 maps, 3 seeds (about 45 minutes on 2 cores).
 experiments-learners-hard: $(STAMP)
 	$(VENV)/bin/farm experiments configs/experiments/learners_hard.yaml --out results/experiments/learners_hard
+	$(VENV)/bin/farm report results
+
+# The long recipe on the four maps the uniform one misses by less than 0.003.
+experiments-learners-near: $(STAMP)
+	$(VENV)/bin/farm experiments configs/experiments/learners_near.yaml --out results/experiments/learners_near
+	$(VENV)/bin/farm report results
+
+# The size-free learner (configs/train/size_free.yaml) over 3 seeds; then its runs on the larger theatres.
+experiments-size-free: $(STAMP)
+	$(VENV)/bin/farm experiments configs/experiments/size_free.yaml --out results/experiments/size_free
+	for s in 0 1 2; do for m in theatre_16x16 theatre_32x32; do \
+	  $(VENV)/bin/farm eval results/experiments/size_free/trials/p0_s$$s/run --scenario $$m --references none; done; done
 	$(VENV)/bin/farm report results
 
 clean:

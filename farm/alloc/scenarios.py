@@ -33,6 +33,15 @@ one a row. In outnumbered_3x3, outnumbered_5x5, fast_5x5 and wide_front_8x8 no h
 of the intruder mass (the best, intercept: 0.74, 0.73, 0.69, 0.75; the mmr and
 receding_horizon planners 0.67 to 0.84); drift_5x5 tells the policies that anticipate the
 drift (intercept 0.99) from those that do not (spread_evenly 0.82, greedy_nearest 0.62).
+
+The theatres (THEATRES: theatre_8x8, theatre_16x16, theatre_32x32) are wide fronts of intruders
+drifting between rows (0.25 to each neighbour a step), with fewer defenders than rows (6 v 400,
+10 v 1,600, 16 v 5,000), an episode as long as the intruders take to cross (N steps). They were
+chosen the same way (10 episodes, seeds 1000..1009): the best heuristic, intercept, eliminates
+0.70, 0.76 and 0.71 (10 v 1,600 rather than 12, where intercept eliminated 0.81); mmr 0.65,
+0.75 and 0.86; receding_horizon 0.85, 0.93 (20 episodes) and 0.98 (one episode; 3.3 s a step on
+one core). Their lattice is the suite's (team sizes up to 16 v 256). The size-free learner
+(configs/train/size_free.yaml) trains on the 8 x 8 one and acts on all three.
 """
 
 from __future__ import annotations

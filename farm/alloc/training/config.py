@@ -346,6 +346,12 @@ class TrainConfig(Strict):
         """The chosen algorithm's section."""
         return getattr(self, self.algo)
 
+    def envs(self) -> list[AllocConfig]:
+        """Every map the run plays: its env, then its pretraining curriculum's (pretrain.maps,
+        the run's service games and seed), whose lattices are warmed before training."""
+        maps = self.pretrain.maps if self.pretrain is not None else []
+        return [self.env, *(m.config(games=self.env.games, seed=self.env.seed) for m in maps)]
+
     def with_timesteps(self, n: int) -> "TrainConfig":
         """This config with the learner's n_timesteps set to n."""
         return self.model_copy(update={self.algo: self.learner.model_copy(update={"n_timesteps": n})})

@@ -255,10 +255,8 @@ def fit_maps(model, datasets: list, epochs: int, batch_size: int, learning_rate:
 def _maps(config, client) -> list[tuple]:
     """[(AllocConfig, client)]: the maps pretraining plays, the run's own first, then pretrain.maps'
     scenarios (the run's service games and seed), each with a client of its service settings."""
-    own = config.env
-    maps = [(own, client)]
-    for spec in config.pretrain.maps:
-        env = spec.config(games=own.games, seed=own.seed)
+    maps = [(config.env, client)]
+    for env in config.envs()[1:]:
         settings = env.service_settings()
         maps.append((env, client if settings == client.settings else client.with_settings(settings)))
     return maps

@@ -145,7 +145,7 @@ def _eval_envs(config: TrainConfig, client):
 
 def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list) -> dict:
     if config.service.warm_lattice:
-        warm_lattices(client, lattice_groups([config.env]), show_progress)
+        warm_lattices(client, lattice_groups(config.envs()), show_progress)
     env, train_env, monitor = training_envs(config, client)
     eval_vec, eval_env = _eval_envs(config, client)
     p = config.learner

@@ -15,6 +15,7 @@ import pandas as pd
 from farm.alloc.config import AllocConfig
 from farm.alloc.evaluation import reference_specs
 from farm.alloc.lattice import lattice_groups, warm_lattices
+from farm.alloc.training import TrainConfig
 from farm.core.errors import SwarmFarmError
 from farm.studies.experiments.config import ExperimentConfig
 from farm.studies.experiments.display import PROGRESS, Display
@@ -71,7 +72,8 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
         import ray
 
         if warm and len(before) < len(the_plan.trials):  # a trial left to run
-            envs = [AllocConfig(**t.config["env"]) for t in the_plan.trials if t.config["service"]["warm_lattice"]]
+            envs = [env for t in the_plan.trials if t.config["service"]["warm_lattice"]
+                    for env in TrainConfig(**t.config).envs()]
             info["warmed_cases"] = warm_lattices(client, lattice_groups(envs), show_progress)
         info["warm_seconds"] = time.perf_counter() - t0
         cpus = float(ray.cluster_resources().get("CPU", 0))
