@@ -19,7 +19,9 @@ so no planner's query is a game or a store read.
     target (issue 26): ppo's ms/step <= 1/20 of receding_horizon's on the theatres (printed)
 
 Part 2, live engagements (`farm eval --fidelity games`, farm.alloc.fidelity): --live-episodes
-episodes of theatre_32x32 under the intercept planner, stepped together, every engaged cell's game
+episodes of theatre_32x32 with --live-defenders defenders (10,000 v 5,000 by default; the
+theatre's own 16 meet about 17 distinct team-size pairs a step, each one game, some 0.2 s of work
+a step, too little to share between workers) under the intercept planner, stepped together, every engaged cell's game
 played live as coarse Ray tasks (about fidelity.TASK_SECONDS of work each by the engine's cost
 model, at most twice the CPUs pending), on a local Ray of 1 and then of 2 CPUs (one worker
 each); games/s is games over the wall seconds spent playing them. --address ADDR also runs it
@@ -27,7 +29,8 @@ on a running cluster (e.g. two nodes of `ray start`).
     target: games/s on 2 workers >= 1.8 x on 1 (printed)
 
 Usage: python benchmarks/theatre.py [--store /tmp/swarm-farm-planners.sqlite] [--episodes 1]
-         [--states 8] [--repeats 2] [--live-episodes 16] [--run RUN] [--address ADDR] [--skip-steps]
+         [--states 8] [--repeats 2] [--live-episodes 16] [--live-defenders 10000] [--run RUN]
+         [--address ADDR] [--skip-steps] [--skip-live]
          (about 10 minutes on a warm store: receding_horizon takes seconds a step at 32x32)
 """
 
@@ -147,7 +150,7 @@ def live(a) -> None:
     from farm.alloc.scenarios import SCENARIOS
     from farm.runtime import ray_cluster
 
-    config = SCENARIOS["theatre_32x32"].config()
+    config = SCENARIOS["theatre_32x32"].config(n_defenders=a.live_defenders)
     client, _, _ = memo_client([config], "local", a.store)
     policies = {"intercept": make_policy("intercept", config, client)}
     runs = [(f"local Ray, {w} CPU(s)", dict(num_cpus=w)) for w in (1, 2)]
@@ -165,8 +168,8 @@ def live(a) -> None:
               flush=True)
     client.close()
     base = results[0][2]["games_per_second"]
-    print(f"\nlive engagements, theatre_32x32, intercept, {a.live_episodes} episodes stepped together; tasks of about "
-          f"{TASK_SECONDS} s by the cost model")
+    print(f"\nlive engagements, theatre_32x32 with {a.live_defenders:,} defenders, intercept, {a.live_episodes} episodes "
+          f"stepped together; tasks of at most {TASK_SECONDS} s by the cost model (fidelity.task_seconds)")
     print(f"{'where':<34}{'CPUs':>6}{'games':>8}{'tasks':>7}{'games/task':>12}{'games/s':>10}{'x 1 CPU':>9}")
     for label, cpus, got in results:
         print(f"{label:<34}{cpus:>6}{got['games']:>8}{got['tasks']:>7}{got['games'] / max(1, got['tasks']):>12.1f}"
@@ -182,6 +185,9 @@ def main() -> None:
     ap.add_argument("--states", type=int, default=8, help="states timed per map, evenly spaced")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--live-episodes", type=int, default=16, help="theatre_32x32 episodes of the live part")
+    ap.add_argument("--live-defenders", type=int, default=10_000,
+                    help="theatre_32x32's defenders in the live part (default 10,000 v 5,000: many large games a step; "
+                         "the theatre's own 16 play about 0.2 s of games a step, too little to share)")
     ap.add_argument("--run", help="a trained size-free run folder to time instead of an untrained CellPolicy")
     ap.add_argument("--address", help="also run the live part on this running Ray cluster")
     ap.add_argument("--skip-steps", action="store_true", help="only the live part")

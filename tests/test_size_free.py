@@ -171,3 +171,11 @@ def test_a_curriculum_needs_a_policy_that_fits_any_map(tmp_path):
     raw["ppo"] = {"n_timesteps": 256, "policy": "CellPolicy"}
     raw["pretrain"] = {"expert": "intercept", "maps": ["theatre_64x64"]}
     assert_refused_in_one_line(tmp_path, raw, "pretrain.maps")
+
+
+def test_a_small_step_is_split_over_the_cpus_and_a_large_one_in_half_second_tasks():
+    from farm.alloc.fidelity import MIN_TASK_SECONDS, TASK_SECONDS, task_seconds
+
+    assert task_seconds(100.0, 2) == TASK_SECONDS
+    assert task_seconds(0.4, 2) == pytest.approx(0.1)  # 4 tasks for 2 CPUs
+    assert task_seconds(0.01, 2) == MIN_TASK_SECONDS

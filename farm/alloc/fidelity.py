@@ -4,7 +4,8 @@ cell's PE game at each step, and how far those outcomes are from the service's.
 The evaluation's episodes are stepped together (farm.alloc.rollout.play), so a step asks for
 the games of every engaged cell of every episode at once. They are played as coarse Ray tasks
 of about TASK_SECONDS of work each by the engine's cost model (farm.games.sizes.game_seconds;
-pack_games), at most twice the cluster's CPUs pending (backpressure with ray.wait); in this
+pack_games), less when a step holds fewer than two such tasks a CPU (task_seconds: the step
+split in twice the CPUs' tasks, none under MIN_TASK_SECONDS), at most twice the cluster's CPUs pending (backpressure with ray.wait); in this
 process, one after another, for a run whose service.mode is local. Both play the same games,
 so they give the same outcomes, game for game. Each engagement of a case plays the case's next fresh game:
 game g of the case with the service's seed, g counting up from the service's number of
@@ -23,9 +24,17 @@ from farm.alloc.rollout import evaluate_policies
 from farm.service.client import CaptureTimeClient
 from farm.service.lookup import Lookup
 
-__all__ = ["TASK_SECONDS", "FreshGames", "pack_games", "evaluate_fidelity"]
+__all__ = ["TASK_SECONDS", "MIN_TASK_SECONDS", "FreshGames", "pack_games", "task_seconds", "evaluate_fidelity"]
 
-TASK_SECONDS = 0.5  # a live-engagement task's work by the engine's cost model
+TASK_SECONDS = 0.5  # a live-engagement task's work by the engine's cost model, at most
+MIN_TASK_SECONDS = 0.05  # and at least (a task well over Ray's ~1 ms overhead)
+
+
+def task_seconds(total: float, cpus: int) -> float:
+    """The work of one task for a step of `total` seconds of games on `cpus` CPUs: TASK_SECONDS,
+    or less when the step holds less than two such tasks a CPU, so that every CPU gets some
+    (the step split in 2 cpus tasks), never below MIN_TASK_SECONDS."""
+    return min(TASK_SECONDS, max(MIN_TASK_SECONDS, total / (2 * cpus)))
 
 
 def pack_games(costs: list[float], target: float = TASK_SECONDS) -> list[list[int]]:
@@ -108,9 +117,11 @@ class FreshGames(Lookup):
         from farm.games.tasks import _remote_games
         from farm.runtime import bounded
 
-        tasks = pack_games([game_seconds(case) for case, *_ in jobs])
+        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        costs = [game_seconds(case) for case, *_ in jobs]
+        tasks = pack_games(costs, task_seconds(sum(costs), cpus))
         self.tasks += len(tasks)
-        limit = max(1, 2 * int(ray.cluster_resources().get("CPU", 1)))
+        limit = 2 * cpus
         rows = {}
         for task, ref in bounded(lambda t: _remote_games.remote([jobs[k] for k in t]), tasks, limit):
             rows.update(zip(task, ray.get(ref)))
