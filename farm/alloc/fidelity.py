@@ -73,6 +73,7 @@ class FreshGames(Lookup):
         self.games = 0  # games played
         self.tasks = 0  # Ray tasks they were played in
         self.seconds = 0.0  # wall seconds spent playing them
+        self._cpus: int | None = None
         super().__init__(None, self._play)
 
     def _play(self, keys: list) -> Iterator[tuple[int, CaptureStats]]:
@@ -117,7 +118,9 @@ class FreshGames(Lookup):
         from farm.games.tasks import _remote_games
         from farm.runtime import bounded
 
-        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        if self._cpus is None:  # the cluster's CPUs, asked once, not at every step
+            self._cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        cpus = self._cpus
         costs = [game_seconds(case) for case, *_ in jobs]
         tasks = pack_games(costs, task_seconds(sum(costs), cpus))
         self.tasks += len(tasks)
