@@ -19,18 +19,27 @@ so no planner's query is a game or a store read.
     target (issue 26): ppo's ms/step <= 1/20 of receding_horizon's on the theatres (printed)
 
 Part 2, live engagements (`farm eval --fidelity games`, farm.alloc.fidelity): --live-episodes
-episodes of theatre_32x32 with --live-defenders defenders (10,000 v 5,000 by default; the
-theatre's own 16 meet about 17 distinct team-size pairs a step, each one game, some 0.2 s of work
-a step, too little to share between workers) under the intercept planner, stepped together, every engaged cell's game
-played live as coarse Ray tasks (about fidelity.TASK_SECONDS of work each by the engine's cost
-model, at most twice the CPUs pending), on a local Ray of 1 and then of 2 CPUs (one worker
-each); games/s is games over the wall seconds spent playing them. --address ADDR also runs it
-on a running cluster (e.g. two nodes of `ray start`).
+episodes of theatre_32x32 (its own 16 v 5,000 by default; --live-defenders changes the
+defenders) under the intercept planner, stepped together, every engaged cell's game played
+live (each engagement its own game: about 230 a step with 32 episodes, some 1.7 s of work) as
+coarse Ray tasks (about fidelity.TASK_SECONDS of work each by the engine's cost model plus
+fidelity.CALL_SECONDS a game, a small step cut in fidelity.TASKS_PER_CPU tasks a CPU, at
+most twice the CPUs pending), on a local Ray of 1 and then of 2 CPUs (one worker each);
+games/s is games over the wall seconds spent playing them. A step's tasks wait for the
+step's policy and the next step for its last task, so fewer episodes (less work a step)
+share less well: 16 episodes give about 1.7x. --address ADDR also runs it on a running
+cluster (e.g. two nodes of `ray start`).
     target: games/s on 2 workers >= 1.8 x on 1 (printed)
 
+Part 3 (--subregions), sub-region planning against the whole map: on theatre_16x16 and
+theatre_32x32, --sub-episodes episodes (seeds 1000..) of receding_horizon on the whole map and
+of subregions (farm.alloc.policies.planners.subregions) with 2 and 4 bands planned by
+receding_horizon, in this process and on 2 Ray actors; eliminated mass, return and wall ms a
+step.
+
 Usage: python benchmarks/theatre.py [--store /tmp/swarm-farm-planners.sqlite] [--episodes 1]
-         [--states 8] [--repeats 2] [--live-episodes 16] [--live-defenders 10000] [--run RUN]
-         [--address ADDR] [--skip-steps] [--skip-live]
+         [--states 8] [--repeats 2] [--live-episodes 32] [--live-defenders N] [--run RUN]
+         [--address ADDR] [--skip-steps] [--skip-live] [--subregions] [--sub-episodes 2]
          (about 10 minutes on a warm store: receding_horizon takes seconds a step at 32x32)
 """
 
@@ -150,7 +159,7 @@ def live(a) -> None:
     from farm.alloc.scenarios import SCENARIOS
     from farm.runtime import ray_cluster
 
-    config = SCENARIOS["theatre_32x32"].config(n_defenders=a.live_defenders)
+    config = SCENARIOS["theatre_32x32"].config(**({} if a.live_defenders is None else {"n_defenders": a.live_defenders}))
     client, _, _ = memo_client([config], "local", a.store)
     policies = {"intercept": make_policy("intercept", config, client)}
     runs = [(f"local Ray, {w} CPU(s)", dict(num_cpus=w)) for w in (1, 2)]
@@ -168,7 +177,7 @@ def live(a) -> None:
               flush=True)
     client.close()
     base = results[0][2]["games_per_second"]
-    print(f"\nlive engagements, theatre_32x32 with {a.live_defenders:,} defenders, intercept, {a.live_episodes} episodes "
+    print(f"\nlive engagements, theatre_32x32 with {config.n_defenders:,} defenders, intercept, {a.live_episodes} episodes "
           f"stepped together; tasks of at most {TASK_SECONDS} s by the cost model (fidelity.task_seconds)")
     print(f"{'where':<34}{'CPUs':>6}{'games':>8}{'tasks':>7}{'games/task':>12}{'games/s':>10}{'x 1 CPU':>9}")
     for label, cpus, got in results:
@@ -178,24 +187,81 @@ def live(a) -> None:
     print(f"target 2 workers >= {LIVE_TARGET} x 1: {'met' if ratio >= LIVE_TARGET else 'NOT met'} ({ratio:.2f}x)")
 
 
+class Timed:
+    """An allocator whose predict() calls are counted and their wall seconds summed."""
+
+    def __init__(self, policy):
+        self.policy, self.calls, self.seconds = policy, 0, 0.0
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        t0 = time.perf_counter()
+        out = self.policy.predict(obs, state, episode_start, deterministic)
+        self.seconds += time.perf_counter() - t0
+        self.calls += 1
+        return out
+
+
+def subregions(a) -> None:
+    from farm.alloc.lattice import memo_client
+    from farm.alloc.policies import make_policy
+    from farm.alloc.rollout import evaluate_policies
+    from farm.alloc.scenarios import SCENARIOS
+    from farm.runtime import ray_cluster
+    from farm.service import CaptureTimeClient
+
+    rows = []
+    for name in ("theatre_16x16", "theatre_32x32"):
+        config = SCENARIOS[name].config()
+        client, _, _ = memo_client([config], "local", a.store)
+        variants = {"receding_horizon": dict(name="receding_horizon")}
+        for regions in (2, 4):
+            variants[f"subregions {regions} bands"] = dict(name="subregions", regions=regions)
+        variants["subregions 4 bands, 2 actors"] = dict(name="subregions", regions=4, workers=2)
+        with ray_cluster(num_cpus=2):
+            for label, options in variants.items():
+                options = dict(options)
+                policy_name = options.pop("name")
+                # the actors open the store themselves: they get a client of the store, not the memo
+                own = CaptureTimeClient(config.service_settings(), local_store=a.store) if options.get("workers") else client
+                policy = Timed(make_policy(policy_name, config, own, **options))
+                table = evaluate_policies(config, {label: policy}, client, a.sub_episodes, 1000)[0]
+                if hasattr(policy.policy, "close"):
+                    policy.policy.close()
+                row = table.iloc[0]
+                rows.append((name, label, row["eliminated_mean"], row["eliminated_ci95"], row["return_mean"],
+                             1e3 * policy.seconds / max(1, policy.calls)))
+                print(f"  {name} {label}: eliminated {row['eliminated_mean']:.3f}, "
+                      f"{rows[-1][-1]:.0f} ms/step", flush=True)
+        client.close()
+    print(f"\nsub-regions against the whole map: {a.sub_episodes} episodes (seeds 1000..), wall ms per step "
+          f"(predict), bands planned by receding_horizon; a local Ray of 2 CPUs for the actors")
+    print(f"{'map':<15}{'planner':<32}{'eliminated':>17}{'return':>10}{'ms/step':>10}{'x whole':>9}")
+    whole = {m: (e, ms) for m, label, e, _, _, ms in rows if label == "receding_horizon"}
+    for m, label, e, ci, ret, ms in rows:
+        print(f"{m:<15}{label:<32}{e:>10.3f} ± {ci:<5.3f}{ret:>10.3f}{ms:>10.0f}{ms / whole[m][1]:>9.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--store", default="/tmp/swarm-farm-planners.sqlite", help="the capture-time store (warmed)")
     ap.add_argument("--episodes", type=int, default=1, help="intercept episodes (seeds 1000..) whose states are timed")
     ap.add_argument("--states", type=int, default=8, help="states timed per map, evenly spaced")
     ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--live-episodes", type=int, default=16, help="theatre_32x32 episodes of the live part")
-    ap.add_argument("--live-defenders", type=int, default=10_000,
-                    help="theatre_32x32's defenders in the live part (default 10,000 v 5,000: many large games a step; "
-                         "the theatre's own 16 play about 0.2 s of games a step, too little to share)")
+    ap.add_argument("--live-episodes", type=int, default=32, help="theatre_32x32 episodes of the live part")
+    ap.add_argument("--live-defenders", type=int, default=None,
+                    help="theatre_32x32's defenders in the live part (default: its own 16)")
     ap.add_argument("--run", help="a trained size-free run folder to time instead of an untrained CellPolicy")
     ap.add_argument("--address", help="also run the live part on this running Ray cluster")
     ap.add_argument("--skip-steps", action="store_true", help="only the live part")
-    ap.add_argument("--skip-live", action="store_true", help="only the time per step")
+    ap.add_argument("--skip-live", action="store_true", help="no live part")
+    ap.add_argument("--subregions", action="store_true", help="also part 3: sub-region planning against the whole map")
+    ap.add_argument("--sub-episodes", type=int, default=2, help="part 3's episodes per map and planner")
     a = ap.parse_args()
     t0 = time.perf_counter()
+    if a.subregions:
+        subregions(a)
     if not a.skip_live:
-        live(a)  # first: part 1 pins this process to one core
+        live(a)  # before part 1, which pins this process to one core
     if not a.skip_steps:
         step_times(a)
     print(f"({time.perf_counter() - t0:.0f} s)")

@@ -27,3 +27,24 @@ def test_a_theatre_episode_plays_the_same_games_on_ray_as_in_process(ray_local, 
         key = config.service_settings().key(row.n_pursuers, row.n_evaders)
         np.testing.assert_array_equal(run_games(key.case, key.seed, row.game, row.game + 1).capture_times[0],
                                       np.array(row.capture_times))
+
+
+def test_subregions_on_ray_actors_plan_what_they_plan_in_process(ray_local, tmp_path):
+    """subregions' bands planned on 2 Ray actors (each opening the local store) give the same
+    move probabilities as the bands planned one after another here."""
+    from farm.alloc import AllocConfig
+    from farm.alloc.policies import make_policy
+    from farm.service import CaptureTimeClient
+
+    config = AllocConfig(grid_size=6, n_defenders=24, n_intruders=40, games=2, team_sizes="lattice")
+    client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
+    rng = np.random.default_rng(3)
+    D = rng.dirichlet(np.ones(36))
+    I = np.where(rng.random(36) < 0.5, rng.random(36) * 0.05, 0.0)
+    here = make_policy("subregions", config, client, regions=3).probabilities(D, I)
+    planner = make_policy("subregions", config, client, regions=3, workers=2)
+    try:
+        np.testing.assert_allclose(planner.probabilities(D, I), here, atol=1e-12)
+    finally:
+        planner.close()
+        client.close()

@@ -104,7 +104,7 @@ def as_observed(D, I):
     return D.astype(np.float32).astype(np.float64), I.astype(np.float32).astype(np.float64)
 
 
-ALL = policy_names("planner")
+ALL = policy_names("planner", references=True)  # subregions on a small map is receding_horizon: its own tests below
 
 
 @pytest.fixture(scope="module")
@@ -454,6 +454,13 @@ def test_planners_beat_the_swap_on_real_games(real_client):
     ("mmr", {"speed": 1}, "speed"),
     ("intercept", {"ties": "random"}, "ties"),
     ("intercept", {"horizon": 2}, "horizon"),
+    ("subregions", {"regions": 0}, "regions"),
+    ("subregions", {"regions": 4}, "regions"),  # more bands than the 3 rows
+    ("subregions", {"planner": "subregions"}, "planner"),
+    ("subregions", {"planner": "spread_evenly"}, "planner"),
+    ("subregions", {"options": 3}, "options"),
+    ("subregions", {"options": {"horizont": 2}}, "horizont"),
+    ("subregions", {"workers": 0}, "workers"),
 ])
 def test_bad_options_are_one_line(name, options, field):
     cfg = cfg_of()
@@ -463,7 +470,7 @@ def test_bad_options_are_one_line(name, options, field):
     assert "\n" not in message and message.startswith(name) and field in message
 
 
-@pytest.mark.parametrize("name", ALL)
+@pytest.mark.parametrize("name", policy_names("planner"))
 def test_the_suite_check_refuses_unknown_options(name):
     """farm.studies.suite binds planner_options to the class's signature: an unknown one fails there."""
     with pytest.raises(TypeError, match="bogus"):
@@ -481,3 +488,53 @@ def test_clients_and_observations_refused():
         Intercept(cfg).predict(np.zeros(17, dtype=np.float32))
     with pytest.raises(InputError, match="obs"):
         Intercept(cfg).predict(np.full(18, np.nan, dtype=np.float32))
+
+
+# ----------------------------------------------------------------------------- sub-regions
+def _bands_by_hand(cfg, client, D, I, bands, inner="receding_horizon", **options):
+    """Sub-regions' plan computed the slow, obvious way: each band's rows masked, its share of
+    the force by its intruder mass, the inner planner made afresh per band, plans mixed by share."""
+    n = cfg.grid_size
+    rows = np.arange(n * n) // n
+    mass = np.array([I[np.isin(rows, band)].sum() for band in bands])
+    p = 0.0
+    for band, m in zip(bands, mass):
+        if m > 0:
+            planner = make_policy(inner, cfg, client, **options)
+            p = p + (m / mass.sum()) * planner.probabilities(D * m / mass.sum(), np.where(np.isin(rows, band), I, 0.0))
+    return p
+
+
+@pytest.mark.parametrize("inner", ["intercept", "mmr", "receding_horizon"])
+@settings(max_examples=3, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_subregions_join_the_bands_plans_by_their_shares(inner, seed):
+    """On 6 x 6 in 3 bands of 2 rows: the plan is each band's inner plan (its rows' intruders, its
+    share of every cell's defenders) mixed by the shares, as computed by hand; each cell's
+    probabilities sum to 1."""
+    rng = np.random.default_rng(seed)
+    cfg = AllocConfig(grid_size=6, n_defenders=100, n_intruders=50, team_sizes="lattice", vertical_drift=0.25)
+    client = curve_client(cfg)
+    D, I = random_state(rng, 6)
+    planner = make_policy("subregions", cfg, client, regions=3, planner=inner)
+    p = planner.probabilities(D, I)
+    np.testing.assert_allclose(p, _bands_by_hand(cfg, client, D, I, [[0, 1], [2, 3], [4, 5]], inner), atol=1e-12)
+    assert np.allclose(np.add.reduceat(p, planner.start), 1.0)
+    assert sum(planner.last["shares"]) == pytest.approx(1.0)
+
+
+def test_subregions_of_one_band_or_one_band_with_intruders_is_the_inner_planner():
+    """One band is the whole map; and with every intruder in one band, that band gets the whole
+    force and the whole problem: the inner planner's plan exactly."""
+    cfg = AllocConfig(grid_size=6, n_defenders=100, n_intruders=50, team_sizes="lattice")
+    client = curve_client(cfg)
+    rng = np.random.default_rng(7)
+    D, I = random_state(rng, 6)
+    whole = make_policy("receding_horizon", cfg, client)
+    np.testing.assert_array_equal(make_policy("subregions", cfg, client, regions=1).probabilities(D, I),
+                                  whole.probabilities(D, I))
+    I_top = np.where(np.arange(36) < 12, I, 0.0)  # rows 0 and 1 only: band 0 of 3
+    planner = make_policy("subregions", cfg, client, regions=3)
+    np.testing.assert_array_equal(planner.probabilities(D, I_top), whole.probabilities(D, I_top))
+    assert planner.last["shares"] == [1.0, 0.0, 0.0]
+    assert make_policy("subregions", AllocConfig(grid_size=16), client).regions == 2  # bands of at most 8 rows

@@ -174,8 +174,29 @@ def test_a_curriculum_needs_a_policy_that_fits_any_map(tmp_path):
 
 
 def test_a_small_step_is_split_over_the_cpus_and_a_large_one_in_half_second_tasks():
-    from farm.alloc.fidelity import MIN_TASK_SECONDS, TASK_SECONDS, task_seconds
+    from farm.alloc.fidelity import MIN_TASK_SECONDS, TASK_SECONDS, TASKS_PER_CPU, task_seconds
 
     assert task_seconds(100.0, 2) == TASK_SECONDS
-    assert task_seconds(0.4, 2) == pytest.approx(0.1)  # 4 tasks for 2 CPUs
+    assert task_seconds(0.8, 2) == pytest.approx(0.8 / (TASKS_PER_CPU * 2))  # TASKS_PER_CPU tasks a CPU
     assert task_seconds(0.01, 2) == MIN_TASK_SECONDS
+
+
+def test_under_the_games_fidelity_every_engagement_is_a_game_of_its_own(tmp_path):
+    """A step with more engagements than the model deduplicates from (70 of one team-size pair)
+    plays 70 games, the case's next fresh ones in order, not one game for all 70."""
+    from farm.alloc.fidelity import FreshGames
+    from farm.alloc.model import EngagementModel
+    from farm.service import CaptureTimeClient
+    from workers import run_games
+
+    config = SCENARIOS["outnumbered_3x3"].config(games=2)
+    service = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
+    games = FreshGames(service, in_process=True)
+    model = EngagementModel(config, CaptureTimeClient(config.service_settings(), backend=games))
+    removed, _, _ = model.lookup(np.full(70, 2), np.full(70, 3))
+    assert games.games == 70 and [d["game"] for d in games.differences] == list(range(2, 72))
+    key = config.service_settings().key(2, 3)
+    captured = run_games(key.case, key.seed, 2, 72).capture_times <= config.tau  # (70, 3): each game's evaders
+    np.testing.assert_allclose(removed, captured.mean(axis=1))
+    assert len(np.unique(removed)) > 1  # 70 games, not one answer repeated
+    service.close()

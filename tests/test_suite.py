@@ -18,6 +18,7 @@ import yaml
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
 from farm.alloc.scenarios import PAPER_SCENARIOS, SCENARIOS, THEATRES
+from farm.alloc.policies import policy_names
 from farm.studies.suite import (MEASURES, SuiteConfig, available_policies, evaluate_cell, load_suite_config,
                               run_suite)
 from farm.alloc.training import TrainConfig, load_train_config
@@ -123,7 +124,8 @@ def test_planner_options_are_checked_by_name_and_by_value_before_ray(tmp_path):
 def test_the_shipped_suites_name_every_scenario_and_default_to_every_policy():
     suite = load_suite_config(ROOT / "configs" / "suite.yaml")
     assert suite.scenario_names() == list(SCENARIOS) and suite.policies is None
-    assert suite.policy_names() == available_policies()
+    references = policy_names(("baseline", "planner"), references=True)
+    assert suite.policy_names() == references and set(references) < set(available_policies())  # subregions: listed, not by default
     assert suite.runs == {name: "results/runs/size_free" if name in THEATRES else f"results/runs/suite_{name}"
                           for name in SCENARIOS} and suite.skip_missing_runs
     assert (suite.episodes, suite.seed, suite.store) == (10, 1000, "results/capture_times.sqlite")
@@ -184,7 +186,7 @@ def demo(ray_local, tmp_path_factory):
 def test_the_demo_suite_writes_the_leaderboard_episodes_plot_and_config(demo):
     out, store, r = demo
     assert store.exists()  # the cold store the CLI filled
-    policies = available_policies()
+    policies = policy_names(("baseline", "planner"), references=True)
     scenarios = ["paper_3x3_c1_1.5", "outnumbered_3x3"]
     board = pd.read_csv(out / "leaderboard.csv")
     assert list(board.columns) == BOARD_COLUMNS

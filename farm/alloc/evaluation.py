@@ -38,9 +38,9 @@ class RunEvaluation:
 
 
 def reference_specs() -> list[PolicySpec]:
-    """Every registered baseline and planner, in registration order, as specs (what a trained
-    allocator is compared with)."""
-    return [PolicySpec(policy_entry(name)) for name in policy_names(("baseline", "planner"))]
+    """Every registered baseline and planner that is a reference (PolicyEntry.reference), in
+    registration order, as specs (what a trained allocator is compared with)."""
+    return [PolicySpec(policy_entry(name)) for name in policy_names(("baseline", "planner"), references=True)]
 
 
 def allocators(run: RunFolder, config, client, specs: list[PolicySpec] | None = None, learned=None) -> dict:

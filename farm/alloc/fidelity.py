@@ -3,9 +3,9 @@ cell's PE game at each step, and how far those outcomes are from the service's.
 
 The evaluation's episodes are stepped together (farm.alloc.rollout.play), so a step asks for
 the games of every engaged cell of every episode at once. They are played as coarse Ray tasks
-of about TASK_SECONDS of work each by the engine's cost model (farm.games.sizes.game_seconds;
-pack_games), less when a step holds fewer than two such tasks a CPU (task_seconds: the step
-split in twice the CPUs' tasks, none under MIN_TASK_SECONDS), at most twice the cluster's CPUs pending (backpressure with ray.wait); in this
+of about TASK_SECONDS of work each by the engine's cost model (farm.games.sizes.game_seconds,
+plus CALL_SECONDS a game; pack_games), less when a step holds fewer than TASKS_PER_CPU such tasks a CPU (task_seconds: the step
+split in TASKS_PER_CPU tasks a CPU, none under MIN_TASK_SECONDS), at most twice the cluster's CPUs pending (backpressure with ray.wait); in this
 process, one after another, for a run whose service.mode is local. Both play the same games,
 so they give the same outcomes, game for game. Each engagement of a case plays the case's next fresh game:
 game g of the case with the service's seed, g counting up from the service's number of
@@ -24,17 +24,22 @@ from farm.alloc.rollout import evaluate_policies
 from farm.service.client import CaptureTimeClient
 from farm.service.lookup import Lookup
 
-__all__ = ["TASK_SECONDS", "MIN_TASK_SECONDS", "FreshGames", "pack_games", "task_seconds", "evaluate_fidelity"]
+__all__ = ["TASK_SECONDS", "MIN_TASK_SECONDS", "TASKS_PER_CPU", "CALL_SECONDS", "FreshGames", "pack_games", "task_seconds", "evaluate_fidelity"]
 
 TASK_SECONDS = 0.5  # a live-engagement task's work by the engine's cost model, at most
 MIN_TASK_SECONDS = 0.05  # and at least (a task well over Ray's ~1 ms overhead)
+TASKS_PER_CPU = 4  # a small step's tasks per CPU: the last task of a step waits on the slowest
+# what playing one game as play_outcomes does costs above the engine's cost model (its rows and
+# statistics in pandas): 2-3 ms, measured on 1 v 5 to 8 v 300 games, where the model says 0.3-11 ms
+CALL_SECONDS = 2.5e-3
 
 
 def task_seconds(total: float, cpus: int) -> float:
     """The work of one task for a step of `total` seconds of games on `cpus` CPUs: TASK_SECONDS,
-    or less when the step holds less than two such tasks a CPU, so that every CPU gets some
-    (the step split in 2 cpus tasks), never below MIN_TASK_SECONDS."""
-    return min(TASK_SECONDS, max(MIN_TASK_SECONDS, total / (2 * cpus)))
+    or less when the step holds less than TASKS_PER_CPU such tasks a CPU, so that every CPU
+    gets some and the step's end waits on a short task (the step split in TASKS_PER_CPU cpus
+    tasks), never below MIN_TASK_SECONDS."""
+    return min(TASK_SECONDS, max(MIN_TASK_SECONDS, total / (TASKS_PER_CPU * cpus)))
 
 
 def pack_games(costs: list[float], target: float = TASK_SECONDS) -> list[list[int]]:
@@ -82,36 +87,36 @@ class FreshGames(Lookup):
             digest = key.digest()
             numbers.append(self.first_game + self.played.get(digest, 0))
             self.played[digest] = self.played.get(digest, 0) + 1
-        rows = self._games(keys, numbers)
+        outcomes = self._games(keys, numbers)
         expected = self.service.get_many([key.sizes for key in keys])
         for k, (key, g, v) in enumerate(zip(keys, numbers, expected)):
-            stats = CaptureStats.from_games(rows[k])
+            stats, capture_times = outcomes[k]
             self.differences.append({
                 "n_pursuers": key.sizes[0], "n_evaders": key.sizes[1], "game": g,
                 "game_frac_tau": stats.frac_captured_tau, "service_frac_tau": v.frac_captured_tau,
                 "game_mean_capture": stats.mean_capture.mean, "service_mean_capture": v.mean_capture.mean,
-                "capture_times": rows[k]["capture_times"].iloc[0].tolist(),
+                "capture_times": capture_times[0].tolist(),
             })
             yield k, stats
 
-    def _games(self, keys: list, numbers: list[int]) -> dict[int, pd.DataFrame]:
-        """Game numbers[k] of keys[k]'s case for every k (play_shard's rows), here or as coarse
-        Ray tasks (the module doc)."""
+    def _games(self, keys: list, numbers: list[int]) -> dict[int, tuple]:
+        """Game numbers[k] of keys[k]'s case for every k (farm.games.shards.play_outcomes: its
+        CaptureStats and capture times), here or as coarse Ray tasks (the module doc)."""
         import time
 
-        from farm.games.shards import play_shard
+        from farm.games.shards import play_outcomes
 
         t0 = time.perf_counter()
         jobs = [(key.case, key.seed, g, g + 1) for key, g in zip(keys, numbers)]
         if self.in_process:
-            rows = {k: play_shard(*job, detail=True) for k, job in enumerate(jobs)}
+            rows = {k: play_outcomes(*job) for k, job in enumerate(jobs)}
         else:
             rows = self._on_ray(jobs)
         self.games += len(jobs)
         self.seconds += time.perf_counter() - t0
         return rows
 
-    def _on_ray(self, jobs: list) -> dict[int, pd.DataFrame]:
+    def _on_ray(self, jobs: list) -> dict[int, tuple]:
         import ray
 
         from farm.games.sizes import game_seconds
@@ -121,7 +126,7 @@ class FreshGames(Lookup):
         if self._cpus is None:  # the cluster's CPUs, asked once, not at every step
             self._cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
         cpus = self._cpus
-        costs = [game_seconds(case) for case, *_ in jobs]
+        costs = [game_seconds(case) + CALL_SECONDS for case, *_ in jobs]
         tasks = pack_games(costs, task_seconds(sum(costs), cpus))
         self.tasks += len(tasks)
         limit = 2 * cpus

@@ -209,7 +209,8 @@ class EngagementModel:
         n_p, n_e: (k,) int team sizes, n_p >= 1 -> (removed: (k,) float64 the share of the
         intruders captured within tau, score: (k,) float64 the capture score per unit of
         mass, estimated: (k,) bool the interpolated answers). A pair met more than once is
-        asked once (the client's get_many, one call, on the distinct pairs). The score's rule
+        asked once (the client's get_many, one call, on the distinct pairs), unless the client's
+        backend is not repeatable (the games fidelity: every engagement is its own game). The score's rule
         is the config's `capture_score`: "expected", the mean over all games of each game's
         mean of max(0, 1 - t/tau) per intruder (capture_score_tau), or "conditional", max(0,
         1 - t/capture_time_norm) with t the mean capture time of the games that caught
@@ -217,7 +218,8 @@ class EngagementModel:
         """
         n_p, n_e = np.asarray(n_p), np.asarray(n_e)
         inverse = None
-        if n_p.dtype.kind in "iu" and n_e.dtype.kind in "iu" and len(n_p) > _DISTINCT_FROM:
+        if (n_p.dtype.kind in "iu" and n_e.dtype.kind in "iu" and len(n_p) > _DISTINCT_FROM
+                and self.client.repeatable):
             lo_p, lo_e = int(n_p.min()), int(n_e.min())
             width = int(n_e.max()) - lo_e + 1
             keys, inverse = np.unique((n_p.astype(np.int64) - lo_p) * width + (n_e.astype(np.int64) - lo_e),

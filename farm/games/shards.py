@@ -11,14 +11,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
-from workers import Case, results_statistics, run_games
+from workers import Case, CaptureStats, results_statistics, run_games
 from workers.engine import estimated_game_seconds
 
 from farm.core.output import write_table
 
-__all__ = ["SHARD_SECONDS", "MAX_SHARD_GAMES", "SWEEP_ID_KEY", "games_per_shard", "shard_ranges", "play_shard",
+__all__ = ["SHARD_SECONDS", "MAX_SHARD_GAMES", "SWEEP_ID_KEY", "games_per_shard", "shard_ranges", "play_shard", "play_outcomes",
            "write_shard", "warn_coarse_steps"]
 
 SHARD_SECONDS = 0.5
@@ -64,6 +65,14 @@ def play_shard(case: Case, seed, start: int, stop: int, *, detail: bool = False)
         df["capture_times"] = list(res.capture_times)
         df["escape_times"] = list(res.escape_times)
     return df
+
+
+def play_outcomes(case: Case, seed, start: int, stop: int):
+    """Games start..stop-1 of a case summed up where they are played: (their CaptureStats,
+    capture_times: (stop - start, n_e) float64, NaN where an evader was not caught), what a
+    live engagement needs, a fraction of play_shard's rows to send back."""
+    rows = play_shard(case, seed, start, stop, detail=True)
+    return CaptureStats.from_games(rows), np.stack(rows["capture_times"].to_list())
 
 
 SWEEP_ID_KEY = "swarm_farm.sweep_id"  # a sweep's shard files carry its id in their Parquet metadata

@@ -15,7 +15,7 @@ import ray
 from workers import Case
 
 from farm.runtime import metrics
-from farm.games.shards import play_shard
+from farm.games.shards import play_outcomes, play_shard
 
 __all__ = ["MAX_RETRIES", "_remote_shard", "_remote_games"]
 
@@ -36,6 +36,6 @@ def _remote_shard(case: Case, seed, start: int, stop: int, detail: bool = False,
 
 @ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)
 def _remote_games(jobs: list):
-    """play_shard(case, seed, start, stop, detail=True) of each job (case, seed, start, stop) on a
-    worker, one after another (a coarse task of many small games); returns their rows, in order."""
-    return [play_shard(case, seed, start, stop, detail=True) for case, seed, start, stop in jobs]
+    """play_outcomes(case, seed, start, stop) of each job (case, seed, start, stop) on a worker,
+    one after another (a coarse task of many small games); returns them, in order."""
+    return [play_outcomes(case, seed, start, stop) for case, seed, start, stop in jobs]

@@ -81,6 +81,11 @@ class CaptureTimeClient:
         """A client of other settings on the same backend (which this client keeps owning)."""
         return CaptureTimeClient(settings, backend=self.backend)
 
+    @property
+    def repeatable(self) -> bool:
+        """Whether a pair always gets the same answer (False for the games fidelity: every ask is a game)."""
+        return self.backend.repeatable
+
     def key(self, n_pursuers: int, n_evaders: int) -> StatsKey:
         """The StatsKey of a team-size pair under the client's settings."""
         return self.settings.key(n_pursuers, n_evaders)

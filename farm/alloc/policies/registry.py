@@ -36,12 +36,15 @@ _REGISTRY: dict[str, "PolicyEntry"] = {}
 
 @dataclass(frozen=True)
 class PolicyEntry:
-    """One allocator: name, kind (one of KINDS), make (see the module doc), description."""
+    """One allocator: name, kind (one of KINDS), make (see the module doc), description, and
+    reference: whether evaluations compare every trained allocator with it by default (a
+    baseline or planner that is slow or needs options, like `subregions`, is not)."""
 
     name: str
     kind: str
     make: Callable[..., Any]
     description: str = ""
+    reference: bool = True
 
     def options(self) -> list[str]:
         """The keyword options make accepts (its parameters but config and client)."""
@@ -103,14 +106,14 @@ def _spec_from_bytes(data: bytes) -> "PolicySpec":
 
 
 def register_policy(name: str, make: Callable[..., Any], *, kind: str, description: str = "",
-                    replace: bool = False) -> PolicyEntry:
+                    replace: bool = False, reference: bool = True) -> PolicyEntry:
     """Add an allocator to the registry (at the end of its order); returns its entry. A name
-    taken already is refused (ValueError) unless replace."""
+    taken already is refused (ValueError) unless replace. reference: see PolicyEntry."""
     if kind not in KINDS:
         raise ValueError(f"kind: must be one of {', '.join(KINDS)}, got {kind!r}")
     if name in _REGISTRY and not replace:
         raise ValueError(f"an allocator named {name!r} is registered already")
-    entry = PolicyEntry(name, kind, make, description or (inspect.getdoc(make) or "").split("\n")[0])
+    entry = PolicyEntry(name, kind, make, description or (inspect.getdoc(make) or "").split("\n")[0], reference)
     _REGISTRY[name] = entry
     return entry
 
@@ -120,10 +123,11 @@ def unregister_policy(name: str) -> None:
     _REGISTRY.pop(name, None)
 
 
-def policy_names(kinds: str | tuple[str, ...] = KINDS) -> list[str]:
-    """The registered allocators of the given kinds, in registration order."""
+def policy_names(kinds: str | tuple[str, ...] = KINDS, *, references: bool = False) -> list[str]:
+    """The registered allocators of the given kinds, in registration order (references: only
+    those that evaluations compare with by default, PolicyEntry.reference)."""
     kinds = (kinds,) if isinstance(kinds, str) else kinds
-    return [name for name, entry in _REGISTRY.items() if entry.kind in kinds]
+    return [name for name, entry in _REGISTRY.items() if entry.kind in kinds and (entry.reference or not references)]
 
 
 def policy_entry(name: str, field_name: str = "policy") -> PolicyEntry:

@@ -99,7 +99,7 @@ class SuiteConfig(StrictFile):
 
     def policy_names(self) -> list[str]:
         """The baselines and planners run, in order (all of them when the config names none)."""
-        return list(self.policies) if self.policies is not None else available_policies()
+        return list(self.policies) if self.policies is not None else policy_names(("baseline", "planner"), references=True)
 
     def env_of(self, scenario: str) -> AllocConfig:
         """The env settings of one scenario in this suite: the scenario's, `env` replacing them.

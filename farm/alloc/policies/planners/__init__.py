@@ -18,6 +18,9 @@ pair).
 - `receding_horizon` (RecedingHorizon): a program over the next H steps (scipy.optimize,
   HiGHS) maximising the env's own expected reward summed over them; the first step is
   applied and the plan made again at the next call.
+- `subregions` (SubRegions): the paper's second route to larger maps: the rows cut into
+  bands, each planned on its own by another planner with its share of the force, in
+  parallel on Ray actors, the plans joined.
 
 A target cell's defender count is priced by levels (levels()): a few ranges of counts,
 each one game of the capture-time service. Under `team_sizes: lattice` they are the
@@ -29,7 +32,8 @@ each move it does not want) still plays the planned game.
 Every density is a vector over the N x N cells in cell order, c = row * N + col; a
 defender count is a density times n_defenders.
 
-One file per planner: intercept.py, mmr.py, receding_horizon.py, beside the shared core
+One file per planner: intercept.py, mmr.py, receding_horizon.py,
+subregions.py (its Ray actor in band_actor.py), beside the shared core
 (core.py: action_from_probabilities, advance_matrix, Levels and levels(), the option
 checks, the base class _Planner with Intercept's rule, and _Rates, the statistics kept).
 Adding a planner is one new file holding a subclass of core._Planner (its options the
@@ -41,6 +45,7 @@ from farm.alloc.policies.planners.core import Levels, action_from_probabilities,
 from farm.alloc.policies.planners.intercept import Intercept
 from farm.alloc.policies.planners.mmr import MaxMarginalReturn
 from farm.alloc.policies.planners.receding_horizon import RecedingHorizon
+from farm.alloc.policies.planners.subregions import SubRegions
 
-__all__ = ["Intercept", "MaxMarginalReturn", "RecedingHorizon", "Levels", "levels",
+__all__ = ["Intercept", "MaxMarginalReturn", "RecedingHorizon", "SubRegions", "Levels", "levels",
            "action_from_probabilities", "advance_matrix"]

@@ -1,0 +1,157 @@
+"""The `subregions` planner (SubRegions): the paper's second route to larger maps, a map cut
+into bands of rows, each planned on its own by another planner, in parallel on Ray.
+
+Why bands of rows: the intruders advance along the rows, one column a step, towards the
+defenders' side (docs/model.md section 5); a band's intruders stay in the band, but for
+drift across its edges. The defenders start at one base cell, so the bands cannot each keep
+the defenders they hold; instead every band gets a share of the force, in proportion to
+its intruder mass, taken from every cell alike.
+
+One call, for defenders D and intruders I over the N x N cells:
+1. bands: rows cut into `regions` contiguous bands of N / regions rows (numpy.array_split);
+   m_b the intruder mass of band b's rows, w_b = m_b / sum(m) its share of the force.
+2. sub-map b: intruders I_b (I on band b's rows, nothing elsewhere), defenders w_b D; the
+   inner planner plans it alone, with the whole grid's moves and the env's advance (so
+   intruders that drift out of the band stay its own), as if the other bands were empty.
+   The sub-maps do not depend on each other, so they are planned at once: with `workers`
+   >= 2, by that many Ray actors (each holding its own inner planner and client), else one
+   after another here.
+3. the plans joined: band b holds the share w_b of every cell's defenders, so cell c's move
+   probabilities are sum_b w_b p_b[c] (each p_b[c] sums to 1 and so does sum_b w_b). This is
+   exact as mass: every band's defenders go where its plan sends them.
+
+What it gives up against planning the whole map: a band's plan does not know the others', so
+two bands may meet intruders in the same cell (near a band's edge, under drift), where the
+joint game is not the one either priced; and the force is split by intruder mass, not by
+what the defenders can reach. What it gains: each band's program is a fraction of the whole
+map's (only the nodes that can reach a band's targets are in it) and the bands run in
+parallel. Measured against receding_horizon on the whole map by benchmarks/theatre.py.
+
+config: AllocConfig; client: a CaptureTimeClient of config.service_settings() (the inner
+planner's); regions: int >= 1 bands, at most grid_size (default None: bands of at most
+BAND_ROWS rows, so one band, the inner planner itself, up to 8 x 8); planner: the inner
+planner, a registry planner other than subregions (default receding_horizon); options:
+dict, the inner planner's options; workers: int >= 1, the Ray actors that plan the bands
+(default 1: in this process; >= 2 needs a running Ray, and a client whose backend is the
+capture-time service actor or a local store every actor can open). A bad value is a
+ConfigError naming the option.
+
+Attribute last: the last call's dict, shares (per band, its w_b) and seconds (the wall
+seconds the bands took).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from farm.alloc.config import AllocConfig
+from farm.alloc.policies.planners.core import _Planner, _count
+from farm.core.errors import ConfigError
+
+__all__ = ["SubRegions", "BAND_ROWS"]
+
+BAND_ROWS = 8  # the default bands' rows, at most
+
+
+def _inner_planner(name: str, config: AllocConfig, client, options: dict) -> _Planner:
+    from farm.alloc.policies.registry import make_policy, policy_names
+
+    planners = [p for p in policy_names("planner") if p != "subregions"]
+    if name not in planners:
+        raise ConfigError(f"subregions: planner must be one of {', '.join(planners)}, got {name!r}")
+    try:
+        policy = make_policy(name, config, client, **options)
+    except ConfigError as e:
+        raise ConfigError(f"subregions: options: {e}") from None
+    if not callable(getattr(policy, "probabilities", None)):
+        raise ConfigError(f"subregions: planner {name!r} gives no move probabilities (not a planners.core planner)")
+    return policy
+
+
+def client_recipe(client):
+    """What a Ray actor needs to open a client like `client`: (settings, a RayBackend's actor
+    handle, or a LocalBackend's store path). ConfigError for another backend."""
+    from farm.service.client import RayBackend
+    from farm.service.lookup import LocalBackend
+
+    backend = client.backend
+    if isinstance(backend, RayBackend):
+        return client.settings, backend.actor, None
+    if isinstance(backend, LocalBackend):
+        return client.settings, None, str(backend.store.path)
+    raise ConfigError(f"subregions: workers >= 2 needs a client of the capture-time service or of a local store, "
+                      f"got a {type(backend).__name__}")
+
+
+class SubRegions(_Planner):
+    """The map planned as independent bands of rows, in parallel (see the module doc)."""
+
+    name = "subregions"
+
+    def __init__(self, config: AllocConfig, client=None, *, regions: int | None = None, planner: str = "receding_horizon",
+                 options: dict | None = None, workers: int = 1, **unknown):
+        super().__init__(config, client, unknown)
+        if regions is None:
+            regions = -(-self.n // BAND_ROWS)
+        self.regions = _count("subregions", "regions", regions)
+        if self.regions > self.n:
+            raise ConfigError(f"subregions: regions must be at most grid_size {self.n}, got {regions}")
+        if options is not None and not isinstance(options, dict):
+            raise ConfigError(f"subregions: options must be a mapping of the inner planner's options, got {options!r}")
+        self.planner_name, self.options = planner, dict(options or {})
+        self.inner = _inner_planner(planner, config, client, self.options)
+        self.workers = _count("subregions", "workers", workers)
+        self.bands = np.array_split(np.arange(self.n), self.regions)  # each band's rows
+        rows = np.arange(self.n * self.n) // self.n
+        self.band_of = np.empty(self.n * self.n, dtype=np.int64)  # (N^2,) each cell's band
+        for b, band in enumerate(self.bands):
+            self.band_of[np.isin(rows, band)] = b
+        self._actors: list | None = None
+        self.last: dict = {}
+
+    def shares(self, I: np.ndarray) -> np.ndarray:
+        """Each band's share of the force: I: (N^2,) float64 -> (regions,) float64, proportional to
+        the band's intruder mass, summing to 1 (all zero without intruders)."""
+        mass = np.bincount(self.band_of, weights=I, minlength=self.regions)
+        total = mass.sum()
+        return mass / total if total > 0 else np.zeros(self.regions)
+
+    def probabilities(self, D, I):
+        """The bands' plans joined (see the module doc)."""
+        w = self.shares(I)
+        bands = np.flatnonzero(w > 0)
+        t0 = time.perf_counter()
+        if len(bands) == 0:
+            p = self.inner.probabilities(D, I)
+        else:
+            jobs = [(D * w[b], np.where(self.band_of == b, I, 0.0)) for b in bands]
+            plans = self._plan(jobs)
+            p = sum(w[b] * plan for b, plan in zip(bands, plans))
+        self.last = {"shares": w.tolist(), "seconds": time.perf_counter() - t0}
+        return p
+
+    def _plan(self, jobs: list) -> list[np.ndarray]:
+        """The inner planner's probabilities(D_b, I_b) of each job, in order: here, or on the actors."""
+        if self.workers == 1:
+            return [self.inner.probabilities(D, I) for D, I in jobs]
+        import ray
+
+        if self._actors is None:
+            from farm.alloc.policies.planners.band_actor import BandPlanner
+
+            settings, service, store = client_recipe(self.client)
+            self._actors = [BandPlanner.remote(self.config, self.planner_name, self.options, settings, service, store)
+                            for _ in range(self.workers)]
+        refs = [self._actors[k % self.workers].probabilities.remote(D, I) for k, (D, I) in enumerate(jobs)]
+        return ray.get(refs)
+
+    def close(self) -> None:
+        """Stop the band actors (if any were started)."""
+        if self._actors:
+            import ray
+
+            for actor in self._actors:
+                ray.kill(actor)
+        self._actors = None
