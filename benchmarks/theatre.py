@@ -225,8 +225,10 @@ def subregions(a) -> None:
                 own = CaptureTimeClient(config.service_settings(), local_store=a.store) if options.get("workers") else client
                 policy = Timed(make_policy(policy_name, config, own, **options))
                 table = evaluate_policies(config, {label: policy}, client, a.sub_episodes, 1000)[0]
-                if hasattr(policy.policy, "close"):
+                if hasattr(policy.policy, "close"):  # subregions: its actors
                     policy.policy.close()
+                if own is not client:
+                    own.close()
                 row = table.iloc[0]
                 rows.append((name, label, row["eliminated_mean"], row["eliminated_ci95"], row["return_mean"],
                              1e3 * policy.seconds / max(1, policy.calls)))

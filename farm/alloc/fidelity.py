@@ -109,12 +109,12 @@ class FreshGames(Lookup):
         t0 = time.perf_counter()
         jobs = [(key.case, key.seed, g, g + 1) for key, g in zip(keys, numbers)]
         if self.in_process:
-            rows = {k: play_outcomes(*job) for k, job in enumerate(jobs)}
+            outcomes = {k: play_outcomes(*job) for k, job in enumerate(jobs)}
         else:
-            rows = self._on_ray(jobs)
+            outcomes = self._on_ray(jobs)
         self.games += len(jobs)
         self.seconds += time.perf_counter() - t0
-        return rows
+        return outcomes
 
     def _on_ray(self, jobs: list) -> dict[int, tuple]:
         import ray

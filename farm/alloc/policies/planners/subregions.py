@@ -23,9 +23,10 @@ One call, for defenders D and intruders I over the N x N cells:
 What it gives up against planning the whole map: a band's plan does not know the others', so
 two bands may meet intruders in the same cell (near a band's edge, under drift), where the
 joint game is not the one either priced; and the force is split by intruder mass, not by
-what the defenders can reach. What it gains: each band's program is a fraction of the whole
-map's (only the nodes that can reach a band's targets are in it) and the bands run in
-parallel. Measured against receding_horizon on the whole map by benchmarks/theatre.py.
+what the defenders can reach. What it was meant to gain, smaller programs run in parallel,
+it does not: every band holds a share of every cell's defenders, so its program still has
+every node they can reach. Measured against receding_horizon on the whole map by
+benchmarks/theatre.py --subregions (docs/model.md section 7): worse and slower.
 
 config: AllocConfig; client: a CaptureTimeClient of config.service_settings() (the inner
 planner's); regions: int >= 1 bands, at most grid_size (default None: bands of at most
@@ -36,13 +37,10 @@ dict, the inner planner's options; workers: int >= 1, the Ray actors that plan t
 capture-time service actor or a local store every actor can open). A bad value is a
 ConfigError naming the option.
 
-Attribute last: the last call's dict, shares (per band, its w_b) and seconds (the wall
-seconds the bands took).
+Attribute last: the last call's dict, shares (per band, its w_b).
 """
 
 from __future__ import annotations
-
-import time
 
 import numpy as np
 
@@ -70,7 +68,7 @@ def _inner_planner(name: str, config: AllocConfig, client, options: dict) -> _Pl
     return policy
 
 
-def client_recipe(client):
+def _client_recipe(client):
     """What a Ray actor needs to open a client like `client`: (settings, a RayBackend's actor
     handle, or a LocalBackend's store path). ConfigError for another backend."""
     from farm.service.client import RayBackend
@@ -103,11 +101,9 @@ class SubRegions(_Planner):
         self.planner_name, self.options = planner, dict(options or {})
         self.inner = _inner_planner(planner, config, client, self.options)
         self.workers = _count("subregions", "workers", workers)
-        self.bands = np.array_split(np.arange(self.n), self.regions)  # each band's rows
-        rows = np.arange(self.n * self.n) // self.n
-        self.band_of = np.empty(self.n * self.n, dtype=np.int64)  # (N^2,) each cell's band
-        for b, band in enumerate(self.bands):
-            self.band_of[np.isin(rows, band)] = b
+        row_band = np.concatenate([np.full(len(rows), b) for b, rows in
+                                   enumerate(np.array_split(np.arange(self.n), self.regions))])
+        self.band_of = np.repeat(row_band, self.n)  # (N^2,) int64 each cell's band
         self._actors: list | None = None
         self.last: dict = {}
 
@@ -122,14 +118,13 @@ class SubRegions(_Planner):
         """The bands' plans joined (see the module doc)."""
         w = self.shares(I)
         bands = np.flatnonzero(w > 0)
-        t0 = time.perf_counter()
         if len(bands) == 0:
             p = self.inner.probabilities(D, I)
         else:
             jobs = [(D * w[b], np.where(self.band_of == b, I, 0.0)) for b in bands]
             plans = self._plan(jobs)
             p = sum(w[b] * plan for b, plan in zip(bands, plans))
-        self.last = {"shares": w.tolist(), "seconds": time.perf_counter() - t0}
+        self.last = {"shares": w.tolist()}
         return p
 
     def _plan(self, jobs: list) -> list[np.ndarray]:
@@ -141,7 +136,7 @@ class SubRegions(_Planner):
         if self._actors is None:
             from farm.alloc.policies.planners.band_actor import BandPlanner
 
-            settings, service, store = client_recipe(self.client)
+            settings, service, store = _client_recipe(self.client)
             self._actors = [BandPlanner.remote(self.config, self.planner_name, self.options, settings, service, store)
                             for _ in range(self.workers)]
         refs = [self._actors[k % self.workers].probabilities.remote(D, I) for k, (D, I) in enumerate(jobs)]
