@@ -7,7 +7,10 @@ STAMP := $(VENV)/.installed-stamp
 CONSTRAINTS ?= -c constraints-cpu.txt
 RESULTS ?= results/demo
 
-.PHONY: demo test bench experiments experiments-learners experiments-learners-hard experiments-learners-near experiments-size-free suite install browser clean
+# The documentation site (mkdocs.yml): built with --strict into site/, so a broken link or reference fails.
+export NO_MKDOCS_2_WARNING := 1
+
+.PHONY: docs docs-serve demo test bench experiments experiments-learners experiments-learners-hard experiments-learners-near experiments-size-free suite install browser clean
 
 $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -85,5 +88,12 @@ experiments-size-free: $(STAMP)
 	  $(VENV)/bin/farm eval results/experiments/size_free/trials/p0_s$$s/run --scenario $$m --references none; done; done
 	$(VENV)/bin/farm report results
 
+docs: $(STAMP)
+	$(VENV)/bin/mkdocs build --strict -d site
+	@echo "site: site/index.html (make docs-serve serves it at http://127.0.0.1:8000)"
+
+docs-serve: $(STAMP)
+	$(VENV)/bin/mkdocs serve --strict -a 127.0.0.1:8000
+
 clean:
-	rm -rf $(VENV) results .pytest_cache
+	rm -rf $(VENV) results .pytest_cache site

@@ -219,6 +219,10 @@ def cmd_pe_table(a) -> int:
                     else f"results/pe-table-speeds-{base.pursuer_speed:g}-{base.evader_speed:g}")
     if Path(out).exists() and not Path(out).is_dir():
         raise CliError(f"--out: {out} exists and is not a folder")
+    from farm.core.output import check_writable_folder
+
+    with flags("out"):
+        check_writable_folder(out, "out")  # before the games: a read-only --out is found now, not at the end
     t0 = time.perf_counter()
     written, summary = write_pe_tables(
         Path(out), a.games, a.seed, a.format, progress=lambda m: print("  " + m, file=sys.stderr),
@@ -351,6 +355,9 @@ def cmd_eval(a) -> int:
     return 0
 
 
+CLAIM_RUNS = ("paper_3x3_c1_0", "paper_3x3_c1_1.5")  # `farm claims`' default --c0 and --c15 run folders
+
+
 def cmd_claims(a) -> int:
     """`farm claims RUNS_DIR`: the paper's claims (a)-(c), measured on evaluated runs; on an
     experiment folder (its experiment.json), over its seeds."""
@@ -358,14 +365,24 @@ def cmd_claims(a) -> int:
     from farm.studies.experiments.folder import is_experiment
     from farm.core.output import write_table
 
+    from farm.studies.claims import check_claim_runs
+
     runs = Path(a.runs_dir)
     if not runs.is_dir():
         raise CliError(f"{runs}: not a folder of training runs")
     if is_experiment(runs):
+        for flag, value in (("--c0", a.c0), ("--c15", a.c15)):
+            if value is not None:
+                raise CliError(f"{flag}: names a run of a folder of runs; {runs} is an experiment folder "
+                               f"(--points names its points)")
         return _claims_over_seeds(runs, a.points)
     if a.points is not None:
         raise CliError(f"--points: names points of an experiment folder; {runs} holds no experiment.json")
-    rows = claims(runs, a.c0, a.c15)
+    c0, c15 = a.c0 or CLAIM_RUNS[0], a.c15 or CLAIM_RUNS[1]
+    note = check_claim_runs(runs, c0, c15, named=(a.c0 is not None, a.c15 is not None))
+    if note is not None:
+        print(note)
+    rows = claims(runs, c0, c15)
     if not rows:
         raise CliError(f"{runs}: no evaluated runs (run farm train, then farm eval, for each config)")
     for r in rows:
@@ -540,8 +557,9 @@ def build_parser() -> argparse.ArgumentParser:
                                        "experiment's seeds")
     cl.add_argument("runs_dir", help="folder of run folders (e.g. results/runs), or an experiment folder "
                                      "(e.g. results/experiments/paper)")
-    cl.add_argument("--c0", default="paper_3x3_c1_0", help="the C_capture = 0 run's folder name (make experiments names it so)")
-    cl.add_argument("--c15", default="paper_3x3_c1_1.5", help="the C_capture = 1.5 run's folder name")
+    cl.add_argument("--c0", help=f"the C_capture = 0 run's folder name (default {CLAIM_RUNS[0]}, as make experiments "
+                                 f"names it)")
+    cl.add_argument("--c15", help=f"the C_capture = 1.5 run's folder name (default {CLAIM_RUNS[1]})")
     cl.add_argument("--points", type=int, nargs=2, metavar=("C0", "C15"),
                     help="an experiment folder's points of C_capture 0 and 1.5 (default: found from the trials' "
                          "configs)")

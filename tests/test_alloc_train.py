@@ -72,6 +72,17 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
     assert (diffs.groupby(["policy", "n_pursuers", "n_evaders"])["game"].min() == 3).all()
     assert set(pd.read_csv(run / "eval_table_games.csv")["policy"]) == set(table["policy"])
 
+    # a run folder the tables cannot be written into is refused before any episode (issue 28)
+    before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
+    if subprocess.run(["chattr", "+i", str(run)], capture_output=True).returncode == 0:
+        try:
+            r = farm("eval", run, "--episodes", 2)
+        finally:
+            subprocess.run(["chattr", "-i", str(run)], check=True)
+        assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr[-2000:]
+        assert f"run_dir: {run} cannot be written (it is read-only)" in r.stderr
+        assert {p.name: p.stat().st_mtime_ns for p in run.iterdir()} == before
+
     r = farm("report", run, "-o", tmp_path / "report.html")
     assert r.returncode == 0, r.stderr[-2000:]
     page = (tmp_path / "report.html").read_text()

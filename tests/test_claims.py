@@ -13,10 +13,11 @@ import yaml
 from farm.studies.claims import claims, plateau_minutes
 
 
-def make_run(root, name, steps_rows, returns, wall=600.0, total=20000):
+def make_run(root, name, steps_rows, returns, wall=600.0, total=20000, c_capture=None):
     run = root / name
     run.mkdir(parents=True)
-    (run / "config.yaml").write_text(yaml.safe_dump({"name": name, "env": {"grid_size": 3}}))
+    c_capture = (1.5 if name.endswith("1.5") else 0.0) if c_capture is None else c_capture
+    (run / "config.yaml").write_text(yaml.safe_dump({"name": name, "env": {"grid_size": 3, "c_capture": c_capture}}))
     pd.DataFrame(steps_rows, columns=["policy", "episode", "step", "coverage", "engaged_cells",
                                       "defenders_per_engaged"]).to_csv(run / "eval_steps.csv", index=False)
     timesteps = np.linspace(total / len(returns), total, len(returns)).astype(int)
@@ -66,6 +67,47 @@ def test_cli_claims_writes_a_table_and_errors_in_one_line(tmp_path):
     assert "(a)" in ok.stdout and (tmp_path / "claims.csv").exists()
     bad = subprocess.run([*farm, "claims", str(tmp_path / "nope")], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "not a folder" in bad.stderr
+
+
+def farm_claims(*args):
+    """`farm claims ARGS` in this process (farm.cli.main): (exit code, stdout, stderr)."""
+    import contextlib
+    import io
+
+    from farm.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["claims", *map(str, args)])
+    return code, out.getvalue(), err.getvalue().strip()
+
+
+def test_cli_claims_refuses_runs_that_cannot_be_the_pair_in_one_line(tmp_path):
+    """Issue 28's findings: --c0 X --c15 X compared a run with itself; a --c0 naming a missing
+    run silently dropped (a) and (b); a run of another C_capture than its flag's was not checked."""
+    make_run(tmp_path, "paper_3x3_c1_0", spread_rows((3, 3), (33.0, 33.0), 1.0), [-1, -1])
+    make_run(tmp_path, "paper_3x3_c1_1.5", spread_rows((1, 1), (90.0, 100.0), 0.4), [-1, -1])
+    make_run(tmp_path, "other_c0", spread_rows((3, 3), (33.0, 33.0), 1.0), [-1, -1], c_capture=0.0)
+    for args, expected in [
+        (("--c0", "paper_3x3_c1_0", "--c15", "paper_3x3_c1_0"), "--c15: names the same run as --c0"),
+        (("--c0", "nope"), "--c0: "),
+        (("--c15", "other_c0"), "--c15: "),
+        (("--c0", "paper_3x3_c1_1.5", "--c15", "other_c0"), "--c0: "),
+    ]:
+        code, _, err = farm_claims(tmp_path, *args)
+        assert code == 2 and "\n" not in err and expected in err, (args, err)
+        assert not (tmp_path / "claims.csv").exists()
+    assert "not a trained run folder" in farm_claims(tmp_path, "--c0", "nope")[2]
+    assert "trained at C_capture 0.0, not 1.5" in farm_claims(tmp_path, "--c15", "other_c0")[2]
+    code, out, _ = farm_claims(tmp_path, "--c0", "other_c0")
+    assert code == 0 and "(a)" in out and "(b)" in out
+
+
+def test_cli_claims_says_when_the_default_pair_is_missing(tmp_path):
+    make_run(tmp_path, "larger_5x5", spread_rows((3, 3), (33.0, 33.0), 1.0), [-1, -1])
+    code, out, _ = farm_claims(tmp_path)
+    assert code == 0 and "(a), (b) left out: no run folder --c0 paper_3x3_c1_0 or --c15 paper_3x3_c1_1.5" in out
+    assert pd.read_csv(tmp_path / "claims.csv")["claim"].str[:3].tolist() == ["(c)"]
 
 
 # ----------------------------------------------------------------------------- over an experiment's seeds
@@ -203,3 +245,19 @@ def test_a_damaged_manifest_is_one_line(tmp_path):
     with pytest.raises(ResultsError, match="experiment.json: unreadable experiment manifest") as e:
         claims_over_seeds(tmp_path)
     assert "\n" not in str(e.value)
+
+
+def test_cli_claims_on_an_experiment_refuses_a_point_twice_a_wrong_point_and_a_run_flag(tmp_path):
+    """Issue 28's findings: `--points 0 0` overwrote the experiment's own claims.csv, and an
+    ignored --c0 was not refused. Each is one line now, and claims.csv is left as it was."""
+    folder = make_experiment(tmp_path)
+    code, _, err = farm_claims(folder)
+    assert code == 0
+    before = (folder / "claims.csv").read_bytes()
+    for args, expected in [(("--points", "0", "0"), "points: names point 0 twice"),
+                           (("--points", "1", "0"), "points: point 1 trains at C_capture 1.5, not 0"),
+                           (("--c0", "p0_s0"), "--c0: names a run of a folder of runs"),
+                           (("--c15", "x"), "--c15: names a run of a folder of runs")]:
+        code, _, err = farm_claims(folder, *args)
+        assert code == 2 and "\n" not in err and expected in err, (args, err)
+    assert (folder / "claims.csv").read_bytes() == before

@@ -236,3 +236,51 @@ def test_ray_job_submit_smoke_experiment(job_head, tmp_path):
     assert summary["seeds"].tolist() == [1] and np.isfinite(summary["return_mean"]).all()
     services = list_actors(address=job_head, filters=[("name", "=", SERVICE_NAME)], raise_on_missing_output=False)
     assert len(services) == 1, services  # the experiment's service ran on the head, not on a Ray of its own
+
+
+def test_a_local_command_runs_on_a_ray_of_its_own_beside_a_ray_start_cluster_and_its_stale_pointer(groups, tmp_path):
+    """`ray start --head` on this machine writes Ray's pointer file, /tmp/ray/ray_current_cluster,
+    which ray.init() without an address follows. A command given no address starts its own
+    local Ray all the same: beside the running cluster (whose state API then lists no job or
+    task of it), and again once that cluster is killed and only its stale pointer is left."""
+    pointer = Path("/tmp/ray/ray_current_cluster")
+    before = pointer.read_text() if pointer.exists() else None
+    port, dashboard = free_port(), free_port()
+    config = write_sweep(tmp_path / "sweep.yaml", games_per_point=8, shard_games=4)
+    env = {k: v for k, v in ENV.items() if k != "RAY_ADDRESS"}
+
+    def sweep(out):
+        r = subprocess.run([sys.executable, "-m", "farm.cli", "sweep", str(config), "--out", str(tmp_path / out),
+                            "--workers", "1", "--quiet"], env=env, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        return pd.read_parquet(tmp_path / out / "summary.parquet")
+
+    def listed(kind):
+        """What the other cluster's state API (its dashboard) lists of a kind, once it answers."""
+        deadline = time.time() + 120
+        while True:
+            r = subprocess.run([str(BIN / "ray"), "list", kind, "--address", f"http://127.0.0.1:{dashboard}",
+                                "--format", "json"], env=env, capture_output=True, text=True, timeout=60)
+            if r.returncode == 0 or time.time() > deadline:
+                break
+            time.sleep(2)
+        assert r.returncode == 0, r.stdout + r.stderr
+        if r.stdout.strip() == "No resource in the cluster":  # what `ray list` prints for none
+            return []
+        return json.loads(r.stdout[r.stdout.index("["):])
+
+    try:
+        ray_start(groups, "--head", f"--port={port}", "--num-cpus=1", "--include-dashboard=true",
+                  "--dashboard-host=127.0.0.1", f"--dashboard-port={dashboard}",
+                  f"--dashboard-agent-listen-port={free_port()}", "--disable-usage-stats")
+        assert pointer.read_text().strip().endswith(f":{port}")
+        beside = sweep("beside")
+        assert listed("jobs") == [] and listed("tasks") == []
+        groups.close()  # the cluster is killed; its pointer file stays behind
+        assert pointer.read_text().strip().endswith(f":{port}")
+        pd.testing.assert_frame_equal(sweep("stale"), beside)
+    finally:
+        if before is None:
+            pointer.unlink(missing_ok=True)
+        else:
+            pointer.write_text(before)

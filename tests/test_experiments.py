@@ -170,10 +170,35 @@ def cold(ray_local, tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("cold")
     store = tmp / "store.sqlite"
-    path = smoke_config(tmp / "smoke.yaml", store)
+    path = smoke_config(tmp / "smoke.yaml", store, tracking={"mlflow": {"tracking_uri": str(tmp / "mlflow.db")}})
     out = tmp / "exp"
     trials, _, info = run_experiment(load_experiment_config(path), out, show_progress=False, warm=False)
     return tmp, trials, info, store, path, out
+
+
+def test_every_trial_is_an_mlflow_run_whose_metrics_are_its_trials_csv_row(cold):
+    """The smoke grid is tracked (tracking.mlflow, an SQLite store): Ray Tune's MLflow logger
+    made one FINISHED run per trial in the experiment's MLflow experiment, its params the trial's
+    config, its last metrics the trial's row of trials.csv, its steps the training's; the rerun
+    (test_smoke_grid_then_a_rerun_trains_nothing) trains nothing and logs no run."""
+    from mlflow.tracking import MlflowClient
+
+    tmp, _, _, _, _, out = cold
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("smoke")
+    runs = {r.info.run_name: r for r in client.search_runs([experiment.experiment_id])}
+    trials = pd.read_csv(out / "trials.csv")
+    assert sorted(runs) == trials["trial"].tolist() == ["p0_s0", "p0_s1", "p1_s0", "p1_s1"]
+    for row in trials.to_dict("records"):
+        run = runs[row["trial"]]
+        assert run.info.status == "FINISHED" and run.data.tags["farm.experiment"] == "smoke"
+        assert run.data.params["spec/trial/seed"] == str(row["seed"])
+        assert float(run.data.params["spec/trial/config/env/c_capture"]) == row["env.c_capture"]
+        for column in ("learned_eliminated", "receding_horizon_eliminated", "intercept_return", "final_eval_return",
+                       "timesteps", "engagements"):
+            assert run.data.metrics[column] == pytest.approx(row[column], rel=1e-12), (row["trial"], column)
+        steps = [m.step for m in client.get_metric_history(run.info.run_id, "timesteps")]
+        assert max(steps) == row["timesteps"] == 300
 
 
 def test_two_trials_on_two_cpus_with_a_cold_store(cold):

@@ -128,3 +128,22 @@ def test_a_damaged_sweep_json_is_rebuilt_from_the_config_when_the_shards_match(t
     one_line_error(farm("sweep", config, "--out", out, "--no-ray"), "holds no sweep.json", "--rebuild")
     assert farm("sweep", config, "--out", out, "--no-ray", "--quiet", "--rebuild").returncode == 0
     assert json.loads((out / "sweep.json").read_text()) == manifest
+
+
+def test_a_read_only_out_is_refused_before_any_game(tmp_path, capsys):
+    """Issue 28's finding: `farm pe-table --out` under a read-only folder found it only after
+    every game was played. Now it is one line at once (chattr +i: root cannot write either)."""
+    from farm.cli import main
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if subprocess.run(["chattr", "+i", str(ro)], capture_output=True).returncode != 0:
+        pytest.skip("chattr +i is not available here")
+    try:
+        for out, where in ((ro, "it is"), (ro / "pe", f"its folder {ro} is")):
+            code = main(["pe-table", "--games", "2", "--out", str(out), "--no-figures"])
+            err = capsys.readouterr().err.strip()
+            assert code == 2 and "\n" not in err and f"--out: {out} cannot be written ({where} read-only)" in err
+        assert list(ro.iterdir()) == []
+    finally:
+        subprocess.run(["chattr", "-i", str(ro)], check=True)

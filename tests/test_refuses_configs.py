@@ -353,3 +353,45 @@ def test_property_case_from_returns_a_case_or_a_config_error(fields):
         value = getattr(case, name)
         assert isinstance(value, float) and math.isfinite(value) and value > 0
     assert all(not isinstance(v, bool) for v in (case.n_pursuers, case.n_evaders))
+
+
+# ----- YAML a config cannot mean -----------------------------------------------------------
+
+SWEEP_TEXT = """\
+    name: s
+    base: {n_evaders: 1}
+    vary: {grid: {n_pursuers: [3, 4]}}
+    """
+
+
+def test_a_key_given_twice_is_refused_not_silently_the_last(tmp_path):
+    p = write(tmp_path, SWEEP_TEXT + "name: t\n")
+    refused(load_sweep_config, p, str(p), "line 4", "'name' is given twice")
+    p = write(tmp_path, "service: {mode: local, mode: ray}\n", name="train.yaml")
+    refused(load_train_config, p, "'mode' is given twice")
+
+
+def test_a_yaml_alias_is_refused_so_a_short_file_cannot_expand(tmp_path):
+    bomb = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n" for i in range(8))
+    p = write(tmp_path, bomb)
+    refused(load_sweep_config, p, "aliases (*a) are not accepted")
+
+
+def test_a_file_nested_too_deep_or_too_large_is_refused(tmp_path):
+    from farm.core.config import MAX_CONFIG_BYTES, MAX_CONFIG_DEPTH
+    p = write(tmp_path, "a: " + "[" * 2000 + "]" * 2000 + "\n")
+    refused(load_sweep_config, p, f"nested deeper than {MAX_CONFIG_DEPTH} levels")
+    p = write(tmp_path, "a: " + "[" * (MAX_CONFIG_DEPTH + 1) + "]" * (MAX_CONFIG_DEPTH + 1) + "\n")
+    refused(load_sweep_config, p, f"nested deeper than {MAX_CONFIG_DEPTH} levels")
+    p = tmp_path / "big.yaml"
+    p.write_text("# " + "x" * MAX_CONFIG_BYTES + "\n")
+    refused(load_sweep_config, p, "larger than 1 MiB")
+    refused(load_sweep_config, Path("/dev/zero"), "/dev/zero", "larger than 1 MiB")
+
+
+def test_plain_yaml_still_loads_through_the_strict_reader(tmp_path):
+    from farm.core.config import read_yaml
+    p = write(tmp_path, SWEEP_TEXT)
+    assert load_sweep_config(p).name == "s"
+    assert read_yaml(p) == yaml.safe_load(p.read_text())

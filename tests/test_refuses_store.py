@@ -131,6 +131,46 @@ def test_a_damaged_value_still_fails_its_checksum(tmp_path):
     assert store.load_all() == {} and len(store.corrupt_rows) == 2
 
 
+def test_a_byte_of_a_checksum_that_is_not_utf8_is_a_damaged_row_not_a_crash(tmp_path, capsys):
+    """Issue 28's finding: one flipped byte in a row's checksum (0xff: no UTF-8 text) ended
+    `farm table show` in sqlite's "Could not decode to UTF-8" traceback."""
+    path = tmp_path / "s.sqlite"
+    values = filled(path)
+    digest = SMALL.key(2, 1).digest()
+    checksum = sqlite3.connect(path).execute("SELECT checksum FROM stats WHERE key = ?", (digest,)).fetchone()[0]
+    data = bytearray(path.read_bytes())
+    at = data.find(checksum.encode())
+    assert at > 0 and data.find(checksum.encode(), at + 1) == -1  # the row's one copy, in the main file
+    data[at + 5] = 0xFF
+    path.write_bytes(bytes(data))
+
+    store = StatsStore(path, read_only=True)
+    assert len(store.table()) == 1 and store.corrupt_rows == {digest}
+    store.close()
+    client = CaptureTimeClient(SMALL, local_store=path)
+    assert exact(client.get(2, 1), values[(2, 1)]) and client.stats()["computations"] == {digest: 1}
+    client.close()
+    assert not StatsStore(path, read_only=True).corrupt_rows  # recomputed, re-written whole
+
+
+def test_a_copy_of_the_store_file_alone_holds_every_row(tmp_path):
+    """Issue 28's finding: after `farm table` every row sat in the -wal file (the service's
+    actor is killed with Ray, never closed), and a copy of the .sqlite file alone was empty.
+    A connection still open, as the killed actor's, is the case."""
+    path = tmp_path / "s.sqlite"
+    store = StatsStore(path)
+    keys = [SMALL.key(2, 1), SMALL.key(4, 1)]
+    values = {keys[k]: value for k, value in compute_in_process(keys)}
+    for key, value in values.items():
+        store.put(key, value)
+    copy = tmp_path / "copy.sqlite"
+    copy.write_bytes(path.read_bytes())  # while the writer's connection is open
+    assert not (tmp_path / "copy.sqlite-wal").exists()
+    copied = StatsStore(copy, read_only=True)
+    assert set(copied.load_all()) == {key.digest() for key in values} and not copied.corrupt_rows
+    store.close()
+
+
 # ---------------------------------------------------------------- 2. estimates never divide by zero
 @pytest.fixture(scope="module")
 def computed():

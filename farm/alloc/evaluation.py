@@ -78,7 +78,7 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     compare with, by name (default: every one; [] none). ConfigError (one line naming the
     field) for bad input, before any episode: not a run, episodes or seed not whole numbers
     >= 1 (>= 0), an unknown fidelity, scenario or reference, a model that cannot act on the
-    scenario's map."""
+    scenario's map, a run folder the tables cannot be written into."""
     from farm.alloc.scenarios import SCENARIOS
     from farm.alloc.training.config import store_of
     from farm.service.client import open_client
@@ -104,6 +104,10 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
                               f"or none)", field="references")
     specs = None if references is None else [PolicySpec(policy_entry(name)) for name in references]
     learned = make_policy(config.algo, config.env, None, run=run.path)  # a bad model.zip: one line, before Ray starts
+    from farm.core.output import check_writable_folder
+
+    # where the tables go, checked before any episode: a read-only run folder is found now, not at the end
+    check_writable_folder(run.path if scenario is None else run.path / "scenarios" / scenario, "run_dir")
     if scenario is not None:
         run = RunFolder(run.path / "scenarios" / scenario)  # where this evaluation's files go
         run.path.mkdir(parents=True, exist_ok=True)

@@ -24,6 +24,7 @@ from workers import GAME_FIELDS, Case, InputError
 from farm.core.errors import ConfigError
 
 __all__ = ["Strict", "StrictFile", "refuse_unknown_keys", "ConfigError", "case_from", "check_game_names", "first_line", "load_yaml_model",
+           "read_yaml", "MAX_CONFIG_BYTES", "MAX_CONFIG_DEPTH",
            "error_field", "GAME_FIELDS", "SETTING_FIELDS", "CASE_TYPES", "NUMERIC_FIELDS", "find_bool", "find_non_finite"]
 
 # A game's settings: every Case field but the team sizes (which a table's or env's cells set).
@@ -192,20 +193,90 @@ def first_line(e: Exception) -> str:
     return str(e).splitlines()[0]
 
 
-def load_yaml_model(path: str | Path, model: type[BaseModel], what: str, check=None):
-    """Read a YAML mapping into a typed model, then run check(config) (deeper validation)
-    if given; any problem is a ConfigError of one line naming the file."""
+MAX_CONFIG_BYTES = 1 << 20  # a config file is text a person wrote: 1 MiB at most
+MAX_CONFIG_DEPTH = 50  # mappings and lists nested at most this deep
+
+
+class _ConfigLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses what a config cannot mean: a key given twice in one
+    mapping (SafeLoader keeps the last), and aliases (`*name`), which can expand a short
+    file into gigabytes; nesting deeper than MAX_CONFIG_DEPTH is refused by read_yaml."""
+
+    def compose_node(self, parent, index):
+        """A node; an alias is refused where it stands."""
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.constructor.ConstructorError(None, None, f"YAML aliases (*{event.anchor}) are not accepted in "
+                                                    f"a config; write the value out", event.start_mark)
+        return super().compose_node(parent, index)
+
+    def construct_mapping(self, node, deep=False):
+        """A mapping; a key given twice is refused, naming it."""
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                duplicate = key in seen
+            except TypeError:  # an unhashable key: SafeLoader's own error says so
+                break
+            if duplicate:
+                raise yaml.constructor.ConstructorError(None, None, f"key {key!r} is given twice",
+                                                        key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+def _depth(value) -> int:
+    """How deep mappings and lists nest in value (0 for a scalar), without recursion."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict):
+            item = list(item.values())
+        if isinstance(item, list):
+            deepest = max(deepest, depth + 1)
+            if depth + 1 > MAX_CONFIG_DEPTH:
+                break
+            stack.extend((x, depth + 1) for x in item)
+    return deepest
+
+
+def read_yaml(path: str | Path):
+    """A config file's YAML as plain values; ConfigError of one line naming the file for a
+    file that is missing, a folder, larger than MAX_CONFIG_BYTES (/dev/zero is read only that
+    far), not UTF-8 YAML, holding a key twice, an alias, or nesting deeper than MAX_CONFIG_DEPTH."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        with open(path, "rb") as f:
+            data = f.read(MAX_CONFIG_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file") from None
     except IsADirectoryError:
         raise ConfigError(f"{path}: is a folder, not a config file") from None
-    except (yaml.YAMLError, UnicodeDecodeError) as e:
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES >> 20} MiB: not a config file")
+    try:
+        raw = yaml.load(data.decode("utf-8"), Loader=_ConfigLoader)  # noqa: S506 - a SafeLoader
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not valid YAML (not UTF-8 text)") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested deeper than {MAX_CONFIG_DEPTH} levels: not a config") from None
+    except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" (line {mark.line + 1})" if mark else ""
-        raise ConfigError(f"{path}: not valid YAML{where}") from None
+        problem = getattr(e, "problem", None)
+        why = f": {problem}" if isinstance(e, yaml.constructor.ConstructorError) and problem else ""
+        raise ConfigError(f"{path}: not valid YAML{where}{why}") from None
+    if _depth(raw) > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"{path}: nested deeper than {MAX_CONFIG_DEPTH} levels: not a config")
+    return raw
+
+
+def load_yaml_model(path: str | Path, model: type[BaseModel], what: str, check=None):
+    """Read a YAML mapping (read_yaml) into a typed model, then run check(config) (deeper
+    validation) if given; any problem is a ConfigError of one line naming the file."""
+    path = Path(path)
+    raw = read_yaml(path)
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: must be a mapping of {what} fields")
     try:

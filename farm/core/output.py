@@ -8,6 +8,10 @@ from pathlib import Path
 
 import pandas as pd
 
+from farm.core.errors import ConfigError
+
+__all__ = ["FORMATS", "atomic_write_bytes", "write_table", "check_writable_folder"]
+
 FORMATS = ("csv", "parquet")
 
 
@@ -55,4 +59,24 @@ def write_table(df: pd.DataFrame, stem: Path, fmt: str, metadata: dict[str, str]
         pq.write_table(table, buf)
         data = buf.getvalue()
     atomic_write_bytes(path, data)
+    return path
+
+
+def check_writable_folder(path, field: str) -> Path:
+    """Refuse at once, in one line (ConfigError naming field), a folder that results cannot be
+    written into: a path that is a file or lies below one, or whose nearest existing folder is
+    not writable (a read-only --out, or one under a read-only parent), so that no work is done
+    only to be lost at the end. Creates nothing; returns path as a Path."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{field}: {path} is a file, not a folder", field=field)
+    folder = path
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise ConfigError(f"{field}: {path}: {folder} is a file, not a folder", field=field)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        where = "it is" if folder == path else f"its folder {folder} is"
+        raise ConfigError(f"{field}: {path} cannot be written ({where} read-only); make it writable or "
+                          f"choose another", field=field)
     return path

@@ -19,7 +19,8 @@ from workers.engine import estimated_game_seconds
 
 from farm.core.output import write_table
 
-__all__ = ["SHARD_SECONDS", "MAX_SHARD_GAMES", "SWEEP_ID_KEY", "games_per_shard", "shard_ranges", "play_shard", "play_outcomes",
+__all__ = ["SHARD_SECONDS", "MAX_SHARD_GAMES", "SWEEP_ID_KEY", "ROWS_SHA256_KEY", "rows_sha256", "shard_problem",
+           "games_per_shard", "shard_ranges", "play_shard", "play_outcomes",
            "write_shard", "warn_coarse_steps"]
 
 SHARD_SECONDS = 0.5
@@ -76,10 +77,77 @@ def play_outcomes(case: Case, seed, start: int, stop: int):
 
 
 SWEEP_ID_KEY = "swarm_farm.sweep_id"  # a sweep's shard files carry its id in their Parquet metadata
+ROWS_SHA256_KEY = "swarm_farm.rows_sha256"  # ... and the checksum of their rows (rows_sha256)
 
 
 def write_shard(df: pd.DataFrame, path: Path, sweep_id: str | None = None) -> Path:
     """Write a shard's rows to path (a .parquet file) atomically, with the id of the sweep it
-    belongs to in the file's metadata (SWEEP_ID_KEY); returns path."""
-    return write_table(df, Path(path).with_suffix(""), "parquet",
-                       metadata={SWEEP_ID_KEY: sweep_id} if sweep_id else None)
+    belongs to (SWEEP_ID_KEY) and the checksum of its rows (ROWS_SHA256_KEY, rows_sha256) in
+    the file's metadata; returns path."""
+    import pyarrow as pa
+
+    metadata = {ROWS_SHA256_KEY: rows_sha256(pa.Table.from_pandas(df, preserve_index=False))}
+    if sweep_id:
+        metadata[SWEEP_ID_KEY] = sweep_id
+    return write_table(df, Path(path).with_suffix(""), "parquet", metadata=metadata)
+
+
+def rows_sha256(table) -> str:
+    """The SHA-256 of a shard's rows (a pyarrow.Table): every column's name, type and values,
+    in order, whatever the table's chunks or schema metadata, so that the table written and
+    the table read back from its Parquet file give the same digest, and a changed value
+    another."""
+    import hashlib
+
+    import pyarrow as pa
+
+    digest = hashlib.sha256()
+    for name, column in zip(table.column_names, table.columns):
+        array = column.combine_chunks() if column.num_chunks else pa.array([], column.type)
+        listed = pa.types.is_list(array.type) or pa.types.is_large_list(array.type)
+        # a list's item field is `item` in memory, `element` read back from Parquet: its type is its values'
+        digest.update(f"{name}:{f'list<{array.type.value_type}>' if listed else array.type};".encode())
+        if listed:
+            offsets = array.offsets.to_numpy()
+            digest.update(np.ascontiguousarray(offsets - offsets[0]).tobytes())
+            array = array.flatten()
+        if array.null_count:
+            digest.update(np.ascontiguousarray(array.is_null().to_numpy(zero_copy_only=False)).tobytes())
+        if pa.types.is_integer(array.type) or pa.types.is_floating(array.type) or pa.types.is_boolean(array.type):
+            digest.update(np.ascontiguousarray(array.to_numpy(zero_copy_only=False)).tobytes())
+        else:
+            digest.update(repr(array.to_pylist()).encode())
+    return digest.hexdigest()
+
+
+def shard_problem(path: Path, sweep_id: str, point: int, number: int, start: int, stop: int):
+    """(the shard's rows as a DataFrame, None) when the file at path is shard `number` of
+    point `point` (games start..stop-1) of sweep sweep_id, whole; else (None, what is wrong:
+    unreadable, of another sweep, failing its checksum, or rows of other games or another
+    shard, as when a shard was copied over another's name). Files written before the checksum
+    (no ROWS_SHA256_KEY) or before the sweep id are judged by their rows alone."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(path)
+    except Exception as e:  # noqa: BLE001 - a damaged file fails in many ways inside pyarrow
+        return None, f"unreadable ({type(e).__name__})"
+    meta = table.schema.metadata or {}
+    found = meta.get(SWEEP_ID_KEY.encode(), b"").decode(errors="replace")
+    if found and found != sweep_id:
+        return None, f"belongs to sweep {found}, not {sweep_id}"
+    expected = meta.get(ROWS_SHA256_KEY.encode())
+    try:
+        if expected is not None and rows_sha256(table) != expected.decode(errors="replace"):
+            return None, "fails its checksum"
+        df = table.to_pandas()
+        if len(df) != stop - start:
+            return None, f"holds {len(df)} games, not the {stop - start} of games {start}..{stop - 1}"
+        for column, want in (("point", np.full(stop - start, point)), ("shard", np.full(stop - start, number)),
+                             ("game", np.arange(start, stop))):
+            if column not in df.columns or not np.array_equal(df[column].to_numpy(), want):
+                return None, f"holds other rows than point {point}'s games {start}..{stop - 1} (its `{column}`)"
+    except (pa.ArrowException, ValueError, TypeError) as e:
+        return None, f"unreadable ({type(e).__name__})"
+    return df, None

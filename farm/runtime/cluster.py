@@ -1,7 +1,8 @@
 """The one way swarm-farm starts or joins Ray, and the one way it submits many tasks.
 
 ray_cluster(): join a cluster (an address, or $RAY_ADDRESS) or start a real single-node
-Ray on this machine. The local Ray it starts is quiet and safe:
+Ray on this machine, its own: never one it finds on the machine (a `ray start` cluster, or
+the pointer file a killed one left behind). The local Ray it starts is quiet and safe:
 - loopback only: Ray's servers listen on every interface and advertise the machine's
   address, whatever ray.init is given (it turns 127.0.0.1 into the machine's address on
   purpose). Its one switch for a single-machine Ray is the environment variable
@@ -165,7 +166,10 @@ def ray_cluster(address: str | None = None, *, num_cpus: int | None = None, metr
         level = auth_log.level
         auth_log.setLevel(logging.ERROR)
         try:
-            ray.init(num_cpus=num_cpus or DEFAULT_LOCAL_CPUS, namespace=NAMESPACE, include_dashboard=dashboard,
+            # "local": a Ray of its own, even beside a `ray start` cluster or its stale pointer file
+            # (/tmp/ray/ray_current_cluster), which ray.init() without an address would join.
+            ray.init(address="local", num_cpus=num_cpus or DEFAULT_LOCAL_CPUS, namespace=NAMESPACE,
+                     include_dashboard=dashboard,
                      dashboard_host="127.0.0.1", logging_level=logging.WARNING, log_to_driver=False, **kwargs)
         finally:
             auth_log.setLevel(level)

@@ -47,6 +47,11 @@ CREATE INDEX IF NOT EXISTS stats_settings ON stats (settings);
 """
 
 
+def _lenient_text(data: bytes) -> str:
+    """A text column's bytes as text, a byte that is not UTF-8 replaced (U+FFFD)."""
+    return data.decode("utf-8", errors="replace")
+
+
 def _checksum(key: str, key_json: str, value_json: str) -> str:
     """A row's checksum as written before issue 17 (v1): key digest, key and value only."""
     return hashlib.sha256(f"{key}\n{key_json}\n{value_json}".encode()).hexdigest()
@@ -169,6 +174,9 @@ class StatsStore:
                 self.db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None, timeout=30)
                 self.db.execute("PRAGMA journal_mode=WAL")
                 self.db.execute("PRAGMA synchronous=NORMAL")
+            # A damaged byte may leave a text column that is not UTF-8: read it as text all the
+            # same (the byte replaced), so that the row fails its checksum and is reported.
+            self.db.text_factory = _lenient_text
             ok = self.db.execute("PRAGMA quick_check").fetchone()[0]
             if ok != "ok":
                 raise sqlite3.DatabaseError(ok)
@@ -256,7 +264,8 @@ class StatsStore:
         return None if row is None else self._verified(*row)
 
     def put(self, key: StatsKey, value: CaptureStats) -> None:
-        """Store a computed (never an estimated) value, in one atomic commit."""
+        """Store a computed (never an estimated) value, in one atomic commit, and copy it
+        from the write-ahead log into the database file (a checkpoint)."""
         if value.estimate is not None:
             raise ValueError("StatsStore.put: an estimate is never stored")
         digest = key.digest()
@@ -270,6 +279,10 @@ class StatsStore:
                 (digest, settings, n_p, n_e, key_json, value_json,
                  _checksum_v2(digest, settings, n_p, n_e, key_json, value_json), time.time()),
             )
+            # The row into the main file now, not at the last connection's close: the service
+            # actor is killed with Ray, never closed, and a copy of the .sqlite file alone
+            # (without its -wal) must hold every row. PASSIVE: never waits for a reader.
+            self.db.execute("PRAGMA wal_checkpoint(PASSIVE)")
 
     def load_all(self) -> dict[str, CaptureStats]:
         """Every verified row: digest -> value (damaged rows are reported and left out)."""

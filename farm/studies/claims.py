@@ -43,7 +43,8 @@ from farm.alloc.runs import RunFolder
 from farm.core.stats import format_ci, mean_ci95
 from farm.core.errors import ResultsError
 
-__all__ = ["plateau_minutes", "measure_a", "measure_b", "claims", "SeedClaims", "claims_over_seeds", "find_pairs",
+__all__ = ["plateau_minutes", "measure_a", "measure_b", "claims", "check_claim_runs", "PAIR_C_CAPTURE", "SeedClaims",
+           "claims_over_seeds", "find_pairs",
            "write_claims_over_seeds", "COVERAGE_THRESHOLD", "PLATEAU_MINUTES"]
 
 COVERAGE_THRESHOLD = 0.9  # (a): the lower end of the coverage CI at least this
@@ -204,6 +205,33 @@ class SeedClaims:
     note: str
 
 
+PAIR_C_CAPTURE = (0.0, 1.5)  # the C_capture of (a)'s and (b)'s two runs, in the paper's order
+
+
+def check_claim_runs(runs_dir: Path, c0: str, c15: str, named: tuple[bool, bool] = (True, True)) -> str | None:
+    """ResultsError (one line naming --c0 or --c15) unless c0 and c15 are two run folders of
+    runs_dir trained at C_capture 0 and 1.5 (their config.yaml); a run that is missing is an
+    error when its flag was given (named), else the note returned says (a) and (b) are left out."""
+    if c0 == c15:
+        raise ResultsError(f"--c15: names the same run as --c0 ({c0}); (a) and (b) compare two runs")
+    missing = []
+    for flag, name, want, given in (("--c0", c0, PAIR_C_CAPTURE[0], named[0]),
+                                    ("--c15", c15, PAIR_C_CAPTURE[1], named[1])):
+        run = RunFolder(Path(runs_dir) / name)
+        values = run.read_config_values() if run.path.is_dir() else None
+        if values is None:
+            if given:
+                raise ResultsError(f"{flag}: {run.path} is not a trained run folder")
+            missing.append(f"{flag} {name}")
+            continue
+        found = (values.get("env") or {}).get("c_capture")
+        if found != want:
+            raise ResultsError(f"{flag}: {run.path} was trained at C_capture {found}, not {want:g}")
+    if missing:
+        return f"(a), (b) left out: no run folder {' or '.join(missing)} in {runs_dir}"
+    return None
+
+
 def _point_configs(folder: Path, manifest: dict) -> dict[int, dict]:
     """Each started point's training config (its first trial's run/config.yaml, plain values)."""
     from farm.studies.experiments.folder import ExperimentFolder
@@ -349,6 +377,14 @@ def claims_over_seeds(folder, points: tuple[int, int] | None = None, policy: str
         for p in points:
             if p not in known:
                 raise ResultsError(f"points: {p} is not a point of {folder} (points {known[0]}-{known[-1]})", field="points")
+        if points[0] == points[1]:
+            raise ResultsError(f"points: names point {points[0]} twice; (a) and (b) compare a C_capture 0 point "
+                               f"with a C_capture 1.5 one", field="points")
+        configs = _point_configs(folder, manifest)
+        for p, want in zip(points, PAIR_C_CAPTURE):
+            found = (configs.get(p, {}).get("env") or {}).get("c_capture")
+            if found is not None and found != want:
+                raise ResultsError(f"points: point {p} trains at C_capture {found:g}, not {want:g}", field="points")
         pair, note = tuple(points), f"(a), (b): points {points[0]} and {points[1]}, as named"
     else:
         pairs = find_pairs(folder, manifest)

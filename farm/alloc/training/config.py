@@ -1,5 +1,5 @@
 """A `farm train` config: TrainConfig and its sections (the learner's: TD3Params, PPOParams or
-SACParams under `algo`; PretrainParams, EvalParams, ServiceParams), read with load_train_config;
+SACParams under `algo`; PretrainParams, EvalParams, ServiceParams, TrackingParams), read with load_train_config;
 every default in one place (docs/training.md shows a config)."""
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from workers.errors import is_number
 from farm.alloc.config import AllocConfig
 from farm.alloc.scenarios import SCENARIOS
 from farm.core.config import Strict, load_yaml_model
+from farm.core.tracking import TrackingParams
 
 __all__ = ["ALGOS", "TD3Params", "PPOParams", "SACParams", "PretrainParams", "EvalParams", "ServiceParams",
            "TrainConfig", "load_train_config", "store_of", "POLICY_KWARGS"]
@@ -311,6 +312,7 @@ class TrainConfig(Strict):
     log_interval: int = Field(100, ge=1)  # episodes between TensorBoard rollout records
     threads: int | None = Field(1, ge=1, le=1024)  # torch threads while training; None: torch's choice
     service: ServiceParams = ServiceParams()
+    tracking: TrackingParams = TrackingParams()  # MLflow, when set (farm.core.tracking); no part of the run's identity
 
     @model_validator(mode="before")
     @classmethod

@@ -52,27 +52,39 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
             raise ConfigError(f"resume: {run_dir} holds no run to resume", field="resume")
         before = run.read_config()  # parsed: fields added since compare equal at their defaults
 
-        def comparable(c: TrainConfig) -> dict:  # the length of training and the threads may change on resume
-            return c.with_timesteps(0).model_copy(update={"threads": None}).model_dump()
+        def comparable(c: TrainConfig) -> dict:  # the length of training, the threads and tracking may change on resume
+            return c.with_timesteps(0).model_copy(update={"threads": None, "tracking": None}).model_dump()
 
         if comparable(before) != comparable(config):
             raise ConfigError(f"resume: {run_dir} was trained with another config", field="resume")
+    tracker = None
+    if config.tracking.mlflow is not None:  # before config.yaml: a store MLflow refuses leaves no run behind
+        from farm.alloc.training.tracking import MlflowRun
+
+        tracker = MlflowRun.open(config, run_dir, resume)
     run.write_config(config)
     threads_before = torch.get_num_threads()
     if config.threads is not None:
         torch.set_num_threads(config.threads)
     try:
-        return _train(config, run_dir, resume, show_progress, callbacks or [])
+        metrics = _train(config, run_dir, resume, show_progress, callbacks or [], tracker)
+    except BaseException as e:
+        if tracker is not None:
+            tracker.end("KILLED" if isinstance(e, KeyboardInterrupt) else "FAILED")
+        raise
     finally:
         torch.set_num_threads(threads_before)
+    if tracker is not None:
+        tracker.finish(metrics, run_dir)
+    return metrics
 
 
-def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, extra: list) -> dict:
+def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, extra: list, tracker=None) -> dict:
     from farm.service.client import open_client
 
     with open_client(config.env.service_settings(), mode=config.service.mode, store=store_of(config),
                      address=config.service.address) as client:
-        return _learn(config, run_dir, resume, show_progress, client, extra)
+        return _learn(config, run_dir, resume, show_progress, client, extra, tracker)
 
 
 _ACTIVATIONS = {"relu": "ReLU", "tanh": "Tanh", "elu": "ELU", "leaky_relu": "LeakyReLU", "gelu": "GELU"}
@@ -143,7 +155,8 @@ def _eval_envs(config: TrainConfig, client):
     return VecMonitor(DummyVecEnv([lambda: eval_env])), eval_env  # the training env's type: EvalCallback's check
 
 
-def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list) -> dict:
+def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list,
+           tracker=None) -> dict:
     if config.service.warm_lattice:
         warm_lattices(client, lattice_groups(config.envs()), show_progress)
     env, train_env, monitor = training_envs(config, client)
@@ -152,7 +165,9 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
     timer = UpdateTimer()
     evaluation = EvalCallback(eval_vec, eval_freq=max(1, config.eval.freq // config.n_envs),
                               n_eval_episodes=config.eval.episodes, log_path=str(run_dir),
-                              best_model_save_path=str(run_dir / "best"), deterministic=True, verbose=0)
+                              best_model_save_path=str(run_dir / "best"), deterministic=True, verbose=0,
+                              # MLflow: each evaluation logged as it is made (farm.alloc.training.tracking)
+                              callback_after_eval=tracker.eval_logger if tracker is not None else None)
     state = RunState(train_env, monitor, eval_env, evaluation, timer, config.n_envs)
     cls = algorithm_class(config.algo)
 

@@ -34,7 +34,7 @@ from workers import ENGINE_VERSION, SEEDING, Case, CaptureStats, game_statistics
 from farm.runtime import metrics
 from farm.core.errors import ConfigError, SweepError
 from farm.core.output import atomic_write_bytes, write_table
-from farm.games.shards import SWEEP_ID_KEY, play_shard, warn_coarse_steps, write_shard
+from farm.games.shards import SWEEP_ID_KEY, play_shard, shard_problem, warn_coarse_steps, write_shard
 from farm.games.sweep.config import Point, SweepConfig
 
 
@@ -78,6 +78,7 @@ class SweepRun:
         self.points: list[Point] = config.points()
         self.sweep_id = config.sweep_id()
         self.shard_dir = self.out / "shards"
+        self.damaged: list[str] = []  # one line per shard file found damaged and played again (missing_shards)
 
     # ----- the folder -------------------------------------------------------------
     def prepare(self, rebuild: bool = False) -> None:
@@ -146,8 +147,29 @@ class SweepRun:
         return [Shard(p.index, k, a, b) for p in self.points for k, a, b in p.shards()]
 
     def missing_shards(self) -> list[Shard]:
-        """The shards whose file is not written yet (what a resumed run plays)."""
-        return [s for s in self.all_shards() if not (self.shard_dir / s.file_name).exists()]
+        """The shards whose file is not written yet, or is not that shard whole (what a resumed
+        run plays): a file that is unreadable, of another sweep, failing its checksum or holding
+        other games (farm.games.shards.shard_problem) is moved to shards/damaged/ (kept, never
+        read) and its line added to self.damaged."""
+        todo = []
+        for shard in self.all_shards():
+            path = self.shard_dir / shard.file_name
+            if not path.exists():
+                todo.append(shard)
+                continue
+            _, problem = self._read(shard)
+            if problem is not None:
+                aside = self.shard_dir / "damaged" / f"{shard.file_name}.{time.strftime('%Y%m%dT%H%M%S')}"
+                aside.parent.mkdir(exist_ok=True)
+                path.replace(aside)
+                self.damaged.append(f"shards/{shard.file_name}: {problem}; moved to shards/damaged/, played again")
+                todo.append(shard)
+        return todo
+
+    def _read(self, shard: Shard):
+        """(the shard's rows, None) or (None, what is wrong with its file): shard_problem."""
+        return shard_problem(self.shard_dir / shard.file_name, self.sweep_id, shard.point, shard.number,
+                             shard.start, shard.stop)
 
     def store(self, shard: Shard, df: pd.DataFrame) -> None:
         """Write a shard's rows to its file, atomically."""
@@ -207,14 +229,17 @@ class SweepRun:
 
     # ----- results ----------------------------------------------------------------
     def read_games(self) -> pd.DataFrame:
-        """Every shard's rows, sorted by point and game; SweepError naming an unreadable shard file."""
+        """Every shard's rows, sorted by point and game; SweepError naming a shard file that is
+        missing or not its shard whole (shard_problem): never read as a result."""
         frames = []
         for shard in self.all_shards():
             path = self.shard_dir / shard.file_name
-            try:
-                frames.append(pq.read_table(path).to_pandas())
-            except (OSError, pa.ArrowInvalid) as e:
-                raise SweepError(f"{path}: unreadable shard ({type(e).__name__}); delete it and rerun") from None
+            if not path.exists():
+                raise SweepError(f"{path}: missing shard; run the sweep again to play it")
+            df, problem = self._read(shard)
+            if problem is not None:
+                raise SweepError(f"{path}: {problem}; run the sweep again to play it again")
+            frames.append(df)
         df = pd.concat(frames, ignore_index=True)
         return df.sort_values(["point", "game"], kind="stable").reset_index(drop=True)
 
@@ -257,9 +282,12 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
     warn_coarse_steps(p.case for p in run.points)
     run.prepare(rebuild)
     todo = run.missing_shards()
+    for line in run.damaged:
+        print(f"sweep {run.sweep_id}: {line}", file=sys.stderr)
     total_games = sum(s.games for s in run.all_shards())
     done_games = total_games - sum(s.games for s in todo)
     info = {"sweep_id": run.sweep_id, "shards": len(run.all_shards()), "skipped": len(run.all_shards()) - len(todo),
+            "damaged": len(run.damaged),
             "done": 0, "workers": 0, "seconds": 0.0, "nodes": {}}
     t0 = time.perf_counter()
     if todo:

@@ -10,10 +10,11 @@ from typing import Any
 from pydantic import BaseModel, Field, field_validator, model_validator
 
 from farm.core.config import StrictFile, load_yaml_model
+from farm.core.tracking import TrackingParams
 
 __all__ = ["ExperimentConfig", "load_experiment_config", "field_problem", "RESERVED_FIELDS"]
 
-RESERVED_FIELDS = ("name", "seed", "threads", "service")  # the experiment sets these for every trial
+RESERVED_FIELDS = ("name", "seed", "threads", "service", "tracking")  # the experiment sets these for every trial
 
 
 class ExperimentConfig(StrictFile):
@@ -31,6 +32,7 @@ class ExperimentConfig(StrictFile):
     episodes: int = Field(10, ge=1, le=100_000)
     eval_seed: int = Field(1000, ge=0)
     store: str | None = None
+    tracking: TrackingParams = TrackingParams()  # MLflow: a run per trial (farm.core.tracking); not in the digest
 
     @field_validator("seeds")
     @classmethod
@@ -86,7 +88,8 @@ def field_problem(path: str) -> str | None:
     if parts[0] in RESERVED_FIELDS:
         why = {"seed": "seeds come from `seeds`", "name": "trials are named after the experiment",
                "threads": "every trial trains on one torch thread",
-               "service": "every trial uses the experiment's capture-time service (`store`)"}[parts[0]]
+               "service": "every trial uses the experiment's capture-time service (`store`)",
+               "tracking": "the experiment's own `tracking` block tracks every trial"}[parts[0]]
         return f"set by the experiment ({why})"
     model: Any = TrainConfig
     for depth, part in enumerate(parts):

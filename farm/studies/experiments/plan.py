@@ -12,10 +12,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel, ValidationError
 
-from farm.core.config import ConfigError, first_line
+from farm.core.config import ConfigError, first_line, read_yaml
 from farm.core.errors import ClusterError
 from farm.studies.experiments.config import RESERVED_FIELDS, ExperimentConfig
 
@@ -64,12 +63,12 @@ def _set(raw: dict, path: str, value) -> None:
 
 
 def _added_defaults() -> dict:
-    """The training config's fields added since 0.5 (the learners), at their defaults, as
+    """The training config's fields added since 0.5 (the learners, tracking), at their defaults, as
     plain values: a trial's config holding one at its default decides what it did before."""
     from farm.alloc.training import TrainConfig
 
     defaults = json.loads(TrainConfig(name="x").model_dump_json())
-    return {name: defaults[name] for name in ("algo", "ppo", "sac", "n_envs", "pretrain", "keep")}
+    return {name: defaults[name] for name in ("algo", "ppo", "sac", "n_envs", "pretrain", "keep", "tracking")}
 
 
 def _base_raw(config: ExperimentConfig, source: str) -> dict:
@@ -83,7 +82,7 @@ def _base_raw(config: ExperimentConfig, source: str) -> dict:
         return {}
     path = Path(config.base)
     load_train_config(path)  # one line naming the base file and its field
-    raw = yaml.safe_load(path.read_text())
+    raw = read_yaml(path)
     return {k: v for k, v in raw.items() if k not in RESERVED_FIELDS or k == "service"}
 
 

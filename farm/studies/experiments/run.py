@@ -53,6 +53,7 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
 
     check_workers(workers)
     the_plan = plan(config, source)
+    tracker = _mlflow_callback(config, the_plan.name)  # before Ray starts: a store MLflow refuses is one line
     if not warm:
         for t in the_plan.trials:
             t.config["service"]["warm_lattice"] = False
@@ -83,7 +84,7 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
         display = Display(the_plan, show_progress, before)
         PROGRESS["display"] = display
         try:
-            results = _fit(the_plan, out, k, share)
+            results = _fit(the_plan, out, k, share, [] if tracker is None else [tracker])
         finally:
             PROGRESS.pop("display", None)
             display.close()
@@ -118,8 +119,29 @@ def _write_claims_and_curves(out: Path) -> dict:
             "learning_curves": write_learning_curves(out)}
 
 
-def _fit(plan: Plan, out: Path, workers: int, share: float):
-    """Run (or restore and go on with) the Tune experiment; returns its ResultGrid."""
+def _mlflow_callback(config: ExperimentConfig, name: str):
+    """Ray Tune's MLflowLoggerCallback for config.tracking.mlflow (None when it is not set):
+    every trial an MLflow run of the experiment named there (default: the experiment's name),
+    created here first (farm.core.tracking.mlflow_experiment: an SQLite store keeps its
+    artifacts beside its database), its params the trial's spec, its metrics what the trial
+    reports (at step= its timesteps). ConfigError (one line) when MLflow cannot open the store."""
+    params = config.tracking.mlflow
+    if params is None:
+        return None
+    from ray.air.integrations.mlflow import MLflowLoggerCallback
+
+    from farm.core.tracking import mlflow_client, mlflow_experiment
+
+    experiment = params.experiment or name
+    mlflow_experiment(mlflow_client(params), params, experiment)
+    return MLflowLoggerCallback(tracking_uri=params.tracking_uri, experiment_name=experiment,
+                                tags={"farm.kind": "experiment", "farm.experiment": name})
+
+
+def _fit(plan: Plan, out: Path, workers: int, share: float, callbacks: list):
+    """Run (or restore and go on with) the Tune experiment; returns its ResultGrid. callbacks:
+    Tune callbacks beside the progress display (the MLflow logger); a restored experiment keeps
+    the callbacks it was started with (Tune saves them in its state)."""
     from ray import tune
 
     from farm.studies.experiments.tune import Progress
@@ -140,7 +162,7 @@ def _fit(plan: Plan, out: Path, workers: int, share: float):
             run_config=tune.RunConfig(name=TUNE_DIR, storage_path=str(out),
                                       failure_config=tune.FailureConfig(max_failures=MAX_FAILURES),
                                       checkpoint_config=tune.CheckpointConfig(num_to_keep=2),
-                                      verbose=0, callbacks=[Progress()]),
+                                      verbose=0, callbacks=[Progress(), *callbacks]),
         )
     with _quiet_tune():
         return tuner.fit()

@@ -63,7 +63,7 @@ def run_trial(params: dict) -> None:
     result.update({name: metrics.get(name) for name in METRICS_COLUMNS})
     result.update(train_seconds=t1 - t0, evaluate_seconds=t2 - t1)
     folder.write_result(trial.key, result)
-    tune.report({**result, "phase": "done"})
+    tune.report({**result, "phase": "done", "timesteps_total": metrics.get("timesteps")})  # Tune's step (MLflow's)
 
 
 # Tune knows a function trainable by its __name__, and Tuner.restore refuses another name: the

@@ -40,7 +40,7 @@ class TuneReport(AfterUpdates):
         """Report `steps`, with the checkpoint of `steps` when there is one."""
         from farm.alloc.runs import latest_checkpoint
 
-        metrics = {"timesteps": steps, "phase": "train"}
+        metrics = {"timesteps": steps, "timesteps_total": steps, "phase": "train"}  # timesteps_total: Tune's step
         last = latest_checkpoint(self.run_dir, replay_buffer=getattr(self.model, "replay_buffer", None) is not None)
         if last is None or last[1] != steps:
             tune.report(metrics)

@@ -1,0 +1,138 @@
+"""MLflow tracking of `farm train` (farm.alloc.training.tracking) on a real SQLite tracking
+store, read back with MLflow's own client: the run's params, its evaluation curve, its final
+metrics and artifacts are the run folder's (metrics.json, evaluations.npz, model.zip); a resume
+goes on logging into the same MLflow run; tracking changes no number; a store MLflow cannot
+open is one line before anything is written. `farm experiments`' MLflow runs (one per trial,
+through Ray Tune's MLflowLoggerCallback) are checked in tests/test_experiments.py, on its
+tracked smoke grid."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from farm.core.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def tiny(tmp: Path, n_timesteps: int = 300, uri: str | None = None, name: str = "tiny.yaml") -> Path:
+    """configs/train/tiny.yaml, its store in tmp, its length n_timesteps, tracked at uri."""
+    raw = yaml.safe_load((REPO / "configs/train/tiny.yaml").read_text())
+    raw["service"]["store"] = str(tmp / "store.sqlite")
+    raw["td3"]["n_timesteps"] = n_timesteps
+    if uri is not None:
+        raw["tracking"] = {"mlflow": {"tracking_uri": uri}}
+    path = tmp / name
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def trained(path: Path, run: Path, resume: bool = False) -> dict:
+    from farm.alloc.training import load_train_config, train
+
+    return train(load_train_config(path), run, resume=resume, show_progress=False)
+
+
+@pytest.fixture(scope="module")
+def tracked(tmp_path_factory):
+    """A tiny run trained 300 steps with MLflow tracking on an SQLite store, resumed to 450;
+    and the same 300 steps untracked. (tmp, run folder, metrics at 300, at 450, untracked folder)."""
+    tmp = tmp_path_factory.mktemp("tracked")
+    uri = str(tmp / "mlflow.db")  # a plain path ending in .db: an SQLite store
+    run = tmp / "run"
+    first = trained(tiny(tmp, 300, uri), run)
+    first_evaluations = dict(np.load(run / "evaluations.npz"))
+    second = trained(tiny(tmp, 450, uri, "tiny450.yaml"), run, resume=True)
+    plain = tmp / "plain"
+    trained(tiny(tmp, 300, None, "plain.yaml"), plain)
+    return tmp, run, first, second, plain, first_evaluations
+
+
+def client_of(tmp: Path):
+    from mlflow.tracking import MlflowClient
+
+    return MlflowClient(tracking_uri=f"sqlite:///{tmp / 'mlflow.db'}")
+
+
+def test_a_tracked_run_logs_its_params_curve_metrics_and_files(tracked):
+    tmp, run, _, second, _, _ = tracked
+    client = client_of(tmp)
+    saved = json.loads((run / "mlflow_run.json").read_text())
+    experiment = client.get_experiment_by_name("tiny")  # the config's name
+    assert experiment is not None and saved["experiment_id"] == experiment.experiment_id
+    runs = client.search_runs([experiment.experiment_id])
+    assert [r.info.run_id for r in runs] == [saved["run_id"]]  # the resume went on in the same run
+    logged = runs[0]
+    assert logged.info.status == "FINISHED" and logged.info.run_name == "tiny"
+    params = logged.data.params
+    assert params["algo"] == "td3" and params["env.grid_size"] == "3" and params["td3.batch_size"] == "64"
+    assert not any(k.startswith("tracking") for k in params)  # tracking is no part of the run
+
+    history = client.get_metric_history(saved["run_id"], "eval/mean_return")
+    evaluations = np.load(run / "evaluations.npz")
+    assert sorted(m.step for m in history) == evaluations["timesteps"].tolist() == [150, 300, 450]
+    by_step = {m.step: m.value for m in history}
+    for step, results in zip(evaluations["timesteps"], evaluations["results"]):
+        assert by_step[int(step)] == pytest.approx(float(np.mean(results)), rel=1e-12)
+
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics == second
+    for key, value in metrics.items():
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            assert logged.data.metrics[key] == pytest.approx(value, rel=1e-12), key
+    assert logged.data.metrics["timesteps"] == 450
+    artifacts = {a.path for a in client.list_artifacts(saved["run_id"])}
+    assert {"model.zip", "metrics.json", "config.yaml", "evaluations.csv", "training_curve.png"} <= artifacts
+    # an SQLite store keeps its artifacts beside the database, not in the working folder
+    assert (tmp / "mlartifacts").is_dir() and not (Path.cwd() / "mlruns").exists()
+
+
+def test_tracking_changes_no_number(tracked):
+    _, _, first, _, plain, first_evaluations = tracked
+    untracked = json.loads((plain / "metrics.json").read_text())
+    timing = {"wall_seconds", "steps_per_second", "update_seconds", "outside_update_share"}
+    assert {k: v for k, v in first.items() if k not in timing} == {k: v for k, v in untracked.items() if k not in timing}
+    plain_evaluations = np.load(plain / "evaluations.npz")
+    for key in ("timesteps", "results", "ep_lengths"):
+        np.testing.assert_array_equal(first_evaluations[key], plain_evaluations[key])
+
+
+def test_a_store_mlflow_cannot_open_is_one_line_and_writes_nothing(tmp_path):
+    run = tmp_path / "run"
+    with pytest.raises(ConfigError) as e:
+        trained(tiny(tmp_path, 300, "/proc/no-such-folder/mlflow.db"), run)
+    message = str(e.value)
+    assert "\n" not in message and message.startswith("tracking.mlflow.tracking_uri: MLflow cannot use")
+    assert not run.exists()
+
+
+@pytest.mark.parametrize("raw, problem", [
+    ({"mlflow": {"tracking_uri": ""}}, "tracking.mlflow.tracking_uri"),
+    ({"mlflow": {"tracking_uri": "x.db", "colour": 1}}, "tracking.mlflow.colour"),
+    ({"mlflow": {}}, "tracking.mlflow.tracking_uri"),
+    ({"wandb": {}}, "tracking.wandb"),
+])
+def test_a_bad_tracking_block_is_one_line(tmp_path, raw, problem):
+    from farm.alloc.training import load_train_config
+
+    path = tiny(tmp_path)
+    doc = yaml.safe_load(path.read_text())
+    doc["tracking"] = raw
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigError) as e:
+        load_train_config(path)
+    assert "\n" not in str(e.value) and problem in str(e.value)
+
+
+def test_a_local_path_becomes_a_store_uri_and_params_are_flat(tmp_path):
+    from farm.core.tracking import MlflowParams, flat_params
+
+    assert MlflowParams(tracking_uri=str(tmp_path / "m.db")).tracking_uri == f"sqlite:///{tmp_path / 'm.db'}"
+    assert MlflowParams(tracking_uri=str(tmp_path / "store")).tracking_uri == (tmp_path / "store").as_uri()
+    assert MlflowParams(tracking_uri="http://127.0.0.1:5000").tracking_uri == "http://127.0.0.1:5000"
+    flat = flat_params({"env": {"grid_size": 3, "seed": None}, "net": [400, 300], "algo": "td3", "long": "x" * 7000})
+    assert flat["env.grid_size"] == "3" and flat["env.seed"] == "null" and flat["net"] == "[400, 300]"
+    assert flat["algo"] == "td3" and len(flat["long"]) == 6000
