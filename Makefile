@@ -23,12 +23,12 @@ install: $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/farm pe-table --games 50 --out $(RESULTS)/pe-table
-	$(VENV)/bin/farm game --n-pursuers 5 --n-evaders 1 --seed 1 --plot $(RESULTS)/game_5v1.png
+	$(VENV)/bin/farm game --n-pursuers 5 --n-evaders 1 --seed 1 --plot $(RESULTS)/game_5v1.png --animate $(RESULTS)/game_5v1.gif
 	$(VENV)/bin/farm sweep configs/smoke.yaml --out $(RESULTS)/sweep-smoke
 	$(VENV)/bin/farm table configs/table_small.yaml --store $(RESULTS)/capture_times.sqlite
 	rm -rf $(RESULTS)/runs/demo-3x3
 	$(VENV)/bin/farm train configs/train/demo_3x3.yaml --out $(RESULTS)/runs/demo-3x3
-	$(VENV)/bin/farm eval $(RESULTS)/runs/demo-3x3 --episodes 10
+	$(VENV)/bin/farm eval $(RESULTS)/runs/demo-3x3 --episodes 10 --animate
 	$(VENV)/bin/farm suite configs/suite_demo.yaml --out $(RESULTS)/suite
 	$(VENV)/bin/farm report $(RESULTS)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import sys
@@ -81,6 +82,16 @@ def _floats(text: str, field: str, n: int | None = None) -> list[float]:
     return values
 
 
+def _xy_pairs(value, field: str) -> list:
+    """value when it is a list of [x, y] pairs of finite numbers (not booleans), else CliError naming field."""
+    if not isinstance(value, list) or not all(isinstance(p, list) and len(p) == 2 for p in value):
+        raise CliError(f"{field}: expected a list of [x, y] pairs, got {json.dumps(value)[:60]}")
+    for p in value:
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in p):
+            raise CliError(f"{field}: {json.dumps(p)[:60]} is not a pair of finite numbers")
+    return value
+
+
 def _points(text: str, field: str) -> np.ndarray:
     v = _floats(text, field)
     if len(v) == 0 or len(v) % 2:
@@ -146,11 +157,27 @@ def cmd_game(a) -> int:
                         ("evaders", "seed"), ("pursuers", "law"), ("evaders", "law")])
     if a.plot_times is not None and not a.plot:
         raise CliError("--plot-times: is for the figure of --plot, which is not given")
+    if a.frame_stride is not None and not a.animate:
+        raise CliError("--frame-stride: is for the animation of --animate, which is not given")
+    if a.animate:
+        from farm.core.animate import check_animation_path
+
+        with flags("animate"):
+            check_animation_path(a.animate)
+        if a.frame_stride is not None and a.frame_stride < 1:
+            raise CliError(f"--frame-stride: must be a whole number >= 1, got {a.frame_stride}")
+        if a.fps is not None and not 0.1 <= a.fps <= 50:
+            raise CliError(f"--fps: must be between 0.1 and 50 frames a second, got {a.fps:g}")
+    elif a.fps is not None:
+        raise CliError("--fps: is for the animation of --animate, which is not given")
     if a.positions:
         data = _load_json(a.positions, "--positions")
         if not isinstance(data, dict) or not {"pursuers", "evaders"} <= set(data):
             raise CliError("--positions: JSON must be an object with 'pursuers' and 'evaders' lists of [x, y]")
-        pursuers, evaders = data["pursuers"], data["evaders"]
+        unknown = sorted(set(data) - {"pursuers", "evaders"})
+        if unknown:
+            raise CliError(f"--positions: unknown key {unknown[0]!r} (the JSON holds 'pursuers' and 'evaders' only)")
+        pursuers, evaders = (_xy_pairs(data[side], f"--positions: {side}") for side in ("pursuers", "evaders"))
     elif a.pursuers or a.evaders:
         if not (a.pursuers and a.evaders):
             raise CliError("--pursuers and --evaders go together")
@@ -171,7 +198,7 @@ def cmd_game(a) -> int:
     if a.positions or a.pursuers:  # the start is given: no initial-position law applies
         settings = {**settings, "law": {"kind": "uniform"}}
     case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
-    res = simulate_case(case, p, e, record=bool(a.plot))
+    res = simulate_case(case, p, e, record=bool(a.plot or a.animate))
     exit_point = case.exit_point
     extras = [f"{name.replace('_', ' ')} {getattr(case, name):g}" for name in ("pursuer_speed", "evader_speed")
               if getattr(case, name) != 1.0]
@@ -200,6 +227,15 @@ def cmd_game(a) -> int:
         frames = frames or default_frames(res, 0)
         path = plot_game(res, a.plot, frames=frames)
         print(f"figure: {path}")
+    if a.animate:
+        from farm.core.animate import auto_stride, game_frames, write_animation
+
+        stride = a.frame_stride or auto_stride(int(res.steps[0]))
+        title = f"{p.shape[1]} {case.pursuer_policy} vs {e.shape[1]} {case.evader_policy}"
+        with flags("animate"):
+            path, count = write_animation(game_frames(res, 0, stride, title=title), a.animate,
+                                          fps=min(25.0, max(1.0, 1.0 / (stride * res.dt))) if a.fps is None else a.fps)
+        print(f"animation: {path} ({count} frames, every {stride} step(s) of {int(res.steps[0])})")
     return 0
 
 
@@ -248,6 +284,8 @@ def cmd_sweep(a) -> int:
                                        metrics_port=a.metrics_port),
                     [("no_ray", "address"), ("no_ray", "workers"), ("no_ray", "metrics_port"),
                      ("address", "metrics_port")])
+    if a.metrics_port is not None and not 1 <= a.metrics_port <= 65535:
+        raise CliError(f"--metrics-port: must be a TCP port from 1 to 65535, got {a.metrics_port}")
     if a.metrics_port is not None and os.environ.get("RAY_ADDRESS"):
         raise CliError("--metrics-port: is for a local Ray, but RAY_ADDRESS names a cluster to join")
     config = load_sweep_config(a.config)
@@ -341,7 +379,7 @@ def cmd_eval(a) -> int:
     references = None if a.references is None else [n for n in a.references.split(",") if n and n != "none"]
     with flags("episodes", "seed", "fidelity", "scenario", "references"):
         result = evaluate_run(run_dir, episodes=a.episodes, seed=a.seed, fidelity=a.fidelity, scenario=a.scenario,
-                              references=references)
+                              references=references, animate=a.animate)
     if a.scenario is not None:
         run_dir = run_dir / "scenarios" / a.scenario
     print(result.table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
@@ -352,6 +390,8 @@ def cmd_eval(a) -> int:
             print(line)
     print(f"wrote {run_dir / 'eval_table.csv'}, eval_episodes.csv, eval_steps.csv, behaviour_steps.png and density maps "
           f"density_<policy>.png")
+    if result.animation is not None:
+        print(f"animation: {result.animation[0]} ({result.animation[1]} frames)")
     return 0
 
 
@@ -474,6 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_game_options(g)
     g.add_argument("--plot", help="write a PNG of the trajectories and Voronoi cells here")
     g.add_argument("--plot-times", help="times in s of the panels, e.g. '0,1,2' (default: start, middle, end)")
+    g.add_argument("--animate", metavar="PATH", help="write an animation of the game here (.gif or .mp4)")
+    g.add_argument("--frame-stride", type=int, metavar="K", help="animate every K-th step (default: at most 120 frames)")
+    g.add_argument("--fps", type=float, help="frames per second of --animate (default: real time, at least 1)")
     g.set_defaults(func=cmd_game)
 
     t = sub.add_parser("pe-table", help="the paper's Tables 1 and 2 with figures")
@@ -530,6 +573,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--episodes", type=int, default=20)
     ev.add_argument("--seed", type=int, default=1000)
     ev.add_argument("--fidelity", choices=["service", "games"], default="service")
+    ev.add_argument("--animate", nargs="?", const="episode.gif", metavar="PATH",
+                    help="also animate the trained allocator's first episode (.gif or .mp4, in the run folder; "
+                         "default episode.gif); under --fidelity games with one engaged cell's game beside it")
     ev.add_argument("--scenario", help="evaluate on this suite scenario's map instead of the run's own (a CellPolicy "
                                        "acts on any map size); files go to RUN_DIR/scenarios/NAME/")
     ev.add_argument("--references", help="the baselines and planners to compare with, comma-separated, or 'none' "
@@ -600,9 +646,10 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 
 def main(argv=None) -> int:
     """Run the `farm` command line; returns the exit status (2 for bad input, one line on stderr).
-    `farm --debug ...` or SWARM_FARM_DEBUG=1 lets errors through with their traceback."""
+    `farm --debug ...` (the flag anywhere) or SWARM_FARM_DEBUG=1 lets errors through with their traceback."""
     argv = _join_negative_values(sys.argv[1:] if argv is None else [str(x) for x in argv])
     debug = os.environ.get(DEBUG_ENV, "") not in ("", "0") or "--debug" in argv
+    argv = [x for x in argv if x != "--debug"]  # --debug is taken before or after the subcommand
     try:
         with warnings.catch_warnings():
             if not debug:

@@ -291,6 +291,28 @@ def _density_section(root: Path) -> str | None:
     return _grid(_img(_png(p), p.name) for p in pngs)
 
 
+def _animations_section(root: Path) -> str | None:
+    """Every .gif and .mp4 under root, inlined (a gif as an image, an mp4 as a video), each
+    captioned with its path; one over MAX_ANIMATION_BYTES is named, not inlined."""
+    files = sorted(p for p in root.rglob("*") if p.suffix.lower() in (".gif", ".mp4") and p.is_file()
+                   and not p.name.startswith("."))
+    if not files:
+        return None
+    parts = []
+    for p in files:
+        caption = f"<figcaption>{html.escape(str(p.relative_to(root)))}</figcaption>"
+        data = p.read_bytes()
+        if len(data) > MAX_ANIMATION_BYTES:
+            parts.append(f"<figure><p class=missing>{len(data) >> 20} MiB: too large to inline</p>{caption}</figure>")
+        elif p.suffix.lower() == ".gif":
+            src = f"data:image/gif;base64,{base64.b64encode(data).decode()}"
+            parts.append(f'<figure><img alt="{html.escape(p.name)}" src="{src}">{caption}</figure>')
+        else:
+            src = f"data:video/mp4;base64,{base64.b64encode(data).decode()}"
+            parts.append(f'<figure><video controls loop muted src="{src}" style="max-width:560px"></video>{caption}</figure>')
+    return _grid(parts)
+
+
 def _leaderboard_section(root: Path) -> str | None:
     """Every suite's leaderboard under root (farm suite: leaderboard.csv), its chart and config."""
     boards = sorted(root.rglob("leaderboard.csv"))
@@ -380,7 +402,10 @@ SECTIONS = [
     ("leaderboard", "Leaderboard", "farm suite configs/suite_demo.yaml --out RESULTS_DIR/suite"),
     ("experiments", "Experiments", "farm experiments configs/experiments/smoke.yaml --out RESULTS_DIR/experiments/smoke"),
     ("games", "Game figures", "farm game --plot RESULTS_DIR/game.png"),
+    ("animations", "Animations", "farm game --animate RESULTS_DIR/game.gif, or farm eval RUN_DIR --animate"),
 ]
+
+MAX_ANIMATION_BYTES = 8 << 20  # a larger animation is linked, not inlined, so that the page stays light
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1200px;color:#222;padding:0 1em}
@@ -415,7 +440,7 @@ def build_report(results_dir: str | Path) -> str:
     sweep folders (sweep.json), capture-time stores (*.sqlite), training runs
     (evaluations.npz), density maps, evaluation tables, suite leaderboards
     (leaderboard.csv, with leaderboard.png and suite.json), experiments (experiment.json:
-    their summary, claims and learning curves over seeds) and game figures, and makes one
+    their summary, claims and learning curves over seeds), game figures and animations (.gif, .mp4), and makes one
     section of each kind; a kind without data says which command would produce it.
     Raises ReportError when the folder does not exist, holds none of these, or holds a
     damaged one.
@@ -440,6 +465,7 @@ def build_report(results_dir: str | Path) -> str:
     used.update(root.rglob("leaderboard.png"))
     used.update(root.rglob("learning_curves.png"))
     found["games"] = _game_figures(root, used)
+    found["animations"] = _animations_section(root)
     if not any(found.values()):
         raise ReportError(
             f"{root}: no results found (looked for pe_tables.*, sweep folders, capture-time stores, "

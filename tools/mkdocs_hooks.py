@@ -156,9 +156,21 @@ def _field_rows(model) -> list[tuple[str, object, str, str, str]]:
                 value = getattr(meta, attr, None)
                 if value is not None:
                     bounds.append(f"{sign} `{value}`" if attr == "pattern" else f"{sign} {value}")
-        description = info.description or comments.get(name, "")
+        description = info.description or comments.get(name, "") or _game_setting(model, name)
         rows.append((name, info.annotation, default, ", ".join(bounds), description))
     return rows
+
+
+def _game_setting(model, name: str) -> str:
+    """The description of a game setting a model takes over from workers.Case (AllocConfig's
+    optional settings, made with create_model, have no line of their own): Case's comment."""
+    from farm.core.config import SETTING_FIELDS
+    from workers import Case
+
+    if name not in SETTING_FIELDS or model is Case:
+        return ""
+    own = _comments(Case).get(name, "")
+    return f"as workers.Case's `{name}`: {own}; None: the engagement's value, else Case's default" if own else ""
 
 
 def _anchor(model) -> str:

@@ -89,10 +89,18 @@ class GameResults:
         """Cells of all live agents of one game at t = frame * dt (needs record=True).
 
         Returns the Cells (pursuers first, then live evaders) and the agent index
-        (n_cells,) int64 of each, evaders numbered from n_p.
+        (n_cells,) int64 of each, evaders numbered from n_p. A frame past the end is the last
+        recorded one; a negative frame or a game out of range is an InputError.
         """
         if self.pursuer_paths is None:
             raise InputError("cells_at: the games were simulated without record=True", field="cells_at")
+        if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or frame < 0:
+            raise InputError(f"cells_at: frame must be a whole number >= 0 (a step index), got {frame!r}",
+                             field="cells_at")
+        games = self.pursuer_paths.shape[1]
+        if isinstance(game, bool) or not isinstance(game, (int, np.integer)) or not 0 <= game < games:
+            raise InputError(f"cells_at: game must be a whole number from 0 to {games - 1}, got {game!r}",
+                             field="cells_at")
         frame = min(frame, len(self.pursuer_paths) - 1)
         pursuers = self.pursuer_paths[frame, game]
         evaders = self.evader_paths[frame, game]

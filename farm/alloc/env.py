@@ -18,11 +18,13 @@ import logging
 import gymnasium as gym
 import numpy as np
 from gymnasium.error import ResetNeeded
+from pydantic import ValidationError
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.dynamics import (Layout, check_actions, episode_end, move_probabilities, moves, n_actions, observe,
                                  start_densities, step)
 from farm.alloc.model import EngagementModel, row_sums
+from farm.core.config import error_field, first_line
 from farm.core.errors import ConfigError
 
 __all__ = ["SwarmAllocationEnv", "moves", "n_actions", "check_env_arguments", "env_client"]
@@ -35,14 +37,20 @@ def check_env_arguments(name: str, config: AllocConfig | None, estimates, kwargs
 
     name: the env class's name, for the message; config: an AllocConfig or None; kwargs:
     AllocConfig keyword arguments, the settings when config is None (both given: refused);
-    estimates: False, True or "lattice" (anything else refused, naming `estimates`).
+    estimates: False, True or "lattice" (anything else refused, naming `estimates`). Bad
+    keyword settings are a ConfigError naming the field, as gym.make's users get it.
     """
     if config is not None and kwargs:
         raise ConfigError(f"{name}: give a config or AllocConfig keyword arguments, not both "
                           f"(got a config and {', '.join(sorted(kwargs))})")
     if estimates not in (False, True, "lattice") or estimates.__class__ not in (bool, str):
         raise ConfigError(f"estimates: must be false, true or 'lattice', got {estimates!r}", field="estimates")
-    return config or AllocConfig(**kwargs)
+    if config is not None:
+        return config
+    try:
+        return AllocConfig(**kwargs)
+    except ValidationError as e:  # gym.make(id, **settings) lands here: one line, not pydantic's dump
+        raise ConfigError(first_line(e), field=error_field(e)) from None
 
 
 def env_client(config: AllocConfig, store):
@@ -308,7 +316,8 @@ class SwarmAllocationEnv(gym.Env):
     def set_state(self, state: dict) -> None:
         """Take a state get_state() returned (of an env of the same grid): the episode goes on
         from there, the generator draws what the saved one would have, the counters go on.
-        ConfigError (one line) for a state of another grid size or with a field missing."""
+        ConfigError (one line) for a state of another grid size, with a field missing, or with
+        densities that are not finite numbers >= 0; the env is unchanged then."""
         cells = self.n * self.n
         missing = sorted({"D", "I", "steps", "breached", "eliminated", "started", "rng", "engagements",
                           "estimated"} - set(state))
@@ -317,6 +326,11 @@ class SwarmAllocationEnv(gym.Env):
         if np.shape(state["D"]) != (cells,) or np.shape(state["I"]) != (cells,):
             raise ConfigError(f"set_state: the state's densities are of shape {np.shape(state['D'])}, "
                               f"this env's grid has {cells} cells", field="set_state")
+        for side in ("D", "I"):
+            values = np.asarray(state[side])
+            if values.dtype.kind not in "iuf" or not np.all(np.isfinite(values)) or np.any(values < 0):
+                raise ConfigError(f"set_state: the state's densities {side} must be finite numbers >= 0",
+                                  field="set_state")
         self.D = np.array(state["D"], dtype=np.float64)
         self.I = np.array(state["I"], dtype=np.float64)
         self.steps = int(state["steps"])

@@ -35,6 +35,7 @@ class RunEvaluation:
     games_table: pd.DataFrame | None = None
     differences: pd.DataFrame | None = None
     live: dict | None = None
+    animation: tuple | None = None  # (path, frames) of the episode's animation (animate)
 
 
 def reference_specs() -> list[PolicySpec]:
@@ -68,7 +69,8 @@ def evaluate_trained(run: RunFolder, config, policies: dict, client, episodes: i
 
 
 def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str = "service",
-                 scenario: str | None = None, references: list[str] | None = None) -> RunEvaluation:
+                 scenario: str | None = None, references: list[str] | None = None,
+                 animate=None) -> RunEvaluation:
     """`farm eval`: evaluate a run folder's trained allocator (see the module doc) with the
     capture-time service of its config (service.mode local: in this process, the games of
     fidelity "games" too, no Ray). scenario: a suite scenario's name, to evaluate the run on
@@ -78,7 +80,10 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     compare with, by name (default: every one; [] none). ConfigError (one line naming the
     field) for bad input, before any episode: not a run, episodes or seed not whole numbers
     >= 1 (>= 0), an unknown fidelity, scenario or reference, a model that cannot act on the
-    scenario's map, a run folder the tables cannot be written into."""
+    scenario's map, a run folder the tables cannot be written into, an animate path that is not
+    a .gif or .mp4. animate: also write an animation of the trained allocator's first episode
+    there (farm.alloc.animation; under fidelity "games" with one engaged cell's game inset),
+    a path relative to the folder the tables go into."""
     from farm.alloc.scenarios import SCENARIOS
     from farm.alloc.training.config import store_of
     from farm.service.client import open_client
@@ -108,6 +113,10 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
 
     # where the tables go, checked before any episode: a read-only run folder is found now, not at the end
     check_writable_folder(run.path if scenario is None else run.path / "scenarios" / scenario, "run_dir")
+    if animate is not None:
+        from farm.core.animate import check_animation_path
+
+        animate = (run.path if scenario is None else run.path / "scenarios" / scenario) / check_animation_path(animate)
     if scenario is not None:
         run = RunFolder(run.path / "scenarios" / scenario)  # where this evaluation's files go
         run.path.mkdir(parents=True, exist_ok=True)
@@ -121,6 +130,14 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
             result.games_table, result.differences, result.live = evaluate_fidelity(config.env, policies, client, episodes, seed,
                                                                        in_process=mode == "local")
             run.write_fidelity(result.games_table, result.differences)
+        if animate is not None:
+            from farm.alloc.animation import write_episode_animation
+            from farm.alloc.rollout import play
+
+            episode = play(config.env, policies[config.algo], client, 1, seed, record_first=True)[0]
+            title = f"{config.algo} on {scenario or config.name}, episode seed {seed}"
+            result.animation = write_episode_animation(episode, animate, title,
+                                                       settings=settings if fidelity == "games" else None)
     return result
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -45,13 +45,16 @@ class Episode:
     breached, length, coverage, engaged, defenders_per_engaged), steps (T, 3) float64 (the
     STEP_MEASURES of each step), frames (the (D, I) densities, (N, N) float64 each, before the
     first step and after each, when recorded, else empty), predict_seconds (wall seconds in
-    predict(), summed over the steps), first_obs (2 N^2,) float32 (the observation it started from)."""
+    predict(), summed over the steps), first_obs (2 N^2,) float32 (the observation it started
+    from), engagements (when recorded, each step's engaged cells as (cells, n_p, n_e), (k,)
+    int64 each, else empty)."""
 
     summary: dict
     steps: np.ndarray
     frames: list
     predict_seconds: float
     first_obs: np.ndarray
+    engagements: list = field(default_factory=list)
 
     @property
     def length(self) -> int:
@@ -67,7 +70,8 @@ def run_episode(env: SwarmAllocationEnv, policy, seed: int, record: bool = False
 
 def play(config, policy, client, episodes: int, seed: int, record_first: bool = False) -> list[Episode]:
     """policy on episodes seeded seed .. seed + episodes - 1 of the AllocConfig config (their
-    engagements answered by client); record_first: keep episode 0's density frames.
+    engagements answered by client); record_first: keep episode 0's density frames and the
+    cells it engaged at each step with their games' team sizes (Episode.engagements).
 
     The episodes are stepped together, by farm.alloc.dynamics.step (the env's own step) over
     the ones still running, so that each step's engagements of every episode are one ask of the
@@ -79,6 +83,9 @@ def play(config, policy, client, episodes: int, seed: int, record_first: bool = 
 
     layout = Layout(config.grid_size)
     model = EngagementModel(config, client, False)
+    if record_first:
+        model = _Recording(model)
+    engaged_cells: list = []
     n, A = config.grid_size, len(layout.src)
     shares = np.stack([seeding.np_random(seed + k)[0].dirichlet(np.ones(n)) for k in range(episodes)])
     D, I = start_densities(layout, shares)
@@ -107,6 +114,8 @@ def play(config, policy, client, episodes: int, seed: int, record_first: bool = 
             per_step[k].append([r.coverage[row], r.engaged[row], r.per_engaged[row] if r.engaged[row] else np.nan])
         if record_first and running[0] == 0:
             frames.append((D[0].reshape(n, n).copy(), I[0].reshape(n, n).copy()))
+            e, first_rows = model.last, model.last.episode == 0
+            engaged_cells.append((e.cells[first_rows].copy(), e.n_p[first_rows].copy(), e.n_e[first_rows].copy()))
         terminated, truncated = episode_end(config, steps[running], r.remaining)
         running = running[~(terminated | truncated)]
     played = []
@@ -116,8 +125,22 @@ def play(config, policy, client, episodes: int, seed: int, record_first: bool = 
         summary = {"return": float(totals[k]), "eliminated": float(eliminated[k]), "breached": float(breached[k]),
                    "length": int(steps[k]), "coverage": float(m[:, 0].mean()), "engaged": float(m[:, 1].mean()),
                    "defenders_per_engaged": float(np.mean(m[engaged_steps, 2])) if engaged_steps.any() else np.nan}
-        played.append(Episode(summary, m, frames if k == 0 else [], float(seconds[k]), first[k]))
+        played.append(Episode(summary, m, frames if k == 0 else [], float(seconds[k]), first[k],
+                              engaged_cells if k == 0 else []))
     return played
+
+
+class _Recording:
+    """An EngagementModel that keeps the Engagements of its last engage_many (play's record_first)."""
+
+    def __init__(self, model: EngagementModel):
+        self.model = model
+        self.last = None
+
+    def engage_many(self, D: np.ndarray, I: np.ndarray):
+        """model.engage_many(D, I), kept as self.last."""
+        self.last = self.model.engage_many(D, I)
+        return self.last
 
 
 def measure_table(per: pd.DataFrame, by: list[str], measures=MEASURES) -> pd.DataFrame:

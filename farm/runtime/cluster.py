@@ -146,8 +146,13 @@ def ray_cluster(address: str | None = None, *, num_cpus: int | None = None, metr
     with num_cpus CPUs (default 2), its Prometheus metrics on metrics_port (default: Ray's
     choice) and, with dashboard, its dashboard on 127.0.0.1. When this process is already
     connected to Ray, that Ray is used, and asking for an address, a CPU count or a metrics
-    port it does not have is a ClusterError. Yields the `ray` module.
+    port it does not have is a ClusterError; a metrics port outside 1-65535 is a ConfigError,
+    before Ray starts. Yields the `ray` module.
     """
+    if metrics_port is not None and (isinstance(metrics_port, bool) or not isinstance(metrics_port, int)
+                                     or not 1 <= metrics_port <= 65535):
+        raise ConfigError(f"metrics_port: must be a TCP port from 1 to 65535, got {metrics_port!r}",
+                          field="metrics_port")
     address = address or os.environ.get("RAY_ADDRESS") or None
     if not address and "ray" not in sys.modules:
         os.environ.setdefault(LOOPBACK_ENV, "0")  # read by Ray at import, and by every process it starts

@@ -9,7 +9,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from workers import CaptureStats
+from workers import CaptureStats, InputError
 
 from farm.core.errors import ConfigError
 from farm.service.keys import ServiceSettings, StatsKey, lattice_anchors
@@ -90,8 +90,14 @@ class CaptureTimeClient:
         """The StatsKey of a team-size pair under the client's settings."""
         return self.settings.key(n_pursuers, n_evaders)
 
+    def _check_open(self) -> None:
+        """InputError (one line) when the backend was closed: a closed client answers nothing."""
+        if getattr(self.backend, "closed", False):
+            raise InputError("CaptureTimeClient: closed (its store's connection too); open a new client to ask again")
+
     def get(self, n_pursuers: int, n_evaders: int) -> CaptureStats:
-        """The statistics of one team-size pair (exact)."""
+        """The statistics of one team-size pair (exact); InputError after close()."""
+        self._check_open()
         if n_pursuers.__class__ is not bool and n_evaders.__class__ is not bool:  # True == 1 as a dict key
             value = self._memo.get((n_pursuers, n_evaders))
             if value is not None:
@@ -107,7 +113,9 @@ class CaptureTimeClient:
         how) while the exact value is computed (in the background on Ray; in process, on its
         next exact ask); estimates are not memoized; which visits are estimated, and from
         what, depends on timing. "lattice": the timing-independent rule (lattice_estimates).
+        InputError after close().
         """
+        self._check_open()
         if estimate == "lattice":
             return self.lattice_estimates(pairs)
         if estimate not in (False, True):
@@ -158,6 +166,7 @@ class CaptureTimeClient:
     def warm(self, pairs: Iterable[tuple[int, int]], progress: Callable[[int], None] | None = None) -> int:
         """Have every pair computed (in parallel on Ray), then memoized; progress(n) as pairs
         are done. Returns the number of pairs."""
+        self._check_open()
         pairs = [tuple(p) for p in pairs]
         self.backend.warm([self.key(*p) for p in pairs], progress)
         self.get_many(pairs)

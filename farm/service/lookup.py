@@ -311,10 +311,13 @@ class Lookup:
         """The store's resolved path (None without a store)."""
         return str(self.store.path) if self.store is not None else None
 
+    closed = False  # set by close(): a closed lookup answers nothing more
+
     def close(self) -> None:
-        """Close the store's connection."""
+        """Close the store's connection; the lookup is closed (`closed`)."""
         if self.store is not None:
             self.store.close()
+        self.closed = True
 
 
 _estimate = estimate  # Lookup.get_many's `estimate` flag shadows the function's name there
