@@ -133,3 +133,21 @@ def test_the_config_reference_names_every_field_of_every_config_model(site):
         section = re.split(r"<h2 id=", section, maxsplit=1)[0]
         missing += [(model.__name__, f) for f in fields if f"<code>{f}</code>" not in section]
     assert not missing, missing
+
+
+def test_every_config_field_has_a_description_in_the_reference(monkeypatch):
+    monkeypatch.syspath_prepend(str(ROOT / "tools"))  # tools/mkdocs_hooks.py, as mkdocs loads it
+    hooks = importlib.import_module("mkdocs_hooks")
+    seen, missing = set(), []
+    todo = [model for _, _, _, roots, _ in hooks.config_pages() for model in roots]
+    while todo:
+        model = todo.pop()
+        if model in seen:
+            continue
+        seen.add(model)
+        for name, annotation, *_, description in hooks._field_rows(model):
+            if not description.strip():
+                missing.append(f"{model.__module__}.{model.__name__}.{name}")
+            todo += hooks._models_in(annotation)  # nested models (sections) too
+    assert len(seen) >= 15
+    assert not missing, f"{len(missing)} config field(s) without a description: {', '.join(missing)}"

@@ -40,9 +40,9 @@ class InitialLaw:
 
     __pydantic_config__ = {"extra": "forbid"}  # read from configs by pydantic: unknown names are errors
 
-    kind: Literal["boxes", "uniform"] = "boxes"
-    pursuer_box: Box = (3.0, 5.0, 0.0, 10.0)
-    evader_box: Box = (7.0, 9.0, 0.0, 10.0)
+    kind: Literal["boxes", "uniform"] = "boxes"  # boxes: each team in its box; uniform: all uniform in the arena
+    pursuer_box: Box = (3.0, 5.0, 0.0, 10.0)  # (x_min, x_max, y_min, y_max) of the pursuers' start (kind boxes)
+    evader_box: Box = (7.0, 9.0, 0.0, 10.0)  # (x_min, x_max, y_min, y_max) of the evaders' start (kind boxes)
 
 
 PAPER_LAW = InitialLaw()
@@ -59,21 +59,21 @@ class Case:
 
     __pydantic_config__ = {"extra": "forbid"}  # read from configs by pydantic: unknown names are errors
 
-    n_pursuers: int
-    n_evaders: int
-    pursuer_policy: str = "area_min"
-    evader_policy: str = "centroid"
-    capture_radius: float = 0.25
-    dt: float = 0.01
-    t_max: float = 60.0
-    tau: float = 5.0
-    target: tuple[float, float] = (0.0, 5.0)
-    arena: tuple[tuple[float, float], ...] | None = None
-    law: InitialLaw = field(default_factory=InitialLaw)
+    n_pursuers: int  # pursuers in the game, 1 to MAX_TEAM
+    n_evaders: int  # evaders in the game, 1 to MAX_TEAM
+    pursuer_policy: str = "area_min"  # a registered pursuer policy: area_min, pure_pursuit
+    evader_policy: str = "centroid"  # a registered evader policy: centroid, constant_area, target, area_max
+    capture_radius: float = 0.25  # r_c: an evader closer than this to a pursuer is captured
+    dt: float = 0.01  # the time step (s), explicit Euler
+    t_max: float = 60.0  # a game's length (s): it stops after floor(t_max / dt) steps
+    tau: float = 5.0  # the engagement window (s) of the "by tau" statistics; changes no game
+    target: tuple[float, float] = (0.0, 5.0)  # (x, y) the `target` evader policy heads for
+    arena: tuple[tuple[float, float], ...] | None = None  # a convex polygon's vertices; None: the square [0, 10]^2
+    law: InitialLaw = field(default_factory=InitialLaw)  # how initial positions are drawn
     exit_point: tuple[float, float] | None = None  # None: no escapes (the paper's games)
-    pursuer_speed: float = 1.0
-    evader_speed: float = 1.0
-    engine_version: str = ENGINE_VERSION
+    pursuer_speed: float = 1.0  # v_p: the pursuers' speed (arena units per s)
+    evader_speed: float = 1.0  # v_e: the evaders' speed (arena units per s)
+    engine_version: str = ENGINE_VERSION  # the engine's version, part of the key; not a setting
 
     def __post_init__(self):
         # One spelling per value, so that 60 and 60.0 give the same key. Only numbers and

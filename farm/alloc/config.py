@@ -56,20 +56,20 @@ def _positive(x) -> bool:
 
 
 class _AllocFields(Strict):
-    grid_size: int = Field(3, ge=2, le=32)
-    n_defenders: int = Field(100, ge=1, le=100_000)
-    n_intruders: int = Field(50, ge=1, le=100_000)
-    c_distribution: float = Field(1.0, ge=0, allow_inf_nan=False)
-    c_capture: float = Field(0.0, ge=0, allow_inf_nan=False)
-    breach_penalty: float = Field(1.0, ge=0, allow_inf_nan=False)
-    action_map: Literal["softmax", "shifted"] = "softmax"
-    softmax_beta: float = Field(5.0, gt=0, allow_inf_nan=False)
-    vertical_drift: float = Field(0.0, ge=0, le=0.5)
-    max_steps: int = Field(12, ge=1, le=10_000)
-    epsilon: float = Field(1e-3, gt=0, lt=1)
-    engage_min_mass: float = Field(1e-6, ge=0)
-    team_sizes: Literal["exact", "lattice"] = "exact"
-    engagement: Literal["v1", "v2"] = "v2"
+    grid_size: int = Field(3, ge=2, le=32)  # N: the map is an N x N grid of cells
+    n_defenders: int = Field(100, ge=1, le=100_000)  # N_def: a cell's n_p = round(D_c * n_defenders)
+    n_intruders: int = Field(50, ge=1, le=100_000)  # N_int: a cell's n_e = max(1, round(I_c * n_intruders))
+    c_distribution: float = Field(1.0, ge=0, allow_inf_nan=False)  # reward weight of the intruder mass left, sum(I)
+    c_capture: float = Field(0.0, ge=0, allow_inf_nan=False)  # reward weight of the step's capture score S_k
+    breach_penalty: float = Field(1.0, ge=0, allow_inf_nan=False)  # reward weight of the mass breached this step (B_k)
+    action_map: Literal["softmax", "shifted"] = "softmax"  # moves' shares: softmax(beta a), or shifted (a+1)/sum(a+1)
+    softmax_beta: float = Field(5.0, gt=0, allow_inf_nan=False)  # beta of action_map softmax
+    vertical_drift: float = Field(0.0, ge=0, le=0.5)  # intruder mass share a row sends to each neighbouring row a step
+    max_steps: int = Field(12, ge=1, le=10_000)  # steps after which an episode is truncated
+    epsilon: float = Field(1e-3, gt=0, lt=1)  # an episode terminates when the intruder mass falls below it
+    engage_min_mass: float = Field(1e-6, ge=0)  # a cell engages only with more intruder mass than this
+    team_sizes: Literal["exact", "lattice"] = "exact"  # exact: rounded; lattice: snapped to 1, 2, 3, 4, 6, 8, 12, ...
+    engagement: Literal["v1", "v2"] = "v2"  # v2: the games tied to the MDP step; v1: the earlier model
     step_seconds: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: CELL_SIDE / evader_speed
     capture_time_norm: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: tau
     capture_score: Literal["expected", "conditional"] | None = None  # v2: expected, v1: conditional

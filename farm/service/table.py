@@ -28,19 +28,19 @@ from farm.service.store import default_store_path
 class PolicyPair(Strict):
     """One table's policies."""
 
-    pursuer_policy: str
-    evader_policy: str
+    pursuer_policy: str  # the pursuers' policy of this table (a workers pursuer policy)
+    evader_policy: str  # the evaders' policy of this table (a workers evader policy)
 
 
 class TableConfig(Strict):
     """A `farm table` config: the store, the settings, the team sizes and the policy pairs."""
 
-    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
+    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")  # names the heatmap files
     store: str | None = None  # None: default_store_path()
     settings: dict[str, Any] = {}  # games, seed and workers.Case fields but the team sizes
-    n_pursuers: list[int] = Field(min_length=1)
-    n_evaders: list[int] = Field(min_length=1)
-    policies: list[PolicyPair] | None = None
+    n_pursuers: list[int] = Field(min_length=1)  # the tables' rows: team sizes of the pursuers
+    n_evaders: list[int] = Field(min_length=1)  # the tables' columns: team sizes of the evaders
+    policies: list[PolicyPair] | None = None  # one table per pair; None: the settings' policies (or Case's)
 
     @field_validator("settings")
     @classmethod

@@ -95,8 +95,8 @@ class _Params(Strict):
 
     ALGO: ClassVar[str] = ""
 
-    n_timesteps: int = Field(30_000, ge=1)
-    policy: Literal["MlpPolicy"] = "MlpPolicy"
+    n_timesteps: int = Field(30_000, ge=1)  # env steps to train for (SB3's total_timesteps)
+    policy: Literal["MlpPolicy"] = "MlpPolicy"  # the SB3 policy class
 
     @field_validator("policy_kwargs", check_fields=False)
     @classmethod
@@ -107,14 +107,14 @@ class _Params(Strict):
 class _OffPolicyParams(_Params):
     """The settings TD3 and SAC share (stable-baselines3's OffPolicyAlgorithm's)."""
 
-    learning_rate: float = Field(1e-3, gt=0)
-    buffer_size: int = Field(200_000, ge=1)
-    learning_starts: int = Field(1000, ge=0)
-    batch_size: int = Field(256, ge=1)
-    tau: float = Field(0.005, gt=0, le=1)
-    gamma: float = Field(0.95, ge=0, le=1)
-    train_freq: int = Field(1, ge=1)
-    gradient_steps: int = Field(1, ge=-1)
+    learning_rate: float = Field(1e-3, gt=0)  # Adam's learning rate
+    buffer_size: int = Field(200_000, ge=1)  # the replay buffer's capacity (transitions)
+    learning_starts: int = Field(1000, ge=0)  # steps of random actions collected before the first update
+    batch_size: int = Field(256, ge=1)  # transitions per minibatch of a gradient step
+    tau: float = Field(0.005, gt=0, le=1)  # soft (Polyak) update coefficient of the target networks
+    gamma: float = Field(0.95, ge=0, le=1)  # discount factor
+    train_freq: int = Field(1, ge=1)  # env steps between model updates
+    gradient_steps: int = Field(1, ge=-1)  # gradient steps per update; -1: as many as the steps collected
 
     @field_validator("gradient_steps")
     @classmethod
@@ -129,10 +129,10 @@ class TD3Params(_OffPolicyParams):
 
     ALGO: ClassVar[str] = "td3"
 
-    policy_delay: int = Field(2, ge=1)
-    noise_type: Literal["normal", "none"] = "normal"
-    noise_std: float = Field(0.2, ge=0)
-    policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}
+    policy_delay: int = Field(2, ge=1)  # critic updates per actor (and target) update
+    noise_type: Literal["normal", "none"] = "normal"  # exploration noise added to actions: Gaussian, or none
+    noise_std: float = Field(0.2, ge=0)  # standard deviation of the Gaussian action noise
+    policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}  # SB3 policy arguments: POLICY_KWARGS["td3"]
 
 
 class PPOParams(_Params):
@@ -143,19 +143,19 @@ class PPOParams(_Params):
 
     n_timesteps: int = Field(100_000, ge=1)
     policy: Literal["MlpPolicy", "CellPolicy"] = "MlpPolicy"  # CellPolicy: farm.alloc.training.cell_policy
-    learning_rate: float = Field(3e-4, gt=0)
+    learning_rate: float = Field(3e-4, gt=0)  # Adam's learning rate
     n_steps: int = Field(256, ge=1)  # per env: a rollout is n_steps x n_envs steps
-    batch_size: int = Field(64, ge=2)
-    n_epochs: int = Field(10, ge=1)
-    gamma: float = Field(0.99, ge=0, le=1)
-    gae_lambda: float = Field(0.95, ge=0, le=1)
-    clip_range: float = Field(0.2, gt=0)
-    ent_coef: float = Field(0.0, ge=0)
-    vf_coef: float = Field(0.5, ge=0)
-    max_grad_norm: float = Field(0.5, gt=0)
-    target_kl: float | None = Field(None, gt=0)
-    normalize_advantage: bool = True
-    policy_kwargs: dict[str, Any] = {}
+    batch_size: int = Field(64, ge=2)  # minibatch size
+    n_epochs: int = Field(10, ge=1)  # passes over each rollout
+    gamma: float = Field(0.99, ge=0, le=1)  # discount factor
+    gae_lambda: float = Field(0.95, ge=0, le=1)  # lambda of the generalised advantage estimate
+    clip_range: float = Field(0.2, gt=0)  # the probability ratio is clipped to 1 +- clip_range
+    ent_coef: float = Field(0.0, ge=0)  # weight of the entropy bonus in the loss
+    vf_coef: float = Field(0.5, ge=0)  # weight of the value function's loss
+    max_grad_norm: float = Field(0.5, gt=0)  # gradients are clipped to this norm
+    target_kl: float | None = Field(None, gt=0)  # an update stops past KL 1.5 x target_kl; None: no limit
+    normalize_advantage: bool = True  # normalise the advantages of each minibatch
+    policy_kwargs: dict[str, Any] = {}  # SB3 policy arguments: POLICY_KWARGS["ppo"] (CellPolicy: CELL_POLICY_KWARGS)
 
 
 class SACParams(_OffPolicyParams):
@@ -166,8 +166,8 @@ class SACParams(_OffPolicyParams):
 
     learning_rate: float = Field(3e-4, gt=0)
     ent_coef: float | Literal["auto"] = "auto"  # a number: fixed; auto: learned, starting at 1
-    target_entropy: float | Literal["auto"] = "auto"
-    policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}
+    target_entropy: float | Literal["auto"] = "auto"  # the learned ent_coef's entropy target; auto: -(action size)
+    policy_kwargs: dict[str, Any] = {"net_arch": [400, 300]}  # SB3 policy arguments: POLICY_KWARGS["sac"]
 
     @field_validator("ent_coef")
     @classmethod
@@ -181,8 +181,8 @@ class MapParams(Strict):
     """One map of a pretraining curriculum (pretrain.maps): a suite scenario, its env settings
     replaced by `env`'s (AllocConfig fields), as a training config's `scenario` and `env`."""
 
-    scenario: str
-    env: dict[str, Any] = {}
+    scenario: str  # a suite scenario's name (farm.alloc.scenarios.SCENARIOS)
+    env: dict[str, Any] = {}  # AllocConfig settings replacing the scenario's
 
     @field_validator("scenario")
     @classmethod
@@ -222,17 +222,17 @@ class PretrainParams(Strict):
     with the run's own (a curriculum of maps, for a policy whose weights fit any map:
     ppo.policy CellPolicy)."""
 
-    expert: str = "receding_horizon"
-    expert_options: dict[str, Any] = {}
-    iterations: int = Field(4, ge=1, le=1000)
-    episodes: int = Field(16, ge=1)
-    expert_share: float | list[float] = 0.5
-    loss: Literal["flows", "actions"] = "flows"
-    epochs: int = Field(30, ge=1)
-    batch_size: int = Field(128, ge=1)
-    learning_rate: float = Field(1e-3, gt=0)
-    episodes_per_task: int = Field(4, ge=1)
-    maps: list[MapParams] = []
+    expert: str = "receding_horizon"  # the expert: a registered baseline or planner (farm.alloc.policies)
+    expert_options: dict[str, Any] = {}  # the expert's options
+    iterations: int = Field(4, ge=1, le=1000)  # DAgger iterations
+    episodes: int = Field(16, ge=1)  # episodes played per iteration (on each map)
+    expert_share: float | list[float] = 0.5  # expert's share of steps: one per iteration, or p for 1, p, p^2, ...
+    loss: Literal["flows", "actions"] = "flows"  # flows: density-weighted move cross-entropy; actions: MSE
+    epochs: int = Field(30, ge=1)  # epochs of each iteration's fit over the labels so far
+    batch_size: int = Field(128, ge=1)  # minibatch size of the fit
+    learning_rate: float = Field(1e-3, gt=0)  # Adam's learning rate of the fit
+    episodes_per_task: int = Field(4, ge=1)  # episodes of one labelling task (a Ray task on the farm)
+    maps: list[MapParams] = []  # suite scenarios labelled too, a curriculum (ppo.policy CellPolicy only)
 
     @field_validator("maps", mode="before")
     @classmethod
@@ -273,17 +273,17 @@ class PretrainParams(Strict):
 class EvalParams(Strict):
     """The periodic evaluation during training (SB3's EvalCallback)."""
 
-    freq: int = Field(2000, ge=1)
-    episodes: int = Field(10, ge=1)
+    freq: int = Field(2000, ge=1)  # env steps (all envs) between periodic evaluations
+    episodes: int = Field(10, ge=1)  # episodes of each periodic evaluation (and of the pretrained model's)
 
 
 class ServiceParams(Strict):
     """Where training's capture-time statistics come from (farm.service.lookup.open_client)."""
 
-    mode: Literal["ray", "local"] = "ray"
+    mode: Literal["ray", "local"] = "ray"  # ray: the service actor on a Ray cluster; local: in-process lookup
     store: str | None = None  # None: farm.service.store.default_store_path()
-    address: str | None = None
-    warm_lattice: bool = True
+    address: str | None = None  # the Ray cluster to join; None: $RAY_ADDRESS, else a local Ray
+    warm_lattice: bool = True  # compute the lattice pairs of every map (team_sizes lattice) first
     # During training (its steps and its periodic evaluations), a first visit's outcome comes
     # from an interpolation while the exact value is computed in the background (farm eval
     # afterwards is exact). true: the service's interpolation of what it has computed by then
@@ -296,22 +296,23 @@ class ServiceParams(Strict):
 class TrainConfig(Strict):
     """A `farm train` config (see the module doc)."""
 
+    # the run's name: the default run folder results/runs/NAME, and MLflow's run and experiment
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
-    seed: int = Field(0, ge=0)
+    seed: int = Field(0, ge=0)  # seeds the learner, the envs' episodes and the evaluations
     scenario: str | None = None  # SCENARIOS' name: its env settings are the base of `env`
-    env: AllocConfig = AllocConfig()
+    env: AllocConfig = AllocConfig()  # the allocation env's settings (over the scenario's)
     algo: Literal["td3", "ppo", "sac"] = "td3"  # stable-baselines3's algorithm; its section holds its settings
-    td3: TD3Params = TD3Params()
-    ppo: PPOParams = PPOParams()
-    sac: SACParams = SACParams()
+    td3: TD3Params = TD3Params()  # TD3's settings (algo td3)
+    ppo: PPOParams = PPOParams()  # PPO's settings (algo ppo)
+    sac: SACParams = SACParams()  # SAC's settings (algo sac)
     n_envs: int = Field(1, ge=1, le=1024)  # episodes stepped at once (> 1: the batched vector env)
-    pretrain: PretrainParams | None = None
+    pretrain: PretrainParams | None = None  # planner-guided pretraining before RL; None: none
     keep: Literal["final", "best"] = "final"  # model.zip: the final model, or the best of the periodic evaluations
-    eval: EvalParams = EvalParams()
-    checkpoint_freq: int = Field(5000, ge=1)
+    eval: EvalParams = EvalParams()  # the periodic evaluation during training
+    checkpoint_freq: int = Field(5000, ge=1)  # env steps between checkpoints (what --resume goes on from)
     log_interval: int = Field(100, ge=1)  # episodes between TensorBoard rollout records
     threads: int | None = Field(1, ge=1, le=1024)  # torch threads while training; None: torch's choice
-    service: ServiceParams = ServiceParams()
+    service: ServiceParams = ServiceParams()  # where the capture-time statistics come from
     tracking: TrackingParams = TrackingParams()  # MLflow, when set (farm.core.tracking); no part of the run's identity
 
     @model_validator(mode="before")

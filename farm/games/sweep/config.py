@@ -44,8 +44,8 @@ VARIABLE_FIELDS = tuple(name for name in GAME_FIELDS if name not in ("arena", "l
 
 class RandomModel(Strict):
     """`vary.random`: n seeded draws, each field uniform in its [low, high] range (whole numbers for int fields)."""
-    n: int = Field(ge=1, le=100_000)
-    ranges: dict[str, tuple[float, float]]
+    n: int = Field(ge=1, le=100_000)  # how many random draws (points of this axis)
+    ranges: dict[str, tuple[float, float]]  # numeric Case field -> [low, high], drawn uniformly
 
     @field_validator("ranges")
     @classmethod
@@ -61,9 +61,9 @@ class RandomModel(Strict):
 
 class VaryModel(Strict):
     """`vary`: what changes between points, `grid` (cartesian product), `zip` (lists in step) and `random`; their product."""
-    grid: dict[str, list[Any]] | None = None
-    zip: dict[str, list[Any]] | None = None
-    random: RandomModel | None = None
+    grid: dict[str, list[Any]] | None = None  # Case field -> values: one axis per field (cartesian product)
+    zip: dict[str, list[Any]] | None = None  # Case field -> values: lists of one length, taken in step
+    random: RandomModel | None = None  # n seeded uniform draws of numeric fields (one axis)
 
     @field_validator("grid", "zip")
     @classmethod
@@ -105,12 +105,13 @@ def varied_names(vary: dict) -> list[str]:
 
 class SweepConfig(Strict):
     """A sweep config (see the module doc): name, seed, games per point, shard size, the base game and what varies."""
+    # the sweep's name: its metrics' label and the default output folder, results/sweeps/NAME
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
-    seed: int = Field(0, ge=0)
-    games_per_point: int = Field(50, ge=1, le=10_000_000)
-    shard_games: int | None = Field(None, ge=1, le=MAX_SHARD_GAMES)
-    base: dict[str, Any] = {}
-    vary: VaryModel = VaryModel()
+    seed: int = Field(0, ge=0)  # game g of every point is seeded (seed, g); also seeds vary.random
+    games_per_point: int = Field(50, ge=1, le=10_000_000)  # Monte Carlo games played at each point
+    shard_games: int | None = Field(None, ge=1, le=MAX_SHARD_GAMES)  # games per Ray task; None: from the cost model
+    base: dict[str, Any] = {}  # workers.Case fields of the game every point starts from
+    vary: VaryModel = VaryModel()  # what changes between points; empty: one point, the base
 
     @field_validator("base")
     @classmethod

@@ -23,15 +23,16 @@ class ExperimentConfig(StrictFile):
 
     KIND = "an experiments"
 
+    # the experiment's name: its trials are named NAME-<trial>; MLflow's default experiment
     name: str = Field(min_length=1, max_length=80, pattern=r"^[A-Za-z0-9_.-]+$")
-    base: str | None = None
-    scenario: str | None = None
-    overrides: dict[str, Any] = {}
-    grid: dict[str, list[Any]] = {}
-    seeds: list[int]
-    episodes: int = Field(10, ge=1, le=100_000)
-    eval_seed: int = Field(1000, ge=0)
-    store: str | None = None
+    base: str | None = None  # a training config's path, the trials' base (or give scenario)
+    scenario: str | None = None  # a suite scenario's name, with TrainConfig's defaults (or give base)
+    overrides: dict[str, Any] = {}  # dotted TrainConfig field -> value, set in every trial
+    grid: dict[str, list[Any]] = {}  # dotted TrainConfig field -> values: the points, a cartesian product
+    seeds: list[int]  # each (point, seed) is one trial, its TrainConfig.seed
+    episodes: int = Field(10, ge=1, le=100_000)  # evaluation episodes: each trial's model, the baselines and the planners
+    eval_seed: int = Field(1000, ge=0)  # evaluation episodes are seeded eval_seed .. eval_seed + episodes - 1
+    store: str | None = None  # the capture-time store every trial shares; None: default_store_path()
     tracking: TrackingParams = TrackingParams()  # MLflow: a run per trial (farm.core.tracking); not in the digest
 
     @field_validator("seeds")

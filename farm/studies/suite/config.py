@@ -30,16 +30,17 @@ class SuiteConfig(StrictFile):
 
     KIND = "a suite"
 
+    # the suite's name: the leaderboard plot's title and suite.json's name
     name: str = Field("suite", min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
     scenarios: list[str] | None = None  # None: every scenario
     policies: list[str] | None = None  # None: every baseline and every planner
-    planner_options: dict[str, dict[str, Any]] = {}
-    episodes: int = Field(10, ge=1, le=100_000)
-    seed: int = Field(1000, ge=0)
+    planner_options: dict[str, dict[str, Any]] = {}  # planner -> its options (keyword arguments)
+    episodes: int = Field(10, ge=1, le=100_000)  # episodes per (scenario, policy), the same for every policy
+    seed: int = Field(1000, ge=0)  # episode k is seeded seed + k
     store: str | None = None  # None: farm.service.store.default_store_path()
     env: dict[str, Any] = {}  # AllocConfig settings replacing every scenario's
     runs: dict[str, str] = {}  # scenario -> TD3 run folder
-    skip_missing_runs: bool = False
+    skip_missing_runs: bool = False  # true: a run folder without model.zip is skipped; false: an error
 
     @field_validator("scenarios")
     @classmethod
