@@ -316,6 +316,8 @@ def cmd_table(a) -> int:
             if getattr(a, flag) not in (None, False):
                 raise CliError(f"--{flag}: `farm table show` only reads the store; --{flag} is for `farm table`")
     _contradictions(a, [("address", "workers")])
+    if a.store is not None and not a.store.strip():
+        raise CliError("--store: an empty path; name the SQLite store, or leave --store out for the config's")
     config = load_table_config(args[0])
     if not show:
         from farm.games.sizes import check_size
@@ -356,6 +358,10 @@ def cmd_train(a) -> int:
     if a.timesteps is not None:
         if a.timesteps < 1:
             raise CliError(f"--timesteps: must be >= 1, got {a.timesteps}")
+        starts = getattr(config.learner, "learning_starts", None)
+        if starts is not None and a.timesteps <= starts:
+            raise CliError(f"--timesteps: {a.timesteps} steps, but {config.algo}.learning_starts is {starts}: "
+                           f"the model would never be updated")
         config = config.with_timesteps(a.timesteps)
     if a.service:
         config = config.model_copy(update={"service": config.service.model_copy(update={"mode": a.service})})

@@ -151,3 +151,15 @@ def test_every_config_field_has_a_description_in_the_reference(monkeypatch):
             todo += hooks._models_in(annotation)  # nested models (sections) too
     assert len(seen) >= 15
     assert not missing, f"{len(missing)} config field(s) without a description: {', '.join(missing)}"
+
+
+def test_the_readme_is_short_and_keeps_its_two_commands():
+    """README.md stays a front page: at most 220 lines, its two set-up commands, and every
+    relative link pointing at a file or folder of the repository (web links and #anchors aside)."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 220
+    assert "make demo" in text and "make test" in text
+    targets = [t for t in re.findall(r"!?\[[^\]]*\]\(([^)\s]+)\)", text) if not re.match(r"[a-z][a-z0-9+.-]*:|#", t)]
+    assert targets
+    missing = [t for t in targets if not (ROOT / t.split("#", 1)[0]).exists()]
+    assert not missing, missing

@@ -355,7 +355,7 @@ def test_triangle_arena_games_match_reference(pp, ep, rng):
 def test_agents_on_boundary_and_coincident_follow_the_reference(pp, ep):
     """Agents in corners, on edges and on top of each other. Controls equal the
     reference's along the game, except the documented coincident-agents choice
-    (README, "Model choices"): of the two pursuers at (0, 0) only pursuer 0 is the
+    (docs/engine.md, "Model choices"): of the two pursuers at (0, 0) only pursuer 0 is the
     evaders' neighbour at t = 0, so area_min sends pursuer 1 straight at its nearest
     evader, (10, 0), where the reference makes both neighbours."""
     p = np.array([[[0.0, 0.0], [0.0, 0.0], [10.0, 10.0], [0.0, 5.0]]])

@@ -90,7 +90,7 @@ def test_a_scenario_is_a_base_and_the_grid_overrides_its_env(tmp_path):
 
     path = tmp_path / "s.yaml"
     path.write_text(yaml.safe_dump({"name": "sc", "scenario": "outnumbered_3x3", "seeds": [3],
-                                    "overrides": {"td3.n_timesteps": 500},
+                                    "overrides": {"td3.n_timesteps": 500, "td3.learning_starts": 100},
                                     "grid": {"env.c_capture": [0.5, 1.0], "td3.policy_kwargs.net_arch": [[64, 64]]}}))
     trials = plan(load_experiment_config(path)).trials
     assert [t.key for t in trials] == ["p0_s3", "p1_s3"]

@@ -125,3 +125,134 @@ def test_a_client_asked_after_close_says_so_in_one_line(tmp_path):
                 lambda: client.warm([(1, 1)]), lambda: shared.get(1, 2)):
         with pytest.raises(InputError, match="^CaptureTimeClient: closed"):
             ask()
+
+
+# ----- settings that cannot train, statistics that contradict their games ------------------
+
+TINY = "name: x\nservice: {mode: local}\n"
+
+
+@pytest.mark.parametrize("section, fragment", [
+    ("td3: {n_timesteps: 300, learning_starts: 300}", "td3: learning_starts: 300 steps of random actions"),
+    ("algo: sac\nsac: {n_timesteps: 300, learning_starts: 1000}", "sac: learning_starts: 1000 steps"),
+    ("td3: {n_timesteps: 300, learning_starts: 100, buffer_size: 1, batch_size: 1}", "td3: buffer_size: a replay buffer of 1"),
+    ("td3: {n_timesteps: 300, learning_starts: 100, buffer_size: 50, batch_size: 64}", "td3: batch_size: minibatches of 64"),
+    ("td3: {n_timesteps: 300, learning_starts: 100, buffer_size: 3, batch_size: 2}\nn_envs: 4",
+     "td3.buffer_size: 3 transitions over n_envs = 4"),
+])
+def test_training_settings_under_which_nothing_is_learned_are_refused_before_any_work(tmp_path, section, fragment):
+    path = tmp_path / "train.yaml"
+    path.write_text(TINY + section + "\n")
+    status, out, err = farm_cli("train", path, "--out", tmp_path / "run")
+    one_line(status, err, fragment)
+    assert not (tmp_path / "run").exists()
+
+
+def test_timesteps_on_the_command_line_below_learning_starts_is_refused(tmp_path):
+    status, out, err = farm_cli("train", "configs/train/tiny.yaml", "--timesteps", 100, "--out", tmp_path / "run")
+    one_line(status, err, "--timesteps: 100 steps, but td3.learning_starts is 100")
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_window_tau_longer_than_the_games_is_refused_where_statistics_are_made(tmp_path):
+    from workers import run_case
+
+    case = Case(n_pursuers=2, n_evaders=1, t_max=10.0, tau=50.0)
+    with pytest.raises(InputError, match=r"^tau: the statistics window \(50 s\) is longer than the games"):
+        run_case(case, 2, 0)
+    with pytest.raises(InputError, match="^tau: the statistics window"):
+        ServiceSettings.of(games=4, t_max=10.0, tau=50.0).key(2, 1)
+    assert run_games(case, 0, 0, 1).n_games == 1  # the game itself does not need tau
+    table = tmp_path / "t.yaml"
+    table.write_text("name: t\nn_pursuers: [1, 2]\nn_evaders: [1]\nsettings: {games: 4, t_max: 10, tau: 50}\n")
+    status, out, err = farm_cli("table", table, "--store", tmp_path / "s.sqlite")
+    one_line(status, err, "tau: the statistics window (50 s)")
+    assert not (tmp_path / "s.sqlite").exists()
+    sweep = tmp_path / "w.yaml"
+    sweep.write_text("name: w\nbase: {n_evaders: 1, t_max: 10}\nvary: {grid: {n_pursuers: [1, 2], tau: [5, 20]}}\n")
+    status, out, err = farm_cli("sweep", sweep, "--out", tmp_path / "w", "--no-ray")
+    one_line(status, err, "vary: point 1 (n_pursuers=1, tau=20): tau: the statistics window (20 s)")
+    assert not (tmp_path / "w").exists()
+
+
+def test_a_random_integer_range_without_a_whole_number_is_refused_and_draws_stay_inside(tmp_path):
+    from farm.games.sweep import load_sweep_config
+
+    path = tmp_path / "r.yaml"
+    path.write_text("name: r\nbase: {n_evaders: 1}\nvary: {random: {n: 3, ranges: {n_pursuers: [1.2, 1.7]}}}\n")
+    status, out, err = farm_cli("sweep", path, "--out", tmp_path / "r", "--no-ray")
+    one_line(status, err, "n_pursuers: [1.2, 1.7] holds no whole number")
+    path.write_text("name: r\nbase: {n_evaders: 1}\nvary: {random: {n: 200, ranges: {n_pursuers: [1.5, 3.5]}}}\n")
+    drawn = {p.changes["n_pursuers"] for p in load_sweep_config(path).points()}
+    assert drawn == {2, 3}  # every whole number inside, none outside
+
+
+@pytest.mark.parametrize("kind, text", [
+    ("table", "name: t\nn_pursuers: [1]\nn_evaders: [1]\nstore: ''\n"),
+    ("train", "name: x\nservice: {mode: local, store: ''}\n"),
+    ("suite", "name: s\nstore: ''\n"),
+    ("experiments", "name: e\nbase: configs/train/tiny.yaml\nseeds: [0]\nstore: ''\n"),
+])
+def test_an_empty_store_path_is_refused_not_read_as_the_default(tmp_path, kind, text):
+    path = tmp_path / f"{kind}.yaml"
+    path.write_text(text)
+    argv = {"table": ("table", path), "train": ("train", path, "--out", tmp_path / "run"),
+            "suite": ("suite", path, "--out", tmp_path / "suite"),
+            "experiments": ("experiments", path, "--out", tmp_path / "exp")}[kind]
+    status, out, err = farm_cli(*argv)
+    one_line(status, err, "store: String should have at least 1 character")
+    status, out, err = farm_cli("table", "configs/table_small.yaml", "--store", "")
+    one_line(status, err, "--store: an empty path")
+
+
+# ----- a run folder whose files were damaged or edited -------------------------------------
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A tiny trained and evaluated run (TD3 on 3x3, 120 steps, service in process)."""
+    root = tmp_path_factory.mktemp("probe_run")
+    config = root / "tiny.yaml"
+    config.write_text(f"name: tiny\nseed: 0\nenv: {{grid_size: 3, n_defenders: 10, n_intruders: 5, games: 3, "
+                      f"c_distribution: 1.0, c_capture: 1.5}}\ntd3: {{n_timesteps: 120, learning_starts: 60, "
+                      f"batch_size: 32, buffer_size: 1000}}\neval: {{freq: 60, episodes: 2}}\ncheckpoint_freq: 60\n"
+                      f"service: {{mode: local, store: {root / 'store.sqlite'}}}\n")
+    status, out, err = farm_cli("train", config, "--out", root / "run")
+    assert status == 0, err
+    status, out, err = farm_cli("eval", root / "run", "--episodes", 2, "--references", "none")
+    assert status == 0, err
+    return root / "run"
+
+
+@pytest.mark.parametrize("damage, fragment", [
+    (b"garbage,,\x00\n", "not farm eval's per-step table (no column 'policy')"),
+    (b"\x00\xff\xfe", "unreadable per-step evaluation"),
+    (b"policy,episode,step,coverage,engaged_cells,defenders_per_engaged\ntd3,0,x,1.0,3.0,3.3\n",
+     "column 'step' holds values that are not numbers"),
+])
+def test_claims_on_a_damaged_eval_steps_is_one_line_naming_the_file(run, tmp_path, damage, fragment):
+    import shutil
+
+    runs = tmp_path / "runs"
+    for name, c in (("c0", "0.0"), ("c15", "1.5")):
+        shutil.copytree(run, runs / name)
+        text = (runs / name / "config.yaml").read_text().replace("c_capture: 1.5", f"c_capture: {c}")
+        (runs / name / "config.yaml").write_text(text)
+    (runs / "c0" / "eval_steps.csv").write_bytes(damage)
+    status, out, err = farm_cli("claims", runs, "--c0", "c0", "--c15", "c15")
+    one_line(status, err, "c0/eval_steps.csv: ", fragment, "rerun farm eval")
+    assert not (runs / "claims.csv").exists()
+
+
+def test_an_edited_run_config_whose_grid_no_longer_fits_the_model_is_one_line(run, tmp_path):
+    import shutil
+
+    edited = tmp_path / "edited"
+    shutil.copytree(run, edited)
+    (edited / "config.yaml").write_text((edited / "config.yaml").read_text().replace("grid_size: 3", "grid_size: 4"))
+    before = {p.name: p.read_bytes() for p in edited.iterdir() if p.is_file()}
+    status, out, err = farm_cli("eval", edited, "--episodes", 1, "--references", "none")
+    one_line(status, err, "run_dir: ", "config.yaml does not fit its model", "3x3", "4x4")
+    status, out, err = farm_cli("train", edited / "config.yaml", "--out", edited, "--resume")
+    one_line(status, err, "--resume: ", "trained on another map than config.yaml's 4x4")
+    after = {p.name: p.read_bytes() for p in edited.iterdir() if p.is_file()}
+    assert {k: v for k, v in after.items() if k in before} == before  # nothing already computed is changed

@@ -95,7 +95,7 @@ def test_simulate_games_refuses_a_bool_anywhere(args, message):
 
 def test_game_counts_and_seeds_refuse_bools():
     """run_case(case, n_games=True) played one game; run_games(case, 0, False, True) one too."""
-    case = Case(2, 1, t_max=0.05)
+    case = Case(2, 1, t_max=0.05, tau=0.05)
     refused(lambda: run_case(case, True, 0), "n_games: must be a whole number >= 1, got True")
     refused(lambda: run_case(case, 2, 0, batch_size=True), "batch_size: must be a whole number >= 1, got True")
     refused(lambda: run_case(case, 2, True), "seed: must be a whole number >= 0")
@@ -381,7 +381,7 @@ def test_property_simulate_games_plays_or_refuses(teams, args):
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.one_of(st.just(Case(2, 1, t_max=0.05)), st.just(Case(1, 2, t_max=0.05, law=InitialLaw("uniform"))),
+@given(st.one_of(st.just(Case(2, 1, t_max=0.05, tau=0.05)), st.just(Case(1, 2, t_max=0.05, tau=0.05, law=InitialLaw("uniform"))),
                  st.just({"n_pursuers": 2, "n_evaders": 1}), st.builds(Case, JUNK, JUNK), JUNK),
        mostly(st.one_of(st.integers(0, 2**64), st.tuples(st.integers(0, 9), st.integers(0, 9)))),
        mostly(st.integers(-1, 3)), mostly(st.integers(-1, 4)), st.sampled_from(["run_games", "sample", "run_case"]))

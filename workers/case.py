@@ -141,6 +141,17 @@ class Case:
                 raise InputError(f"law.{name}: {shown(box)} is not inside the arena", field=f"law.{name}")
         return self
 
+    def check_window(self) -> "Case":
+        """The Case itself when its statistics window fits its games (tau <= t_max), else an
+        InputError naming tau: the "by tau" statistics (frac_captured_tau, capture_score_tau)
+        of games shorter than tau would count captures the games never reach. The game itself
+        does not need it (tau changes no game): the statistics' callers check it (run_case,
+        the service's keys, a sweep's points)."""
+        if self.tau > self.t_max + 1e-9:
+            raise InputError(f"tau: the statistics window ({self.tau:g} s) is longer than the games (t_max = "
+                             f"{self.t_max:g} s); set tau <= t_max", field="tau")
+        return self
+
     def to_dict(self) -> dict:
         """Every field as plain JSON values (tuples become lists, the law a dict)."""
         return json.loads(json.dumps(asdict(self)))

@@ -124,10 +124,10 @@ def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024,
     """Run games 0..n_games-1 of a case in batches; returns (per_game DataFrame, CaptureStats).
 
     per_game has game_statistics' columns, one row per game; progress: optional
-    callable(games_done) called after each batch. An invalid case, n_games, seed, batch_size
-    or progress raises InputError.
+    callable(games_done) called after each batch. An invalid case (a window tau longer than
+    its games too: Case.check_window), n_games, seed, batch_size or progress raises InputError.
     """
-    case = _checked_case(case)
+    case = _checked_case(case).check_window()
     n_games = _whole("n_games", n_games, 1)
     batch_size = _whole("batch_size", batch_size, 1)
     _seed_words(seed)

@@ -108,7 +108,14 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
             raise ConfigError(f"references: {name!r} is not a baseline or planner (choose from {', '.join(choices)}, "
                               f"or none)", field="references")
     specs = None if references is None else [PolicySpec(policy_entry(name)) for name in references]
-    learned = make_policy(config.algo, config.env, None, run=run.path)  # a bad model.zip: one line, before Ray starts
+    try:
+        learned = make_policy(config.algo, config.env, None, run=run.path)  # a bad model.zip: one line, before Ray starts
+    except ConfigError as e:
+        if scenario is not None or e.field != "scenario":
+            raise
+        # the run's own map that its model does not fit: config.yaml no longer says what was trained
+        raise ConfigError(f"run_dir: {run.path}'s config.yaml does not fit its model: {e.problem} (was config.yaml "
+                          f"edited?)", field="run_dir") from None
     from farm.core.output import check_writable_folder
 
     # where the tables go, checked before any episode: a read-only run folder is found now, not at the end

@@ -204,6 +204,21 @@ class RunFolder:
                 write_table(differences, self.path / "fidelity_differences", "csv")]
 
     def eval_steps(self) -> pd.DataFrame | None:
-        """eval_steps.csv (None without it)."""
+        """eval_steps.csv (None without it); ResultsError (one line) when it is not the table
+        farm eval writes: unreadable, or missing a column, or with a non-numeric measure."""
+        from farm.alloc.rollout import STEP_MEASURES
+
         path = self.file("eval_steps.csv")
-        return pd.read_csv(path) if path.exists() else None
+        if not path.exists():
+            return None
+        try:
+            steps = pd.read_csv(path)
+        except (OSError, UnicodeDecodeError, ValueError) as e:  # pandas' ParserError and EmptyDataError are ValueErrors
+            raise ResultsError(f"{path}: unreadable per-step evaluation ({type(e).__name__}); rerun farm eval") from None
+        missing = [c for c in ("policy", "episode", "step", *STEP_MEASURES) if c not in steps.columns]
+        if missing:
+            raise ResultsError(f"{path}: not farm eval's per-step table (no column {missing[0]!r}); rerun farm eval")
+        for column in ("episode", "step", *STEP_MEASURES):
+            if not pd.api.types.is_numeric_dtype(steps[column]):
+                raise ResultsError(f"{path}: column {column!r} holds values that are not numbers; rerun farm eval")
+        return steps

@@ -36,7 +36,7 @@ class TableConfig(Strict):
     """A `farm table` config: the store, the settings, the team sizes and the policy pairs."""
 
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")  # names the heatmap files
-    store: str | None = None  # None: default_store_path()
+    store: str | None = Field(None, min_length=1)  # None: default_store_path()
     settings: dict[str, Any] = {}  # games, seed and workers.Case fields but the team sizes
     n_pursuers: list[int] = Field(min_length=1)  # the tables' rows: team sizes of the pursuers
     n_evaders: list[int] = Field(min_length=1)  # the tables' columns: team sizes of the evaders

@@ -123,6 +123,22 @@ class _OffPolicyParams(_Params):
             raise ValueError("must be -1 (as many as the rollout's steps) or >= 1; 0 never updates the model")
         return v
 
+    @model_validator(mode="after")
+    def _can_train(self):
+        # SB3 updates only once more than learning_starts steps are collected, and samples a
+        # minibatch from the buffer: settings under which no update can happen, or every update
+        # sees the same transitions, would still write a model.zip as if trained.
+        if self.learning_starts >= self.n_timesteps:
+            raise ValueError(f"learning_starts: {self.learning_starts} steps of random actions before the first "
+                             f"update, but n_timesteps is {self.n_timesteps}: the model would never be updated")
+        if self.buffer_size < 2:
+            raise ValueError(f"buffer_size: a replay buffer of {self.buffer_size} transition cannot hold a "
+                             f"minibatch of distinct transitions (at least 2)")
+        if self.batch_size > self.buffer_size:
+            raise ValueError(f"batch_size: minibatches of {self.batch_size} transitions from a buffer of "
+                             f"{self.buffer_size} (buffer_size) repeat transitions; at most buffer_size")
+        return self
+
 
 class TD3Params(_OffPolicyParams):
     """stable-baselines3 TD3's hyperparameters, RL-Zoo style."""
@@ -281,7 +297,7 @@ class ServiceParams(Strict):
     """Where training's capture-time statistics come from (farm.service.lookup.open_client)."""
 
     mode: Literal["ray", "local"] = "ray"  # ray: the service actor on a Ray cluster; local: in-process lookup
-    store: str | None = None  # None: farm.service.store.default_store_path()
+    store: str | None = Field(None, min_length=1)  # None: farm.service.store.default_store_path()
     address: str | None = None  # the Ray cluster to join; None: $RAY_ADDRESS, else a local Ray
     warm_lattice: bool = True  # compute the lattice pairs of every map (team_sizes lattice) first
     # During training (its steps and its periodic evaluations), a first visit's outcome comes
@@ -339,6 +355,9 @@ class TrainConfig(Strict):
                                                                     and self.ppo.policy == "CellPolicy"):
             raise ValueError("pretrain.maps: a curriculum of maps needs a policy whose weights fit any map "
                              "(algo: ppo with ppo.policy: CellPolicy)")
+        if self.algo in ("td3", "sac") and self.learner.buffer_size // self.n_envs < 1:
+            raise ValueError(f"{self.algo}.buffer_size: {self.learner.buffer_size} transitions over n_envs = "
+                             f"{self.n_envs} envs leave none for each (SB3 splits the buffer between them)")
         if self.algo == "ppo" and self.ppo.n_steps * self.n_envs < 2:
             raise ValueError(f"ppo.n_steps: a rollout of n_steps x n_envs = {self.ppo.n_steps * self.n_envs} "
                              f"step; PPO needs at least 2")

@@ -177,7 +177,15 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         path, done_steps = checkpoint
         _, buffer, state_file = checkpoint_files(run_dir, done_steps)
         # force_reset=False keeps the saved last observation: training goes on with the episode in progress
-        model = cls.load(path, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
+        try:
+            model = cls.load(path, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
+        except ValueError as e:
+            if "spaces do not match" not in str(e):
+                raise
+            # SB3 checks the saved model's spaces against the env's: an edited config.yaml (another grid)
+            raise ConfigError(f"resume: {path.name} was trained on another map than config.yaml's "
+                              f"{config.env.grid_size}x{config.env.grid_size} (was config.yaml edited?): "
+                              f"{str(e).splitlines()[0]}", field="resume") from None
         if buffer.exists():
             model.load_replay_buffer(buffer)
         env.reset()  # through the wrappers (the Monitor refuses a step before a reset); the state replaces the episode

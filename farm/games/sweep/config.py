@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from workers import ENGINE_VERSION, GAME_FIELDS, SEEDING, Case
+from workers import ENGINE_VERSION, GAME_FIELDS, SEEDING, Case, InputError
 
 from farm.core.config import NUMERIC_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
 from farm.games.shards import MAX_SHARD_GAMES, games_per_shard, shard_ranges
@@ -43,7 +43,8 @@ VARIABLE_FIELDS = tuple(name for name in GAME_FIELDS if name not in ("arena", "l
 
 
 class RandomModel(Strict):
-    """`vary.random`: n seeded draws, each field uniform in its [low, high] range (whole numbers for int fields)."""
+    """`vary.random`: n seeded draws, each field uniform in its [low, high] range (for an int
+    field, the whole numbers in it: a range holding none is refused)."""
     n: int = Field(ge=1, le=100_000)  # how many random draws (points of this axis)
     ranges: dict[str, tuple[float, float]]  # numeric Case field -> [low, high], drawn uniformly
 
@@ -56,6 +57,8 @@ class RandomModel(Strict):
                                  f"{', '.join(sorted(NUMERIC_FIELDS))})")
             if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
                 raise ValueError(f"{name}: range must be [low, high] with low <= high")
+            if NUMERIC_FIELDS[name] is int and math.ceil(lo) > math.floor(hi):
+                raise ValueError(f"{name}: [{lo:g}, {hi:g}] holds no whole number, and {name} is one")
         return v
 
 
@@ -135,7 +138,7 @@ class SweepConfig(Strict):
             for _ in range(v.random.n):
                 d = {}
                 for name, (lo, hi) in v.random.ranges.items():
-                    d[name] = (int(rng.integers(int(lo), int(hi) + 1)) if NUMERIC_FIELDS[name] is int
+                    d[name] = (int(rng.integers(math.ceil(lo), math.floor(hi) + 1)) if NUMERIC_FIELDS[name] is int
                                else float(rng.uniform(lo, hi)))
                 draws.append(d)
             axes.append(draws)
@@ -155,6 +158,10 @@ class SweepConfig(Strict):
             changes = {**axis[k], **changes}
         try:
             case = case_from({**self.base, **changes})
+            try:
+                case.check_window()  # a sweep's summary reports the "by tau" statistics
+            except InputError as e:
+                raise ConfigError(str(e), field=e.field) from None
         except ConfigError as e:
             field = str(e).split(":", 1)[0].split(".", 1)[0]
             where = ", ".join(f"{k}={v!r}" for k, v in changes.items())

@@ -32,7 +32,7 @@ class ExperimentConfig(StrictFile):
     seeds: list[int]  # each (point, seed) is one trial, its TrainConfig.seed
     episodes: int = Field(10, ge=1, le=100_000)  # evaluation episodes: each trial's model, the baselines and the planners
     eval_seed: int = Field(1000, ge=0)  # evaluation episodes are seeded eval_seed .. eval_seed + episodes - 1
-    store: str | None = None  # the capture-time store every trial shares; None: default_store_path()
+    store: str | None = Field(None, min_length=1)  # the capture-time store every trial shares; None: default_store_path()
     tracking: TrackingParams = TrackingParams()  # MLflow: a run per trial (farm.core.tracking); not in the digest
 
     @field_validator("seeds")

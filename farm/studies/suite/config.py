@@ -37,7 +37,7 @@ class SuiteConfig(StrictFile):
     planner_options: dict[str, dict[str, Any]] = {}  # planner -> its options (keyword arguments)
     episodes: int = Field(10, ge=1, le=100_000)  # episodes per (scenario, policy), the same for every policy
     seed: int = Field(1000, ge=0)  # episode k is seeded seed + k
-    store: str | None = None  # None: farm.service.store.default_store_path()
+    store: str | None = Field(None, min_length=1)  # None: farm.service.store.default_store_path()
     env: dict[str, Any] = {}  # AllocConfig settings replacing every scenario's
     runs: dict[str, str] = {}  # scenario -> TD3 run folder
     skip_missing_runs: bool = False  # true: a run folder without model.zip is skipped; false: an error
