@@ -354,7 +354,7 @@ def cmd_train(a) -> int:
     """`farm train CONFIG`: train the TD3 allocator into a run folder; prints its metrics."""
     from farm.alloc.training import load_train_config, train
 
-    config = load_train_config(a.config)
+    config = load_train_config(a.config, trainable=False)  # checked below, with --timesteps applied
     if a.timesteps is not None:
         if a.timesteps < 1:
             raise CliError(f"--timesteps: must be >= 1, got {a.timesteps}")
@@ -363,6 +363,13 @@ def cmd_train(a) -> int:
             raise CliError(f"--timesteps: {a.timesteps} steps, but {config.algo}.learning_starts is {starts}: "
                            f"the model would never be updated")
         config = config.with_timesteps(a.timesteps)
+    else:
+        from farm.alloc.training.config import check_trainable
+
+        try:
+            check_trainable(config)
+        except SwarmFarmError as e:
+            raise CliError(f"{a.config}: {e}") from None
     if a.service:
         config = config.model_copy(update={"service": config.service.model_copy(update={"mode": a.service})})
     if a.threads is not None:

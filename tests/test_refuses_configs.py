@@ -371,11 +371,20 @@ def test_a_key_given_twice_is_refused_not_silently_the_last(tmp_path):
     refused(load_train_config, p, "'mode' is given twice")
 
 
-def test_a_yaml_alias_is_refused_so_a_short_file_cannot_expand(tmp_path):
+def test_yaml_aliases_are_read_but_a_short_file_cannot_expand_into_millions_of_values(tmp_path):
     bomb = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
-        f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n" for i in range(8))
+        f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n" for i in range(12))
     p = write(tmp_path, bomb)
-    refused(load_sweep_config, p, "aliases (*a) are not accepted")
+    message = refused(load_sweep_config, p, "holds more than 100,000 values once its YAML aliases are expanded")
+    assert len(message) < 300
+    p = write(tmp_path, "a: &a [*a]\n")  # an alias inside itself
+    refused(load_sweep_config, p, "not a config")
+    raw = {"name": "s", "base": {"n_evaders": 1}, "vary": {"grid": {"n_pursuers": [3, 4]}}}
+    raw["vary"]["zip"] = {"n_evaders": raw["vary"]["grid"]["n_pursuers"]}  # one list used twice: PyYAML writes an alias
+    p = tmp_path / "dumped.yaml"
+    p.write_text(yaml.safe_dump(raw))
+    assert "*id001" in p.read_text()
+    assert load_sweep_config(p).count() == 4
 
 
 def test_a_file_nested_too_deep_or_too_large_is_refused(tmp_path):

@@ -129,7 +129,7 @@ class RunFolder:
 
         if not self.is_run():
             raise ConfigError(f"{self.path}: not a training run (no {CONFIG})")
-        return load_train_config(self.file(CONFIG))
+        return load_train_config(self.file(CONFIG), trainable=False)  # the record of what was trained
 
     def learner(self) -> str:
         """The policy name the run's trained model is evaluated under: its config's algo (td3 for a

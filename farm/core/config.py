@@ -24,7 +24,7 @@ from workers import GAME_FIELDS, Case, InputError
 from farm.core.errors import ConfigError
 
 __all__ = ["Strict", "StrictFile", "refuse_unknown_keys", "ConfigError", "case_from", "check_game_names", "first_line", "load_yaml_model",
-           "read_yaml", "MAX_CONFIG_BYTES", "MAX_CONFIG_DEPTH",
+           "read_yaml", "MAX_CONFIG_BYTES", "MAX_CONFIG_DEPTH", "MAX_CONFIG_VALUES",
            "error_field", "GAME_FIELDS", "SETTING_FIELDS", "CASE_TYPES", "NUMERIC_FIELDS", "find_bool", "find_non_finite"]
 
 # A game's settings: every Case field but the team sizes (which a table's or env's cells set).
@@ -197,18 +197,14 @@ MAX_CONFIG_BYTES = 1 << 20  # a config file is text a person wrote: 1 MiB at mos
 MAX_CONFIG_DEPTH = 50  # mappings and lists nested at most this deep
 
 
-class _ConfigLoader(yaml.SafeLoader):
-    """yaml.SafeLoader that refuses what a config cannot mean: a key given twice in one
-    mapping (SafeLoader keeps the last), and aliases (`*name`), which can expand a short
-    file into gigabytes; nesting deeper than MAX_CONFIG_DEPTH is refused by read_yaml."""
+MAX_CONFIG_VALUES = 100_000  # mappings, lists and scalars a config holds, aliases expanded
 
-    def compose_node(self, parent, index):
-        """A node; an alias is refused where it stands."""
-        if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
-            raise yaml.constructor.ConstructorError(None, None, f"YAML aliases (*{event.anchor}) are not accepted in "
-                                                    f"a config; write the value out", event.start_mark)
-        return super().compose_node(parent, index)
+
+class _ConfigLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses a key given twice in one mapping (SafeLoader keeps the
+    last). Aliases (`*name`, which PyYAML's own dump writes for a value used twice) are
+    accepted; read_yaml bounds what they expand to (MAX_CONFIG_VALUES), so that a short file
+    cannot stand for gigabytes, and how deep values nest (MAX_CONFIG_DEPTH)."""
 
     def construct_mapping(self, node, deep=False):
         """A mapping; a key given twice is refused, naming it."""
@@ -226,25 +222,31 @@ class _ConfigLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
-def _depth(value) -> int:
-    """How deep mappings and lists nest in value (0 for a scalar), without recursion."""
-    deepest, stack = 0, [(value, 0)]
+def _extent(value) -> tuple[int, int]:
+    """(how deep mappings and lists nest in value, how many values it holds with every alias
+    expanded), without recursion; the walk stops once either passes its limit, so a value that
+    holds itself (a recursive alias) ends too."""
+    deepest, count, stack = 0, 0, [(value, 0)]
     while stack:
         item, depth = stack.pop()
+        count += 1
+        if count > MAX_CONFIG_VALUES:
+            break
         if isinstance(item, dict):
-            item = list(item.values())
+            item = [*item.keys(), *item.values()]
         if isinstance(item, list):
             deepest = max(deepest, depth + 1)
             if depth + 1 > MAX_CONFIG_DEPTH:
                 break
             stack.extend((x, depth + 1) for x in item)
-    return deepest
+    return deepest, count
 
 
 def read_yaml(path: str | Path):
     """A config file's YAML as plain values; ConfigError of one line naming the file for a
     file that is missing, a folder, larger than MAX_CONFIG_BYTES (/dev/zero is read only that
-    far), not UTF-8 YAML, holding a key twice, an alias, or nesting deeper than MAX_CONFIG_DEPTH."""
+    far), not UTF-8 YAML, holding a key twice, nesting deeper than MAX_CONFIG_DEPTH, or holding
+    more than MAX_CONFIG_VALUES values once its aliases are expanded."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -267,8 +269,12 @@ def read_yaml(path: str | Path):
         problem = getattr(e, "problem", None)
         why = f": {problem}" if isinstance(e, yaml.constructor.ConstructorError) and problem else ""
         raise ConfigError(f"{path}: not valid YAML{where}{why}") from None
-    if _depth(raw) > MAX_CONFIG_DEPTH:
+    depth, count = _extent(raw)
+    if depth > MAX_CONFIG_DEPTH:
         raise ConfigError(f"{path}: nested deeper than {MAX_CONFIG_DEPTH} levels: not a config")
+    if count > MAX_CONFIG_VALUES:
+        raise ConfigError(f"{path}: holds more than {MAX_CONFIG_VALUES:,} values once its YAML aliases are "
+                          f"expanded: not a config")
     return raw
 
 

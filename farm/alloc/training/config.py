@@ -14,7 +14,7 @@ from workers.errors import is_number
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.scenarios import SCENARIOS
-from farm.core.config import Strict, load_yaml_model
+from farm.core.config import ConfigError, Strict, load_yaml_model
 from farm.core.tracking import TrackingParams
 
 __all__ = ["ALGOS", "TD3Params", "PPOParams", "SACParams", "PretrainParams", "EvalParams", "ServiceParams",
@@ -125,12 +125,8 @@ class _OffPolicyParams(_Params):
 
     @model_validator(mode="after")
     def _can_train(self):
-        # SB3 updates only once more than learning_starts steps are collected, and samples a
-        # minibatch from the buffer: settings under which no update can happen, or every update
-        # sees the same transitions, would still write a model.zip as if trained.
-        if self.learning_starts >= self.n_timesteps:
-            raise ValueError(f"learning_starts: {self.learning_starts} steps of random actions before the first "
-                             f"update, but n_timesteps is {self.n_timesteps}: the model would never be updated")
+        # SB3 samples a minibatch from the buffer: a buffer that cannot hold two distinct
+        # transitions, or a minibatch larger than it, repeats transitions in every update.
         if self.buffer_size < 2:
             raise ValueError(f"buffer_size: a replay buffer of {self.buffer_size} transition cannot hold a "
                              f"minibatch of distinct transitions (at least 2)")
@@ -386,9 +382,30 @@ class TrainConfig(Strict):
         return v
 
 
-def load_train_config(path) -> TrainConfig:
-    """Read and validate a training YAML; raises ConfigError with one line."""
-    return load_yaml_model(path, TrainConfig, "training")
+def check_trainable(config: TrainConfig) -> None:
+    """ConfigError (one line naming the field) when an off-policy learner's run would never update
+    its model: SB3 updates only once more than learning_starts steps are collected, and such a
+    run would still write a model.zip as if trained. Asked of a config a user trains (its file,
+    an experiment's trials, `farm train --timesteps`); not of a run's own record (its config.yaml,
+    which a run trained in parts may hold), nor of the API's TrainConfig."""
+    starts = getattr(config.learner, "learning_starts", None)
+    if starts is not None and starts >= config.learner.n_timesteps:
+        field = f"{config.algo}.learning_starts"
+        raise ConfigError(f"{field}: {starts} steps of random actions before the first update, but "
+                          f"{config.algo}.n_timesteps is {config.learner.n_timesteps}: the model would never be updated",
+                          field=field)
+
+
+def load_train_config(path, *, trainable: bool = True) -> TrainConfig:
+    """Read and validate a training YAML; raises ConfigError with one line. trainable: also
+    check_trainable (False for a run folder's own config.yaml)."""
+    config = load_yaml_model(path, TrainConfig, "training")
+    if trainable:
+        try:
+            check_trainable(config)
+        except ConfigError as e:
+            raise ConfigError(f"{path}: {e}") from None
+    return config
 
 
 

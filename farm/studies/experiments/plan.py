@@ -90,6 +90,7 @@ def plan(config: ExperimentConfig, source: str = "experiments") -> Plan:
     """Resolve an experiment config into its trials (see Plan); ConfigError, one line naming
     `source` (the config file), the point and the field, for a point a training config refuses."""
     from farm.alloc.training import TrainConfig
+    from farm.alloc.training.config import check_trainable
     from farm.service.store import default_store_path
 
     base = _base_raw(config, source)
@@ -112,7 +113,8 @@ def plan(config: ExperimentConfig, source: str = "experiments") -> Plan:
                                 "estimates": service.get("estimates", False)})
             try:
                 train = TrainConfig(**raw)
-            except ValidationError as e:
+                check_trainable(train)
+            except (ValidationError, ConfigError) as e:
                 shown = ", ".join(f"{f}={v!r}" for f, v in zip(fields, values))
                 raise ConfigError(f"{source}: {first_line(e)} (point {p}{': ' + shown if shown else ''})") from None
             trials.append(Trial(key=key, point=p, seed=seed, values=dict(zip(fields, values)),
