@@ -28,7 +28,7 @@ def points_in(arena_vertices, shape, rng):
 # module starts or joins Ray, in this process or through `farm` and `ray` subprocesses; they
 # form one group and so run one after another on one worker, as without xdist: two Rays
 # starting at once on 2 cores can miss Ray's 30 s start deadline.
-WITHOUT_RAY = {"test_alloc_env", "test_animate", "test_alloc_td3", "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy",
+WITHOUT_RAY = {"test_alloc_env", "test_animate", "test_report", "test_alloc_td3", "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy",
                "test_claims", "test_cli", "test_compiled", "test_docs", "test_docstrings", "test_engine", "test_env_api",
                "test_escapes", "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners", "test_montecarlo",
                "test_planners", "test_policy_registry", "test_reference_selfcheck", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
