@@ -197,11 +197,12 @@ class SweepConfig(Strict):
         return JobSize("sweep", total, "point", total * self.games_per_point, mean * total * self.games_per_point,
                        total * ITEM_BYTES)
 
-    def sweep_id(self) -> str:
+    def sweep_id(self, points: list["Point"] | None = None) -> str:
         """Hash of the resolved sweep: every point's case key (engine version inside), games,
-        shards, the seed and the seeding rule."""
+        shards, the seed and the seeding rule. points: self.points() when already made."""
+        points = self.points() if points is None else points
         blob = json.dumps(
-            {"seed": self.seed, "points": [p.identity() for p in self.points()], "engine": ENGINE_VERSION,
+            {"seed": self.seed, "points": [p.identity() for p in points], "engine": ENGINE_VERSION,
              "seeding": SEEDING},
             sort_keys=True,
         )

@@ -35,7 +35,7 @@ from farm.runtime import metrics
 from farm.core.errors import ConfigError, SweepError
 from farm.core.output import atomic_write_bytes, write_table
 from farm.games.shards import SWEEP_ID_KEY, play_shard, shard_problem, warn_coarse_steps, write_shard
-from farm.games.sweep.config import Point, SweepConfig
+from farm.games.sweep.config import FULL_CHECK_POINTS, Point, SweepConfig
 
 
 @dataclass(frozen=True)
@@ -76,7 +76,7 @@ class SweepRun:
         self.config = config
         self.out = Path(out)
         self.points: list[Point] = config.points()
-        self.sweep_id = config.sweep_id()
+        self.sweep_id = config.sweep_id(self.points)  # the points once: a large grid costs ~0.3 ms a point
         self.shard_dir = self.out / "shards"
         self.damaged: list[str] = []  # one line per shard file found damaged and played again (missing_shards)
 
@@ -278,6 +278,8 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
 
     check_workers(workers)
     check_size(config.size(), yes=yes, cpus=workers or 2)
+    if show_progress and config.count() > FULL_CHECK_POINTS:  # planning them takes a while: say so first
+        print(f"sweep: planning {config.count():,} points (each point's case and the sweep's id) ...", file=sys.stderr)
     run = SweepRun(config, out)
     warn_coarse_steps(p.case for p in run.points)
     run.prepare(rebuild)
