@@ -36,19 +36,32 @@ WITHOUT_RAY = {"test_alloc_env", "test_animate", "test_report", "test_alloc_td3"
                "test_workers_layout"}
 
 
+# Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests
+# start no Ray, and run beside the Ray group as a group of their own (the Ray group is the
+# suite's critical path).
+MIXED = {"test_refuses_store", "test_allocator_registry", "test_service", "test_suite", "test_sweep_ray", "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
+
+
+def _without_ray(item) -> bool:
+    """Whether a test starts no Ray: its module is WITHOUT_RAY, or MIXED and it takes no ray_local."""
+    module = Path(str(item.fspath)).stem
+    return module in WITHOUT_RAY or (module in MIXED and "ray_local" not in getattr(item, "fixturenames", ()))
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist's hook, which reads the groups
 def pytest_collection_modifyitems(items):
     for item in items:
         module = Path(str(item.fspath)).stem
-        item.add_marker(pytest.mark.xdist_group(module if module in WITHOUT_RAY else "ray"))
+        group = "ray" if not _without_ray(item) else module if module in WITHOUT_RAY else f"{module}-without-ray"
+        item.add_marker(pytest.mark.xdist_group(group))
 
 
 @pytest.fixture(autouse=True)
 def _without_ray_means_without_ray(request, monkeypatch):
-    """A test of a WITHOUT_RAY module that would start or join Ray fails instead of running
-    beside the Ray group: $RAY_ADDRESS names a closed port, which every `farm` command and
-    farm.runtime.ray_cluster would try to join."""
-    if Path(str(request.node.fspath)).stem in WITHOUT_RAY:
+    """A test that starts no Ray (_without_ray) and would start or join Ray fails instead of
+    running beside the Ray group: $RAY_ADDRESS names a closed port, which every `farm` command
+    and farm.runtime.ray_cluster would try to join."""
+    if _without_ray(request.node):
         monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
 
 
