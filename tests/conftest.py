@@ -39,7 +39,7 @@ WITHOUT_RAY = {"test_alloc_env", "test_animate", "test_report", "test_alloc_td3"
 # Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests
 # start no Ray, and run beside the Ray group as a group of their own (the Ray group is the
 # suite's critical path).
-MIXED = {"test_refuses_store", "test_allocator_registry", "test_service", "test_suite", "test_sweep_ray", "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
+MIXED = {"test_refuses_store", "test_service", "test_suite", "test_sweep_ray", "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
 
 
 def _without_ray(item) -> bool:
