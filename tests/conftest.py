@@ -135,3 +135,32 @@ def signal_all(pids, signum: int) -> None:
     for pid in pids:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signum)
+
+
+def farm_main(*argv):
+    """farm.cli.main in this process: (exit status, stdout, stderr)."""
+    import contextlib
+    import io
+
+    from farm.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            status = main([str(a) for a in argv])
+        except SystemExit as e:
+            status = e.code
+    return status, out.getvalue(), err.getvalue()
+
+
+def train_tiny_run(root: Path, extra: str = "") -> Path:
+    """A tiny TD3 run (3x3, 120 steps, service in process, its store in root) trained into
+    root/run by `farm train`; extra: more config lines. Returns the run folder."""
+    config = root / "tiny.yaml"
+    config.write_text(f"name: tiny\nseed: 0\nenv: {{grid_size: 3, n_defenders: 10, n_intruders: 5, games: 3, "
+                      f"c_distribution: 1.0, c_capture: 1.5}}\ntd3: {{n_timesteps: 120, learning_starts: 60, "
+                      f"batch_size: 32, buffer_size: 1000}}\nservice: {{mode: local, store: {root / 'store.sqlite'}}}\n"
+                      + extra)
+    status, out, err = farm_main("train", config, "--out", root / "run")
+    assert status == 0, err
+    return root / "run"

@@ -3,8 +3,6 @@ stride, read back from the file), `farm eval RUN --animate` (an episode, and und
 `--fidelity games` one engaged cell's game inset), gymnasium's RecordVideo on the env
 unchanged (a playable video read back), the report inlining them, and bad flags refused."""
 
-import contextlib
-import io
 import math
 
 import gymnasium
@@ -13,22 +11,11 @@ import pytest
 from gymnasium.wrappers import RecordVideo
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
-from farm.cli import main
+from conftest import farm_main as farm, train_tiny_run
 from farm.core.animate import game_frame_count, game_frame_steps, read_frame_count
 from workers import Case, run_games
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)
-
-
-def farm(*argv):
-    """farm.cli.main in this process: (exit status, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            status = main([str(a) for a in argv])
-        except SystemExit as e:
-            status = e.code
-    return status, out.getvalue(), err.getvalue()
 
 
 def test_the_frame_steps_are_every_kth_step_and_the_last():
@@ -90,15 +77,7 @@ def test_record_video_writes_a_playable_video_of_an_episode(tmp_path):
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    root = tmp_path_factory.mktemp("anim")
-    config = root / "tiny.yaml"
-    config.write_text(f"name: tiny\nseed: 0\nenv: {{grid_size: 3, n_defenders: 10, n_intruders: 5, games: 3, "
-                      f"c_distribution: 1.0, c_capture: 1.5}}\ntd3: {{n_timesteps: 120, learning_starts: 60, "
-                      f"batch_size: 32, buffer_size: 1000}}\neval: {{freq: 120, episodes: 2}}\n"
-                      f"service: {{mode: local, store: {root / 'store.sqlite'}}}\n")
-    status, out, err = farm("train", config, "--out", root / "run")
-    assert status == 0, err
-    return root / "run"
+    return train_tiny_run(tmp_path_factory.mktemp("anim"), "eval: {freq: 120, episodes: 2}\n")
 
 
 def test_farm_eval_animates_an_episode_and_the_report_inlines_it(run):

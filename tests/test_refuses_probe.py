@@ -3,8 +3,6 @@ before any work: a positions JSON with a boolean or an unknown key, `--debug` af
 subcommand, a metrics port out of range, gym.make with a bad setting, set_state with densities
 that are not densities, cells_at with a negative frame, a client asked after close(). No Ray."""
 
-import contextlib
-import io
 import json
 
 import gymnasium
@@ -13,20 +11,12 @@ import pytest
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.cli import main
+from conftest import farm_main as farm_cli, train_tiny_run
 from farm.core.errors import ConfigError
 from farm.service import CaptureTimeClient, ServiceSettings
 from workers import Case, InputError, run_games
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)
-
-
-def farm_cli(*argv):
-    """farm.cli.main in this process: (exit status, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = main([str(a) for a in argv])
-    return status, out.getvalue(), err.getvalue()
 
 
 def one_line(status, err, *fragments):
@@ -210,17 +200,10 @@ def test_an_empty_store_path_is_refused_not_read_as_the_default(tmp_path, kind, 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """A tiny trained and evaluated run (TD3 on 3x3, 120 steps, service in process)."""
-    root = tmp_path_factory.mktemp("probe_run")
-    config = root / "tiny.yaml"
-    config.write_text(f"name: tiny\nseed: 0\nenv: {{grid_size: 3, n_defenders: 10, n_intruders: 5, games: 3, "
-                      f"c_distribution: 1.0, c_capture: 1.5}}\ntd3: {{n_timesteps: 120, learning_starts: 60, "
-                      f"batch_size: 32, buffer_size: 1000}}\neval: {{freq: 60, episodes: 2}}\ncheckpoint_freq: 60\n"
-                      f"service: {{mode: local, store: {root / 'store.sqlite'}}}\n")
-    status, out, err = farm_cli("train", config, "--out", root / "run")
+    run = train_tiny_run(tmp_path_factory.mktemp("probe_run"), "eval: {freq: 60, episodes: 2}\ncheckpoint_freq: 60\n")
+    status, out, err = farm_cli("eval", run, "--episodes", 2, "--references", "none")
     assert status == 0, err
-    status, out, err = farm_cli("eval", root / "run", "--episodes", 2, "--references", "none")
-    assert status == 0, err
-    return root / "run"
+    return run
 
 
 @pytest.mark.parametrize("damage, fragment", [
