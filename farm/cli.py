@@ -148,8 +148,13 @@ def _case(fields: dict):
 
 def cmd_game(a) -> int:
     """`farm game`: play one pursuit-evasion game, print its capture times, optionally plot it."""
+    from farm.core.output import check_writable_file
+
     if a.plot and Path(a.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
         raise CliError(f"--plot: {a.plot!r} must end in .png, .pdf or .svg")
+    if a.plot:
+        with flags("plot"):
+            check_writable_file(a.plot, "plot")  # before the game: a read-only place is found now
     settings = _game_settings(a)
     _contradictions(a, [("positions", "pursuers"), ("positions", "evaders"), ("positions", "n_pursuers"),
                         ("positions", "n_evaders"), ("positions", "seed"), ("positions", "law"),
@@ -163,7 +168,7 @@ def cmd_game(a) -> int:
         from farm.core.animate import check_animation_path
 
         with flags("animate"):
-            check_animation_path(a.animate)
+            check_writable_file(check_animation_path(a.animate), "animate")
         if a.frame_stride is not None and a.frame_stride < 1:
             raise CliError(f"--frame-stride: must be a whole number >= 1, got {a.frame_stride}")
         if a.fps is not None and not 0.1 <= a.fps <= 50:
@@ -486,9 +491,10 @@ def cmd_experiments(a) -> int:
     """`farm experiments CONFIG --out DIR`: TD3 trainings over a grid and seeds as Ray Tune trials
     on one capture-time service; trials.csv and summary.csv (resumable)."""
     from farm.studies.experiments import format_summary, load_experiment_config, run_experiment
+    from farm.studies.experiments.storage import is_uri
 
     config = load_experiment_config(a.config)
-    out = Path(a.out)
+    out = a.out if is_uri(a.out) else Path(a.out)  # a URI: the experiment in object storage (docs/experiments.md)
     with flags("out", "address", "workers", workers="num_cpus"):
         trials, summary, info = run_experiment(config, out, source=str(a.config), address=a.address,
                                                workers=a.workers, show_progress=not a.quiet)
@@ -497,8 +503,7 @@ def cmd_experiments(a) -> int:
           f"{info['workers']} at once at {info['trial_cpus']:g} CPU each on {info['cluster_cpus']:g} CPUs, "
           f"{info['warmed_cases']} lattice cases warmed in {info['warm_seconds']:.1f} s, {info['seconds']:.1f} s in all",
           file=sys.stderr)
-    written = [out / "trials.csv", out / "summary.csv", *info["claims"], info["learning_curves"]]
-    print(f"wrote {', '.join(str(p) for p in written if p is not None)}, trials/<trial>/run")
+    print(f"wrote {', '.join(str(p) for p in info['written'])}, trials/<trial>/run")
     return 0
 
 
@@ -608,7 +613,9 @@ def build_parser() -> argparse.ArgumentParser:
     ex = sub.add_parser("experiments", help="TD3 over a grid of settings and seeds as Ray Tune trials on one "
                                             "capture-time service (resumable)")
     ex.add_argument("config", help="experiments YAML, e.g. configs/experiments/smoke.yaml")
-    ex.add_argument("--out", required=True, help="results folder (trials.csv, summary.csv, trials/, tune/)")
+    ex.add_argument("--out", required=True, help="results folder (trials.csv, summary.csv, trials/, tune/), or an "
+                                                 "object-store URI such as s3://bucket/path (no shared file system "
+                                                 "needed on a cluster)")
     _cluster_options(ex, "trials at once (default: the cluster's CPUs; a local Ray gets max(2, WORKERS) CPUs)")
     ex.set_defaults(func=cmd_experiments)
 

@@ -6,6 +6,14 @@ from pathlib import Path
 # Every local Ray of the tests binds 127.0.0.1 (farm.runtime's module doc): Ray reads this when imported.
 os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 
+# Under `make test`'s 2 xdist workers, each test process (and the `farm` subprocesses and Ray
+# it starts, which inherit this) runs torch's and BLAS's thread pools on one thread: two
+# processes of two spinning threads each on 2 cores made a torch fit 7x slower than alone.
+# Read when torch and numpy load, so before any import of either.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_threads, "1")
+
 import yaml
 
 import numpy as np
@@ -28,11 +36,11 @@ def points_in(arena_vertices, shape, rng):
 # module starts or joins Ray, in this process or through `farm` and `ray` subprocesses; they
 # form one group and so run one after another on one worker, as without xdist: two Rays
 # starting at once on 2 cores can miss Ray's 30 s start deadline.
-WITHOUT_RAY = {"test_alloc_env", "test_animate", "test_report", "test_alloc_td3", "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy",
+WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "test_report", "test_alloc_td3", "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy",
                "test_claims", "test_cli", "test_compiled", "test_docs", "test_docstrings", "test_engine", "test_env_api",
                "test_escapes", "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners", "test_montecarlo",
-               "test_planners", "test_policy_registry", "test_reference_selfcheck", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
-               "test_refuses_training", "test_refuses_workers", "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
+               "test_planners", "test_policy_registry", "test_reference_selfcheck", "test_refuses_cli", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
+               "test_refuses_training", "test_refuses_workers", "test_resume_damaged", "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
                "test_workers_layout"}
 
 
@@ -93,6 +101,47 @@ def ray_local():
             os.environ.pop("RAY_metrics_report_interval_ms", None)
         else:
             os.environ["RAY_metrics_report_interval_ms"] = before
+
+
+S3_ENV = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1",
+          "AWS_EC2_METADATA_DISABLED": "true"}
+
+
+@contextlib.contextmanager
+def s3_bucket(name: str = "farm"):
+    """An S3-compatible server on localhost (moto's server mode, in a thread) holding an empty
+    bucket `name`, its endpoint and test credentials in the environment (AWS_ENDPOINT_URL,
+    AWS_ACCESS_KEY_ID, …: pyarrow's, so Ray Tune's, and boto3's) for the block, so a Ray
+    started inside it passes them to its workers; yields a boto3 client of the server."""
+    import logging
+
+    import boto3
+    from moto.server import ThreadedMotoServer
+
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=free_port())
+    server.start()
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)  # a line per request otherwise
+    host, port = server.get_host_and_port()
+    env = {**S3_ENV, "AWS_ENDPOINT_URL": f"http://{host}:{port}"}
+    before = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        client = boto3.client("s3")
+        client.create_bucket(Bucket=name)
+        yield client
+    finally:
+        for k, v in before.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        server.stop()
+
+
+def bucket_keys(client, bucket: str = "farm", prefix: str = "") -> list[str]:
+    """Every object key under prefix in the bucket, sorted."""
+    pages = client.get_paginator("list_objects_v2").paginate(Bucket=bucket, Prefix=prefix)
+    return sorted(o["Key"] for page in pages for o in page.get("Contents", []))
 
 
 def write_sweep(path, **changes):

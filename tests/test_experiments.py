@@ -1,11 +1,13 @@
 """`farm experiments`: a grid of TD3 trainings as Ray Tune trials on one capture-time service
 (farm/studies/experiments/): the smoke grid on a real 2-CPU Ray with a cold store, resuming, the
-same trial twice, a trial's worker and the driver SIGKILLed mid-training (the trials go on
-from their checkpoints, to the uninterrupted run's rows), and bad configs in one line."""
+same trial twice, the driver SIGKILLed mid-training, a trial of an experiment in object storage
+(an S3 server on localhost) SIGKILLed with its local folder deleted (the trials go on from their
+checkpoints, to the uninterrupted run's rows), and bad configs in one line."""
 
 import contextlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -16,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import cmdline, processes, session, signal_all
+from conftest import bucket_keys, cmdline, processes, s3_bucket, session, signal_all
 
 from farm.core.errors import ClusterError, ConfigError
 from farm.studies.experiments import RESULT
@@ -242,6 +244,20 @@ def test_smoke_grid_then_a_rerun_trains_nothing(cold):
 DEADLINE = 240  # seconds for a file to appear: generous, the tests poll
 
 
+@pytest.fixture(scope="module")
+def s3():
+    """An S3 bucket `farm` on localhost (conftest.s3_bucket), for the module: made before the
+    module's Ray (ray_local below) so that its workers have its endpoint and credentials."""
+    with s3_bucket("farm") as client:
+        yield client
+
+
+@pytest.fixture(scope="module")
+def ray_local(s3, ray_local):
+    """conftest's ray_local, started inside the module's S3 environment."""
+    yield ray_local
+
+
 def kill_config(tmp: Path, store: Path, **changes) -> Path:
     """The cold run's experiment (point 0 of the smoke grid) checkpointing every 50 steps and,
     as the cold run, without the lattice warm-up (the cold run has stored every case these
@@ -332,6 +348,13 @@ def kill_session(process: subprocess.Popen) -> None:
     process.wait(timeout=60)
 
 
+def latest_checkpoint_steps(run: Path) -> int | None:
+    from farm.alloc.runs import latest_checkpoint
+
+    last = latest_checkpoint(run)
+    return None if last is None else last[1]
+
+
 def checkpointed(run: Path, at_least: int) -> bool:
     from farm.alloc.runs import latest_checkpoint
 
@@ -347,35 +370,53 @@ def assert_rows_equal_cold(trials: pd.DataFrame, cold_trials: pd.DataFrame) -> N
     pd.testing.assert_frame_equal(trials[keep].reset_index(drop=True), expected[keep])
 
 
-def test_a_trials_worker_killed_mid_training_goes_on_from_its_checkpoint(cold, tmp_path):
-    """The trial's worker SIGKILLed after its checkpoint of step 150 (past learning_starts):
-    FailureConfig restarts the trial, which resumes from the checkpoint; its row equals the
-    uninterrupted run's."""
+def test_a_trial_in_object_storage_killed_with_its_local_folder_goes_on_from_the_bucket(s3, cold, tmp_path):
+    """The experiment in an S3 bucket (moto's server on localhost), nothing of it on the local
+    disk but the trial's scratch folder: the trial's worker SIGKILLed once it has trained past
+    its Tune checkpoint of step 150 (uploaded to the bucket: the local run holds the checkpoint
+    of step 200), and its local folder deleted first. FailureConfig restarts the trial, which
+    writes its run folder again from the bucket's checkpoint (resumed_from 150, not 200) and
+    finishes; its row, read back from the bucket's trials.csv, equals the uninterrupted
+    (local) run's, and the scratch folder is gone."""
+    import io
+
     from farm.studies.experiments import load_experiment_config, run_experiment
+    from farm.studies.experiments.storage import ExperimentStorage
 
-    _, cold_trials, _, store, _, _ = cold
+    _, cold_trials, _, store, _, cold_out = cold
     config = load_experiment_config(kill_config(tmp_path, store, seeds=[0]))
-    out = tmp_path / "exp"
-    run = out / "trials" / "p0_s0" / "run"
-    killed = []  # the worker's pid, or why it was not killed
+    out = "s3://farm/kill"
+    run = ExperimentStorage(out).run_dir("p0_s0")
+    local_files = sorted(tmp_path.iterdir())
+    killed = []  # (the worker's pid, the checkpoint the local run held), or why it was not killed
 
-    def kill_after_the_checkpoint():
+    def kill_past_the_checkpoint():
         try:
-            pid = held_at_checkpoint(run, 150)
+            pid = held_at_checkpoint(run, 200)
+            local = latest_checkpoint_steps(run)
+            shutil.rmtree(run)
             os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
-        except (AssertionError, ProcessLookupError) as e:
+            killed.append((pid, local))
+        except (AssertionError, ProcessLookupError, OSError) as e:
             killed.append(repr(e))
 
-    killer = threading.Thread(target=kill_after_the_checkpoint, daemon=True)
+    killer = threading.Thread(target=kill_past_the_checkpoint, daemon=True)
     killer.start()
-    trials, _, _ = run_experiment(config, out, show_progress=False)
+    trials, _, info = run_experiment(config, out, show_progress=False)
     killer.join(timeout=DEADLINE)
-    assert killed and isinstance(killed[0], int), f"the worker was not killed: {killed}"
-    resumed_from = json.loads((run / "metrics.json").read_text())["resumed_from"]
-    assert 150 <= resumed_from < 300 and resumed_from % 50 == 0
-    assert trials["resumed_from"].tolist() == [resumed_from]
+    assert killed and isinstance(killed[0], tuple), f"the worker was not killed: {killed}"
+    assert 200 <= killed[0][1] < 300
+    assert trials["resumed_from"].tolist() == [150]
     assert_rows_equal_cold(trials, cold_trials)
+    from_bucket = pd.read_csv(io.BytesIO(s3.get_object(Bucket="farm", Key="kill/trials.csv")["Body"].read()))
+    assert_rows_equal_cold(from_bucket, pd.read_csv(cold_out / "trials.csv"))  # both read back from csv
+    keys = bucket_keys(s3, prefix="kill/")
+    assert {"kill/experiment.json", "kill/summary.csv", "kill/trials/p0_s0/result.json",
+            "kill/trials/p0_s0/run/model.zip", "kill/trials/p0_s0/run/eval_table.csv"} <= set(keys)
+    assert any(k.startswith("kill/tune/p0_s0/checkpoint_") and k.endswith("rl_model_state_150_steps.pkl") for k in keys)
+    assert not any(k.startswith("kill/trials/p0_s0/run/checkpoints/") for k in keys)  # the state is Tune's checkpoints'
+    assert info["written"][0] == "s3://farm/kill/trials.csv"
+    assert sorted(tmp_path.iterdir()) == local_files and not run.exists()
 
 
 def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, tmp_path):

@@ -17,10 +17,12 @@ from farm.alloc.evaluation import reference_specs
 from farm.alloc.lattice import lattice_groups, warm_lattices
 from farm.alloc.training import TrainConfig
 from farm.core.errors import SwarmFarmError
+from farm.core.output import check_writable_folder
 from farm.studies.experiments.config import ExperimentConfig
 from farm.studies.experiments.display import PROGRESS, Display
 from farm.studies.experiments.folder import TUNE_DIR, ExperimentFolder
 from farm.studies.experiments.plan import Plan, plan, trial_cpus
+from farm.studies.experiments.storage import ExperimentStorage, is_uri
 from farm.studies.experiments.tables import manifest_trials, summary_table, trials_table
 from farm.studies.experiments.trial import run_trial, trial_dirname
 
@@ -36,15 +38,17 @@ class ExperimentError(SwarmFarmError):
 def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments", address: str | None = None,
                    workers: int | None = None, show_progress: bool = True,
                    warm: bool = True) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
-    """Run or resume an experiment into the folder out (docs/experiments.md); returns
-    (trials.csv's table, summary.csv's table, info).
+    """Run or resume an experiment into out (docs/experiments.md): a local folder, or a URI of
+    object storage (s3://bucket/path, any filesystem pyarrow names: farm.studies.experiments.storage);
+    returns (trials.csv's table, summary.csv's table, info).
 
     address: a Ray cluster to join (default $RAY_ADDRESS, else a local Ray of max(2,
     workers) CPUs); workers: trials at once (default: the cluster's CPUs); warm: False
     skips the lattice warm-up, in the driver and in every trial (the tests use it to make
     trials miss on a cold store). info: trials run this time and before, the CPUs per
     trial, the warm-up's cases and seconds, the wall seconds, the claims' files and the
-    learning curves' figure written (claims: a list of paths, learning_curves: a path or None).
+    learning curves' figure written (claims: a list of paths, learning_curves: a path or None;
+    written: every file the driver wrote; URIs for an experiment in object storage).
     ConfigError (one line) for bad input before Ray starts; ExperimentError naming the first
     trial that failed (after the tables of the others are written).
     """
@@ -52,18 +56,19 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
     from farm.service.client import open_client
 
     check_workers(workers)
+    if not is_uri(out):
+        check_writable_folder(out, "out")  # before Ray, the lattice and the trials
     the_plan = plan(config, source)
     tracker = _mlflow_callback(config, the_plan.name)  # before Ray starts: a store MLflow refuses is one line
     if not warm:
         for t in the_plan.trials:
             t.config["service"]["warm_lattice"] = False
-    out = Path(out).resolve()
-    folder = ExperimentFolder(out)
-    folder.check_for(the_plan.digest)
-    folder.write_manifest({"name": the_plan.name, "digest": the_plan.digest,
-                           "config": config.model_dump(mode="json", exclude_unset=True), "store": the_plan.store,
-                           "fields": the_plan.fields, "trials": manifest_trials(the_plan)})
-    before = [t.key for t in the_plan.trials if folder.finished(t.key)]
+    storage = ExperimentStorage(out)
+    storage.check_for(the_plan.digest)
+    storage.write_manifest({"name": the_plan.name, "digest": the_plan.digest,
+                            "config": config.model_dump(mode="json", exclude_unset=True), "store": the_plan.store,
+                            "fields": the_plan.fields, "trials": manifest_trials(the_plan)})
+    before = [t.key for t in the_plan.trials if storage.finished(t.key)]
     starts_ray = starts_local_ray(address)
     first = the_plan.trials[0].config["env"]
     info: dict = {"trials": len(the_plan.trials), "finished_before": len(before), "warmed_cases": 0}
@@ -84,16 +89,23 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
         display = Display(the_plan, show_progress, before)
         PROGRESS["display"] = display
         try:
-            results = _fit(the_plan, out, k, share, [] if tracker is None else [tracker])
+            results = _fit(the_plan, storage, k, share, [] if tracker is None else [tracker])
         finally:
             PROGRESS.pop("display", None)
             display.close()
         info["started"] = len(display.started_keys)
     info["seconds"] = time.perf_counter() - t0
-    trials = trials_table(the_plan, out)
-    summary = summary_table(the_plan.fields, trials)
-    folder.write_tables(trials, summary)
-    info.update(_write_claims_and_curves(out))
+    with storage.staged() as stage:
+        storage.stage_results(stage, [t.key for t in the_plan.trials])
+        trials = trials_table(the_plan, stage)
+        summary = summary_table(the_plan.fields, trials)
+        written = ExperimentFolder(stage).write_tables(trials, summary)
+        found = _write_claims_and_curves(stage)
+        files = [p.name for p in [*written, *found["claims"], found["learning_curves"]] if p is not None]
+        storage.publish(stage, files)
+    info["claims"] = [storage.where(p.name) for p in found["claims"]]
+    info["learning_curves"] = None if found["learning_curves"] is None else storage.where(found["learning_curves"].name)
+    info["written"] = [storage.where(name) for name in files]
     errors = [(r.error, r.path) for r in results if r.error is not None]
     info["tune_finished"] = sum(1 for r in results if r.error is None and (r.metrics or {}).get("phase") == "done")
     if errors:
@@ -138,28 +150,30 @@ def _mlflow_callback(config: ExperimentConfig, name: str):
                                 tags={"farm.kind": "experiment", "farm.experiment": name})
 
 
-def _fit(plan: Plan, out: Path, workers: int, share: float, callbacks: list):
-    """Run (or restore and go on with) the Tune experiment; returns its ResultGrid. callbacks:
-    Tune callbacks beside the progress display (the MLflow logger); a restored experiment keeps
-    the callbacks it was started with (Tune saves them in its state)."""
+def _fit(plan: Plan, storage: ExperimentStorage, workers: int, share: float, callbacks: list):
+    """Run (or restore and go on with) the Tune experiment in the storage; returns its
+    ResultGrid. callbacks: Tune callbacks beside the progress display (the MLflow logger); a
+    restored experiment keeps the callbacks it was started with (Tune saves them in its state)."""
     from ray import tune
 
     from farm.studies.experiments.tune import Progress
 
     trainable = tune.with_resources(run_trial, {"cpu": share})
-    path = out / TUNE_DIR
-    if tune.Tuner.can_restore(str(path)):
-        tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_unfinished=True, resume_errored=True)
+    root, filesystem = storage.tune_storage()
+    path = f"{root}/{TUNE_DIR}"
+    if tune.Tuner.can_restore(path, storage_filesystem=filesystem):
+        tuner = tune.Tuner.restore(path, trainable=trainable, resume_unfinished=True, resume_errored=True,
+                                   storage_filesystem=filesystem)
     else:
         policies = reference_specs()  # the registry's, as this process has it: carried to every trial
-        specs = [{"trial": t.model_dump(), "dir": str(ExperimentFolder(out).trial_dir(t.key)), "episodes": plan.episodes,
+        specs = [{"trial": t.model_dump(), "storage": storage.uri, "episodes": plan.episodes,
                   "eval_seed": plan.eval_seed, "policies": policies} for t in plan.trials]
         tuner = tune.Tuner(
             trainable,
             param_space={"spec": tune.grid_search(specs)},
             tune_config=tune.TuneConfig(max_concurrent_trials=workers, reuse_actors=True, trial_dirname_creator=trial_dirname,
                                         trial_name_creator=trial_dirname),
-            run_config=tune.RunConfig(name=TUNE_DIR, storage_path=str(out),
+            run_config=tune.RunConfig(name=TUNE_DIR, storage_path=root, storage_filesystem=filesystem,
                                       failure_config=tune.FailureConfig(max_failures=MAX_FAILURES),
                                       checkpoint_config=tune.CheckpointConfig(num_to_keep=2),
                                       verbose=0, callbacks=[Progress(), *callbacks]),

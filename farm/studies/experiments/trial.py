@@ -10,7 +10,6 @@ from pathlib import Path
 
 from farm.alloc.evaluation import allocators, evaluate_trained, reference_specs
 from farm.alloc.runs import RunFolder
-from farm.studies.experiments.folder import ExperimentFolder
 from farm.studies.experiments.plan import Trial
 from farm.studies.experiments.tables import LEARNED, METRICS_COLUMNS
 
@@ -29,22 +28,27 @@ def _evaluate(config, run: RunFolder, episodes: int, seed: int, specs):
 
 
 def run_trial(params: dict) -> None:
-    """The Tune trainable. params: {"spec": {"trial": Trial as plain values, "dir": the trial's
-    folder, "episodes", "eval_seed", "policies": the PolicySpecs to compare with (default: the
-    registry's baselines and planners)}}."""
+    """The Tune trainable. params: {"spec": {"trial": Trial as plain values, "storage": the
+    experiment's folder or URI (ExperimentStorage; before 0.6 "dir", the trial's folder in a
+    local experiment), "episodes", "eval_seed", "policies": the PolicySpecs to compare with
+    (default: the registry's baselines and planners)}}. The trial trains in its run folder
+    (ExperimentStorage.run_dir), written again from its Tune checkpoint first when it lacks
+    it (restore_run)."""
     from ray import tune
 
     from farm.alloc.training import TrainConfig, train
+    from farm.studies.experiments.storage import ExperimentStorage, restore_run
     from farm.studies.experiments.tune import TuneReport
 
     spec = params["spec"]
     trial = Trial(**spec["trial"])
-    folder = ExperimentFolder(Path(spec["dir"]).parent.parent)  # dir: <experiment>/trials/<key>
-    if folder.finished(trial.key):  # finished before (e.g. the driver died after it): never trained again
-        tune.report({**folder.read_result(trial.key), "phase": "done"})
+    storage = ExperimentStorage(spec["storage"] if "storage" in spec else Path(spec["dir"]).parent.parent)
+    if storage.finished(trial.key):  # finished before (e.g. the driver died after it): never trained again
+        tune.report({**storage.read_result(trial.key), "phase": "done"})
         return
     config = TrainConfig(**trial.config)
-    run = RunFolder(folder.run_dir(trial.key))
+    run = RunFolder(storage.run_dir(trial.key))
+    restore_run(tune.get_checkpoint(), run.path, replay_buffer=config.algo != "ppo")
     every = max(1, min(config.checkpoint_freq, config.learner.n_timesteps // 10 or 1))
     t0 = time.perf_counter()
     metrics = train(config, run.path, resume=run.is_run(), show_progress=False,
@@ -62,7 +66,7 @@ def run_trial(params: dict) -> None:
         result[f"{name}_eliminated"] = float(row.eliminated_mean)
     result.update({name: metrics.get(name) for name in METRICS_COLUMNS})
     result.update(train_seconds=t1 - t0, evaluate_seconds=t2 - t1)
-    folder.write_result(trial.key, result)
+    storage.finish(trial.key, result, run.path)
     tune.report({**result, "phase": "done", "timesteps_total": metrics.get("timesteps")})  # Tune's step (MLflow's)
 
 

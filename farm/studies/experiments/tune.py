@@ -23,9 +23,12 @@ __all__ = ["TuneReport", "Progress"]
 class TuneReport(AfterUpdates):
     """An SB3 callback reporting a trial's steps to Ray Tune each time they pass a multiple
     of `every` ({"timesteps": n, "phase": "train"}), after the step's update (AfterUpdates),
-    with a Tune checkpoint when the run's Checkpointer (called before it) has just saved one: a marker folder holding progress.json
-    (the steps and the SB3 checkpoint's path), the weights, the replay buffer and the run's
-    state staying in the run folder (docs/experiments.md says why).
+    with a Tune checkpoint when the run's Checkpointer (called before it) has just saved one.
+    The checkpoint holds everything the trial's resume needs: progress.json (the steps) and
+    the run folder with that checkpoint's model, replay buffer and RunState, its evaluation
+    history, best model, pretraining and config (storage.checkpoint_run). Tune uploads it to
+    the experiment's storage, and a restarted trial writes its run folder again from it
+    (storage.restore_run), on whatever node it runs.
 
     run_dir: the trial's run folder; every: steps between reports."""
 
@@ -39,6 +42,7 @@ class TuneReport(AfterUpdates):
     def due(self, steps: int) -> None:
         """Report `steps`, with the checkpoint of `steps` when there is one."""
         from farm.alloc.runs import latest_checkpoint
+        from farm.studies.experiments.storage import checkpoint_run
 
         metrics = {"timesteps": steps, "timesteps_total": steps, "phase": "train"}  # timesteps_total: Tune's step
         last = latest_checkpoint(self.run_dir, replay_buffer=getattr(self.model, "replay_buffer", None) is not None)
@@ -46,7 +50,8 @@ class TuneReport(AfterUpdates):
             tune.report(metrics)
             return
         with tempfile.TemporaryDirectory(prefix="farm-trial-") as folder:  # Tune copies it before report returns
-            (Path(folder) / "progress.json").write_text(json.dumps({"timesteps": steps, "sb3_checkpoint": str(last[0])}))
+            (Path(folder) / "progress.json").write_text(json.dumps({"timesteps": steps}))
+            checkpoint_run(self.run_dir, steps, Path(folder))
             tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(folder))
 
 

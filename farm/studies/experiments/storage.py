@@ -1,0 +1,255 @@
+"""Where an experiment lives: a local folder, or a folder of any filesystem pyarrow names by URI
+(``s3://bucket/path``, ``gs://bucket/path``, ``hdfs://…``), the storage Ray Tune itself writes
+its experiment state and checkpoints to.
+
+With a local folder nothing is staged: the driver reads and writes ExperimentFolder(out) and
+every trial trains in its run folder there (a cluster then needs that folder on a shared file
+system). With a URI the experiment needs no shared file system:
+
+- a trial trains in a run folder in its node's temporary space (ExperimentStorage.run_dir);
+  everything its resume needs travels in its Tune checkpoints, which Tune uploads
+  to the storage (farm.studies.experiments.tune.TuneReport), and a restarted trial, on
+  whatever node, writes its run folder again from its last one (restore_run);
+- a finished trial uploads its run folder (without checkpoints/ and pretrain/: the state
+  lives in Tune's checkpoints) and then its result.json to trials/<key>/, and removes its
+  local folder;
+- the driver stages the experiment in a temporary local folder: it downloads the manifest and
+  the finished trials, writes the tables, claims and figures there with the same code as for a
+  local folder, and uploads them.
+
+Credentials and endpoints are pyarrow's (and so Tune's): the standard environment variables
+(AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY, AWS_ENDPOINT_URL, …, set on every node) or the URI's
+query (``s3://bucket/x?endpoint_override=host:9000&scheme=http``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import posixpath
+import shutil
+import tempfile
+from pathlib import Path
+
+from farm.core.errors import ConfigError
+from farm.studies.experiments.folder import MANIFEST, RESULT, ExperimentFolder
+
+__all__ = ["ExperimentStorage", "is_uri", "restore_run", "checkpoint_run", "RUN_IN_CHECKPOINT", "NOT_UPLOADED"]
+
+RUN_IN_CHECKPOINT = "run"  # a Tune checkpoint's copy of the run folder
+NOT_UPLOADED = ("checkpoints", "pretrain")  # a finished trial's run folder keeps its state in Tune's checkpoints
+
+
+def is_uri(out) -> bool:
+    """Whether out names a folder of a pyarrow filesystem by URI (``scheme://…``), not a local path."""
+    return isinstance(out, str) and "://" in out
+
+
+class ExperimentStorage:
+    """An experiment's storage (see the module doc). out: a local folder (str or Path) or a URI.
+    ConfigError (one line, field out) for a URI pyarrow cannot open."""
+
+    def __init__(self, out):
+        self.uri = str(out)
+        if is_uri(out):
+            from pyarrow import fs
+
+            try:
+                self.fs, self.root = fs.FileSystem.from_uri(out)
+            except Exception as e:  # pyarrow's ArrowInvalid, OSError of the filesystem's client
+                first = (str(e).strip().splitlines() or [type(e).__name__])[0]
+                raise ConfigError(f"out: cannot open {out}: {first}", field="out") from None
+            self.root = self.root.rstrip("/")
+            self.local = None
+        else:
+            self.fs, self.local = None, Path(out).resolve()
+            self.root = str(self.local)
+
+    def __repr__(self) -> str:
+        return f"ExperimentStorage({self.uri!r})"
+
+    def _path(self, *parts: str) -> str:
+        return posixpath.join(self.root, *parts)
+
+    def where(self, name: str):
+        """A top-level file's place: a Path in a local folder, else its URI (for messages)."""
+        if self.local is not None:
+            return self.local / name
+        return f"{self.uri.split('?')[0].rstrip('/')}/{name}"
+
+    # ------------------------------------------------------------------ Tune
+    def tune_storage(self) -> tuple[str, object]:
+        """(storage_path, storage_filesystem) for Tune's RunConfig and Tuner.restore."""
+        return self.root, self.fs
+
+    # ------------------------------------------------------------------ the experiment
+    def _info(self, *parts: str):
+        return self.fs.get_file_info(self._path(*parts))
+
+    def _exists(self, *parts: str) -> bool:
+        from pyarrow import fs
+
+        return self._info(*parts).type != fs.FileType.NotFound
+
+    def check_for(self, digest: str) -> None:
+        """ExperimentFolder.check_for on the storage: ConfigError (one line, field out) when it
+        holds another experiment or files that are not an experiment's."""
+        if self.local is not None:
+            ExperimentFolder(self.local).check_for(digest)
+            return
+        from pyarrow import fs
+
+        if self._info().type == fs.FileType.File:
+            raise ConfigError(f"out: {self.uri} exists and is not a folder", field="out")
+        if self._exists(MANIFEST):
+            with tempfile.TemporaryDirectory(prefix="farm-check-") as stage:
+                self._download(MANIFEST, Path(stage) / MANIFEST)
+                folder = ExperimentFolder(stage)
+                try:
+                    folder.check_for(digest)
+                except ConfigError as e:
+                    raise ConfigError(str(e).replace(stage, self.uri), field="out") from None
+        elif self._info().type == fs.FileType.Directory and self.fs.get_file_info(
+                fs.FileSelector(self._path(), recursive=False)):
+            raise ConfigError(f"out: {self.uri} is not empty and holds no experiment ({MANIFEST}); choose another "
+                              f"folder", field="out")
+
+    def write_manifest(self, doc: dict) -> None:
+        """Write experiment.json once (an existing one stays)."""
+        if self.local is not None:
+            ExperimentFolder(self.local).write_manifest(doc)
+        elif not self._exists(MANIFEST):
+            self._write_bytes((json.dumps(doc, indent=2, default=float) + "\n").encode(), MANIFEST)
+
+    def finished(self, key: str) -> bool:
+        """Whether the trial has finished (its result.json)."""
+        if self.local is not None:
+            return ExperimentFolder(self.local).finished(key)
+        return self._exists("trials", key, RESULT)
+
+    def read_result(self, key: str) -> dict:
+        """The trial's result.json."""
+        if self.local is not None:
+            return ExperimentFolder(self.local).read_result(key)
+        with self.fs.open_input_stream(self._path("trials", key, RESULT)) as f:
+            return json.loads(f.read())
+
+    def write_result(self, key: str, result: dict) -> None:
+        """Write the trial's result.json (its last step: the trial has finished)."""
+        if self.local is not None:
+            ExperimentFolder(self.local).write_result(key, result)
+        else:
+            self._write_bytes((json.dumps(result, indent=2, default=float) + "\n").encode(), "trials", key, RESULT)
+
+    def run_dir(self, key: str) -> Path:
+        """Where the trial trains: its run folder in a local experiment, else a folder of the
+        node's temporary space named by the storage and the trial (the same on a restart on
+        the same node, so that one goes on from the folder when it is as recent as the
+        checkpoint), removed once the trial has uploaded its results (finish)."""
+        if self.local is not None:
+            return ExperimentFolder(self.local).run_dir(key)
+        import hashlib
+
+        where = hashlib.sha256(self.uri.encode()).hexdigest()[:16]
+        return Path(tempfile.gettempdir()) / "swarm-farm-trials" / f"{where}-{key}" / "run"
+
+    def finish(self, key: str, result: dict, run: Path) -> None:
+        """A trial's last step: in object storage, upload its run folder to trials/<key>/run
+        (without NOT_UPLOADED), then write its result.json (the trial has finished), then
+        remove the local folder; in a local experiment, write its result.json."""
+        if self.local is not None:
+            self.write_result(key, result)
+            return
+        from pyarrow import fs
+
+        for path in sorted(p for p in Path(run).rglob("*") if p.is_file()):
+            rel = path.relative_to(run)
+            if rel.parts[0] in NOT_UPLOADED:
+                continue
+            fs.copy_files(str(path), self._path("trials", key, "run", *rel.parts), destination_filesystem=self.fs)
+        self.write_result(key, result)
+        shutil.rmtree(run.parent, ignore_errors=True)
+
+    # ------------------------------------------------------------------ the driver's stage
+    @contextlib.contextmanager
+    def staged(self):
+        """The experiment as a local folder for the driver: the folder itself, or (a URI) a
+        temporary one holding the manifest, removed at the end. stage_results fills it with
+        the finished trials, publish uploads what the driver wrote."""
+        if self.local is not None:
+            yield self.local
+            return
+        with tempfile.TemporaryDirectory(prefix="farm-experiment-") as stage:
+            stage = Path(stage)
+            if self._exists(MANIFEST):
+                self._download(MANIFEST, stage / MANIFEST)
+            yield stage
+
+    def stage_results(self, stage: Path, keys: list[str]) -> None:
+        """Download the finished trials among keys (result.json and run folder) into stage."""
+        if self.local is not None:
+            return
+        from pyarrow import fs
+
+        for key in keys:
+            if self.finished(key):
+                fs.copy_files(self._path("trials", key), str(stage / "trials" / key), source_filesystem=self.fs)
+
+    def publish(self, stage: Path, names) -> None:
+        """Upload the driver's files (top-level names in stage; a missing one is skipped)."""
+        if self.local is not None:
+            return
+        from pyarrow import fs
+
+        for name in names:
+            if (stage / name).is_file():
+                fs.copy_files(str(stage / name), self._path(name), destination_filesystem=self.fs)
+
+    def _download(self, name: str, to: Path) -> None:
+        from pyarrow import fs
+
+        fs.copy_files(self._path(name), str(to), source_filesystem=self.fs)
+
+    def _write_bytes(self, data: bytes, *parts: str) -> None:
+        self.fs.create_dir(posixpath.dirname(self._path(*parts)), recursive=True)
+        with self.fs.open_output_stream(self._path(*parts)) as f:
+            f.write(data)
+
+
+def checkpoint_run(run: Path, steps: int, to: Path) -> None:
+    """Copy a run folder into to/RUN_IN_CHECKPOINT as a Tune checkpoint holds it: every file but
+    the checkpoints other than the one of `steps` (its model, replay buffer and RunState)."""
+    from farm.alloc.runs import checkpoint_files
+
+    keep = {p.name for p in checkpoint_files(run, steps)}
+
+    def ignore(folder, names):
+        if Path(folder) == run / "checkpoints":
+            return [n for n in names if n not in keep]
+        return []
+
+    shutil.copytree(run, to / RUN_IN_CHECKPOINT, ignore=ignore)
+
+
+def restore_run(checkpoint, run: Path, replay_buffer: bool) -> int | None:
+    """Before a trial trains: write its run folder again from its Tune checkpoint when the
+    folder lacks it (a trial restarted on another node, or whose local folder was lost), or
+    holds only an older one. A folder with a whole checkpoint as recent is kept (the same
+    state: resume is exact from either). Returns the steps the run goes on from (None: from
+    the start). checkpoint: tune.get_checkpoint()'s (None: the trial's first start); one of
+    before 0.6 (a marker, progress.json alone) leaves the run folder as it is."""
+    from farm.alloc.runs import latest_checkpoint
+
+    here = latest_checkpoint(run, replay_buffer=replay_buffer) if run.exists() else None
+    if checkpoint is None:
+        return None if here is None else here[1]
+    with checkpoint.as_directory() as folder:
+        saved = Path(folder) / RUN_IN_CHECKPOINT
+        steps = json.loads((Path(folder) / "progress.json").read_text())["timesteps"]
+        if not saved.is_dir() or (here is not None and here[1] >= steps):
+            return None if here is None else here[1]
+        if run.exists():
+            shutil.rmtree(run)
+        run.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copytree(saved, run)
+    return steps
