@@ -7,6 +7,7 @@
     training_curve.png the curve of evaluations.npz
     DIVERGED           written, with the reason, into a run that diverged: not a result
     checkpoints/       rl_model_<n>_steps.zip, rl_model_replay_buffer_<n>_steps.pkl, rl_model_state_<n>_steps.pkl
+                       (checkpoints/damaged/: the files of checkpoints --resume could not load, kept, never read)
     best/, tb/         SB3's best model and TensorBoard logs
     eval_table.csv, eval_episodes.csv, eval_steps.csv          farm eval (and an experiment's trial)
     eval_table_games.csv, fidelity_differences.csv            farm eval --fidelity games
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 import zipfile
 import zlib
 from pathlib import Path
@@ -30,8 +32,8 @@ from pydantic import BaseModel, ConfigDict
 
 from farm.core.errors import ConfigError, ResultsError
 
-__all__ = ["RunFolder", "RunMetrics", "checkpoint_files", "latest_checkpoint", "CONFIG", "MODEL", "METRICS",
-           "EVALUATIONS", "DIVERGED", "LEARNER"]
+__all__ = ["RunFolder", "RunMetrics", "checkpoint_files", "latest_checkpoint", "whole_checkpoints", "move_damaged",
+           "CONFIG", "MODEL", "METRICS", "EVALUATIONS", "DIVERGED", "LEARNER", "DAMAGED"]
 
 CONFIG = "config.yaml"
 MODEL = "model.zip"
@@ -39,6 +41,7 @@ METRICS = "metrics.json"
 EVALUATIONS = "evaluations.npz"
 DIVERGED = "DIVERGED"
 LEARNER = "td3"  # the learner of a run from before `algo` (RunFolder.learner)
+DAMAGED = "damaged"  # checkpoints/damaged/, pretrain/damaged/: files a resume could not load (move_damaged)
 
 # What a damaged or unreadable evaluations.npz raises on np.load and reading its arrays:
 # OSError (missing, a folder, unreadable), EOFError (empty), zipfile.BadZipFile (cut short,
@@ -83,10 +86,11 @@ def checkpoint_files(run_dir: Path, steps: int) -> tuple[Path, Path, Path]:
             folder / f"rl_model_state_{steps}_steps.pkl")
 
 
-def latest_checkpoint(run_dir: Path, replay_buffer: bool = True) -> tuple[Path, int] | None:
-    """(model file, steps) of a run folder's last whole checkpoint (its RunState file, which
-    is written last, is there, and so is the model and, with replay_buffer (an off-policy
-    learner's checkpoint: TD3's, SAC's), its replay buffer), or None."""
+def whole_checkpoints(run_dir: Path, replay_buffer: bool = True) -> list[int]:
+    """The steps of a run folder's whole checkpoints, newest first: those whose RunState file,
+    which is written last, is there, and so is the model and, with replay_buffer (an off-policy
+    learner's checkpoint: TD3's, SAC's), its replay buffer. Whole is not sound: a file may
+    still be damaged (--resume moves such a checkpoint aside, move_damaged, and tries the next)."""
     found = []
     for p in (Path(run_dir) / "checkpoints").glob("rl_model_state_*_steps.pkl"):
         m = re.fullmatch(r"rl_model_state_(\d+)_steps\.pkl", p.name)
@@ -95,10 +99,31 @@ def latest_checkpoint(run_dir: Path, replay_buffer: bool = True) -> tuple[Path, 
         model, buffer, state = checkpoint_files(run_dir, int(m.group(1)))
         if model.exists() and state.exists() and (buffer.exists() or not replay_buffer):
             found.append(int(m.group(1)))
+    return sorted(found, reverse=True)
+
+
+def latest_checkpoint(run_dir: Path, replay_buffer: bool = True) -> tuple[Path, int] | None:
+    """(model file, steps) of a run folder's last whole checkpoint (whole_checkpoints' first), or None."""
+    found = whole_checkpoints(run_dir, replay_buffer)
     if not found:
         return None
-    steps = max(found)
-    return checkpoint_files(run_dir, steps)[0], steps
+    return checkpoint_files(run_dir, found[0])[0], found[0]
+
+
+def move_damaged(*paths: Path) -> Path:
+    """Move the files of paths that exist into the damaged/ folder beside them (DAMAGED: kept,
+    never read again), under their own names (a name already taken there gets the time,
+    .<YYYYmmddTHHMMSS>, added); returns that folder (the first path's)."""
+    folder = Path(paths[0]).parent / DAMAGED
+    for path in map(Path, paths):
+        if not path.exists():
+            continue
+        aside = path.parent / DAMAGED / path.name
+        aside.parent.mkdir(exist_ok=True)
+        if aside.exists():
+            aside = aside.with_name(f"{path.name}.{time.strftime('%Y%m%dT%H%M%S')}")
+        path.replace(aside)
+    return folder
 
 
 class RunFolder:

@@ -41,13 +41,16 @@ The algorithm, and why it is right:
   generator are written whole (pretrain/iteration_<i>.pkl, atomically). A run resumed after a
   stop loads the last one and goes on; nothing else is random (the fit draws its minibatches
   from its own generator, the networks have no dropout), so the pretrained policy is
-  bit-identical to an uninterrupted run's.
+  bit-identical to an uninterrupted run's. A last one that does not load (a damaged file) is
+  moved to pretrain/damaged/, said in one line, and the one before goes on (or, with none,
+  the pretraining starts again), as exact.
 """
 
 from __future__ import annotations
 
 import pickle
 import re
+import sys
 import time
 from pathlib import Path
 
@@ -58,10 +61,15 @@ from farm.alloc.training.labels import concat, play_labelled
 
 __all__ = ["PRETRAIN_SEED_OFFSET", "FLOW_FLOOR", "MoveMap", "imitation_loss", "label_all", "fit_actor", "fit_maps",
            "actor_action", "pretrain",
-           "iteration_file", "latest_iteration", "Pretrained"]
+           "iteration_file", "saved_iterations", "latest_iteration", "Pretrained"]
 
 PRETRAIN_SEED_OFFSET = 2_000_000  # pretraining's episodes: seeded apart from training's and evaluation's
 FLOW_FLOOR = 0.01  # the weight of a cell without defenders in the `flows` loss
+
+# What unpickling a damaged iteration file raises: UnpicklingError or EOFError when it is cut
+# short; garbage, and a damaged tensor inside, unpickle into many errors.
+_ITERATION_DAMAGE = (OSError, EOFError, pickle.UnpicklingError, ValueError, LookupError, RuntimeError,
+                     AttributeError, ImportError, TypeError)
 
 
 def label_all(config, params, learner, share: float, iteration: int, seed: int, client, gamma: float,
@@ -267,11 +275,43 @@ def iteration_file(run_dir, iteration: int) -> Path:
     return Path(run_dir) / "pretrain" / f"iteration_{iteration}.pkl"
 
 
-def latest_iteration(run_dir) -> int | None:
-    """The last pretraining iteration saved whole in a run folder, or None."""
+def saved_iterations(run_dir) -> list[int]:
+    """The pretraining iterations saved in a run folder (pretrain/iteration_<i>.pkl), newest first."""
     found = [int(m.group(1)) for p in (Path(run_dir) / "pretrain").glob("iteration_*.pkl")
              if (m := re.fullmatch(r"iteration_(\d+)\.pkl", p.name))]
-    return max(found) if found else None
+    return sorted(found, reverse=True)
+
+
+def latest_iteration(run_dir) -> int | None:
+    """The last pretraining iteration saved whole in a run folder, or None."""
+    found = saved_iterations(run_dir)
+    return found[0] if found else None
+
+
+def _resume_iteration(run_dir) -> tuple[int, dict] | None:
+    """(the iteration, its saved state) of the newest iteration file of run_dir that loads, or
+    None. One that does not is moved to pretrain/damaged/ (move_damaged) and said in one line on
+    stderr, and the one before it tried."""
+    from farm.alloc.runs import DAMAGED, move_damaged
+
+    damaged, found = [], None
+    for iteration in saved_iterations(run_dir):
+        path = iteration_file(run_dir, iteration)
+        try:
+            state = pickle.loads(path.read_bytes())
+        except _ITERATION_DAMAGE as e:
+            state, problem = None, type(e).__name__
+        else:
+            problem = None if isinstance(state, dict) else "not an iteration's state"
+        if problem is None:
+            found = iteration, state
+            break
+        move_damaged(path)
+        damaged.append(f"pretrain/{path.name} is damaged ({problem})")
+    then = f"resumed after iteration {found[0]}" if found else "the pretraining starts again"
+    for line in damaged:
+        print(f"pretrain {run_dir}: {line}; moved to pretrain/{DAMAGED}/, {then}", file=sys.stderr)
+    return found
 
 
 class Pretrained:
@@ -298,9 +338,9 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True) -> P
     rng = np.random.default_rng([config.seed, PRETRAIN_SEED_OFFSET])
     parts: list[list[dict]] = [[] for _ in maps]  # each map's labels
     seconds, loss, first = 0.0, float("nan"), 0
-    done = latest_iteration(run_dir)
-    if done is not None:
-        state = pickle.loads(iteration_file(run_dir, done).read_bytes())
+    saved = _resume_iteration(run_dir)
+    if saved is not None:
+        done, state = saved
         parts = [[d] for d in (state["data"] if len(maps) > 1 else [state["data"]])]
         seconds, loss = state["seconds"], state["loss"]
         model.policy.load_state_dict(state["policy"])

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import pickle
 import shutil
+import sys
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -19,17 +22,25 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from farm.alloc.env import SwarmAllocationEnv
 from farm.alloc.lattice import lattice_groups, warm_lattices
 from farm.alloc.policies.learned import algorithm_class
-from farm.alloc.runs import RunFolder, RunMetrics, checkpoint_files, latest_checkpoint
+from farm.alloc.runs import DAMAGED, RunFolder, RunMetrics, checkpoint_files, move_damaged, whole_checkpoints
 from farm.alloc.training.callbacks import Checkpointer, DivergenceGuard, StepProgress, UpdateTimer
 from farm.alloc.training.config import TrainConfig, store_of
 from farm.alloc.training.pretrain import pretrain
 from farm.alloc.training.state import RunState
 from farm.core.config import ConfigError
-from farm.core.errors import ActionError, TrainingDiverged
+from farm.core.errors import ActionError, SwarmFarmError, TrainingDiverged
+from farm.core.output import check_writable_folder
 
 __all__ = ["train", "make_model", "policy_kwargs", "training_envs", "EVAL_SEED_OFFSET"]
 
 EVAL_SEED_OFFSET = 1_000_000  # the periodic evaluation's episodes: seeded apart from training's
+
+# What a damaged checkpoint file raises on SB3's load (a zip cut short or with a bad CRC:
+# BadZipFile, which SB3 turns into a ValueError, zlib.error; a damaged member: torch's
+# RuntimeError, json's ValueError, a missing one: KeyError) and on unpickling a replay buffer
+# or a RunState (UnpicklingError, EOFError when cut short; garbage unpickles into many errors).
+_CHECKPOINT_DAMAGE = (OSError, EOFError, zipfile.BadZipFile, zlib.error, pickle.UnpicklingError, ValueError,
+                      LookupError, RuntimeError, AttributeError, ImportError, TypeError)
 
 
 def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True,
@@ -43,7 +54,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     the steps so far): farm.studies.experiments reports a trial's progress to Ray Tune so."""
     import torch
 
-    run_dir = Path(run_dir)
+    run_dir = check_writable_folder(run_dir, "out")  # before the service, the lattice and the steps
     run = RunFolder(run_dir)
     if run.is_run() and not resume:
         raise ConfigError(f"out: {run_dir} already holds a run; resume it or choose another folder", field="out")
@@ -172,24 +183,11 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
     cls = algorithm_class(config.algo)
 
     done_steps, pretrained = 0, None
-    checkpoint = latest_checkpoint(run_dir, replay_buffer=config.algo != "ppo") if resume else None
+    checkpoint = _resume_point(cls, config, run_dir, env) if resume else None
     if checkpoint:
-        path, done_steps = checkpoint
-        _, buffer, state_file = checkpoint_files(run_dir, done_steps)
-        # force_reset=False keeps the saved last observation: training goes on with the episode in progress
-        try:
-            model = cls.load(path, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
-        except ValueError as e:
-            if "spaces do not match" not in str(e):
-                raise
-            # SB3 checks the saved model's spaces against the env's: an edited config.yaml (another grid)
-            raise ConfigError(f"resume: {path.name} was trained on another map than config.yaml's "
-                              f"{config.env.grid_size}x{config.env.grid_size} (was config.yaml edited?): "
-                              f"{str(e).splitlines()[0]}", field="resume") from None
-        if buffer.exists():
-            model.load_replay_buffer(buffer)
+        model, saved, done_steps = checkpoint
         env.reset()  # through the wrappers (the Monitor refuses a step before a reset); the state replaces the episode
-        state.restore(model, pickle.loads(state_file.read_bytes()))
+        state.restore(model, saved)
     else:
         model = make_model(config, env, run_dir)
         if config.pretrain is not None:
@@ -249,6 +247,71 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
 
         plot_training_curve(steps, results, run.file("training_curve.png"), config.name)
     return metrics.model_dump()
+
+
+def _resume_point(cls, config: TrainConfig, run_dir: Path, env):
+    """(the model with its replay buffer, the RunState's dict, the steps) of run_dir's newest
+    checkpoint that loads, or None when it has no whole checkpoint (whole_checkpoints). A
+    checkpoint that does not load is moved to checkpoints/damaged/ (move_damaged), said in one
+    line on stderr, and the one before it tried; ConfigError (field resume) when none loads. A
+    failed load leaves nothing the resumed run sees: the model is the one loaded, whose load
+    seeds SB3's generators and the env's next reset again, and the RunState sets them after."""
+    damaged = []  # said once the outcome is known (the checkpoint resumed from), or counted in the error
+    try:
+        for steps in whole_checkpoints(run_dir, replay_buffer=config.algo != "ppo"):
+            model, saved, problem = _load_checkpoint(cls, config, run_dir, steps, env)
+            if problem is None:
+                for line in damaged:
+                    print(f"train {run_dir}: {line}; moved to checkpoints/{DAMAGED}/, resumed from the checkpoint "
+                          f"of {steps} steps", file=sys.stderr)
+                return model, saved, steps
+            move_damaged(*checkpoint_files(run_dir, steps))
+            damaged.append(f"the checkpoint of {steps} steps is damaged ({problem})")
+    except ConfigError:  # an older checkpoint of another map (an edited config.yaml): what was moved, first
+        for line in damaged:
+            print(f"train {run_dir}: {line}; moved to checkpoints/{DAMAGED}/", file=sys.stderr)
+        raise
+    if damaged:
+        raise ConfigError(f"resume: {run_dir} has no whole checkpoint ({len(damaged)} damaged, moved to "
+                          f"checkpoints/{DAMAGED}/); train it again into another folder", field="resume")
+    return None
+
+
+def _load_checkpoint(cls, config: TrainConfig, run_dir: Path, steps: int, env):
+    """(the model with its replay buffer, the RunState's dict, None) of the checkpoint of `steps`,
+    or (None, None, what is damaged: its file's name and the error's type). ConfigError when
+    its model was trained on another map than config's (an edited config.yaml)."""
+    model_file, buffer, state_file = checkpoint_files(run_dir, steps)
+    # force_reset=False keeps the saved last observation: training goes on with the episode in progress
+    try:
+        model = cls.load(model_file, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
+    except SwarmFarmError:
+        raise
+    except _CHECKPOINT_DAMAGE as e:
+        if isinstance(e, ValueError) and "spaces do not match" in str(e):
+            # SB3 checks the saved model's spaces against the env's: an edited config.yaml (another grid)
+            raise ConfigError(f"resume: {model_file.name} was trained on another map than config.yaml's "
+                              f"{config.env.grid_size}x{config.env.grid_size} (was config.yaml edited?): "
+                              f"{str(e).splitlines()[0]}", field="resume") from None
+        return None, None, _damage(model_file, e)
+    if buffer.exists():
+        try:
+            model.load_replay_buffer(buffer)
+        except _CHECKPOINT_DAMAGE as e:
+            return None, None, _damage(buffer, e)
+    try:
+        saved = pickle.loads(state_file.read_bytes())
+    except _CHECKPOINT_DAMAGE as e:
+        return None, None, _damage(state_file, e)
+    if not isinstance(saved, dict):
+        return None, None, f"{state_file.name}: not a RunState"
+    return model, saved, None
+
+
+def _damage(path: Path, e: BaseException) -> str:
+    """What is wrong with a checkpoint's file, in a few words: its name and the error's type (its
+    cause's when SB3 wraps one: the ValueError of a file that is not a zip holds the BadZipFile)."""
+    return f"{path.name}: {type(e.__cause__ or e).__name__}"
 
 
 def _evaluate_pretrained(model, evaluation: EvalCallback, eval_vec, config: TrainConfig, run_dir: Path) -> None:
