@@ -19,7 +19,7 @@ import pandas as pd
 
 from workers import ENGINE_VERSION
 
-from farm.core.errors import NotAStoreError, ReportError, StoreCorruptError
+from farm.core.errors import NotAStoreError, ReportError, StoreCorruptError, SwarmFarmError
 
 __all__ = ["ReportError", "build_report", "write_report"]
 
@@ -497,11 +497,16 @@ def write_report(results_dir, out=None) -> Path:
     out: the page's path (default results_dir/report.html). Bad input raises ReportError
     and leaves no file.
     """
-    from farm.core.output import atomic_write_bytes
+    from farm.core.output import atomic_write_bytes, check_writable_file
 
-    page = build_report(results_dir)
     path = Path(out) if out else Path(results_dir) / "report.html"
     if path.exists() and path.is_dir():
         raise ReportError(f"-o: {path} is a folder")
+    if out:  # before the page is built: a read-only place is found now (results_dir's is build_report's)
+        try:
+            check_writable_file(path, "-o")
+        except SwarmFarmError as e:
+            raise ReportError(str(e)) from None
+    page = build_report(results_dir)
     atomic_write_bytes(path, page.encode())
     return path

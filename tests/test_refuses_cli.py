@@ -2,11 +2,12 @@
 addresses that are not addresses, jobs too big to run blind, a damaged sweep.json; and
 negative numbers that need no '='."""
 
+import contextlib
 import json
-import os
 import subprocess
-import sys
 import time
+from pathlib import Path
+from types import SimpleNamespace
 
 import pandas as pd
 import pytest
@@ -14,10 +15,18 @@ import yaml
 
 from farm.games.sizes import JobSize, check_size
 
+from conftest import farm_main
 
-def farm(*args, timeout=300):
-    return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, env={**os.environ, "RAY_ADDRESS": ""})
+REPO = Path(__file__).resolve().parents[1]
+
+
+def farm(*args):
+    """`farm ARGS` through farm.cli.main in this process, from the repository's root:
+    returncode, stdout, stderr. Every command here is refused before Ray starts or runs
+    --no-ray (conftest's RAY_ADDRESS of a closed port would fail any that joined Ray)."""
+    with contextlib.chdir(REPO):
+        status, out, err = farm_main(*args)
+    return SimpleNamespace(returncode=status, stdout=out, stderr=err)
 
 
 def one_line_error(r, *words):
@@ -144,6 +153,36 @@ def test_a_read_only_out_is_refused_before_any_game(tmp_path, capsys):
             code = main(["pe-table", "--games", "2", "--out", str(out), "--no-figures"])
             err = capsys.readouterr().err.strip()
             assert code == 2 and "\n" not in err and f"--out: {out} cannot be written ({where} read-only)" in err
+        assert list(ro.iterdir()) == []
+    finally:
+        subprocess.run(["chattr", "-i", str(ro)], check=True)
+
+
+@pytest.mark.parametrize("flag, args", [
+    ("--out", ["sweep", "configs/smoke.yaml", "--no-ray", "--quiet", "--out", "RO/sweep"]),
+    ("--out", ["suite", "configs/suite_demo.yaml", "--quiet", "--out", "RO/suite"]),
+    ("--out", ["train", "configs/train/tiny.yaml", "--quiet", "--out", "RO/run"]),
+    ("--out", ["experiments", "configs/experiments/smoke.yaml", "--quiet", "--out", "RO/experiment"]),
+    ("--plot", ["game", "--n-pursuers", "3", "--n-evaders", "1", "--plot", "RO/game.png"]),
+    ("--animate", ["game", "--n-pursuers", "3", "--n-evaders", "1", "--animate", "RO/game.gif"]),
+    ("-o", ["report", "results", "-o", "RO/report.html"]),
+])
+def test_every_command_refuses_a_read_only_destination_before_any_work(flag, args, tmp_path):
+    """The same finding in every other command that writes: `farm suite` warmed its lattice and
+    played every episode before a read-only --out failed, `farm game --animate` played the game
+    and then ended in a traceback, `farm report -o` built the page first, and sweep, train and
+    experiments failed without naming the flag. Now each says so in one line naming the flag,
+    before any work (no Ray: conftest's RAY_ADDRESS of a closed port), and writes nothing."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if subprocess.run(["chattr", "+i", str(ro)], capture_output=True).returncode != 0:
+        pytest.skip("chattr +i is not available here")
+    path = next(a for a in args if a.startswith("RO/")).replace("RO", str(ro))
+    try:
+        t0 = time.perf_counter()
+        r = farm(*[a.replace("RO", str(ro)) for a in args])
+        line = one_line_error(r, f"{flag}: {path} cannot be written (its folder {ro} is read-only)")
+        assert time.perf_counter() - t0 < 20, line
         assert list(ro.iterdir()) == []
     finally:
         subprocess.run(["chattr", "-i", str(ro)], check=True)

@@ -122,8 +122,10 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     check_writable_folder(run.path if scenario is None else run.path / "scenarios" / scenario, "run_dir")
     if animate is not None:
         from farm.core.animate import check_animation_path
+        from farm.core.output import check_writable_file
 
         animate = (run.path if scenario is None else run.path / "scenarios" / scenario) / check_animation_path(animate)
+        check_writable_file(animate, "animate")
     if scenario is not None:
         run = RunFolder(run.path / "scenarios" / scenario)  # where this evaluation's files go
         run.path.mkdir(parents=True, exist_ok=True)

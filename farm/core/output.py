@@ -10,7 +10,7 @@ import pandas as pd
 
 from farm.core.errors import ConfigError
 
-__all__ = ["FORMATS", "atomic_write_bytes", "write_table", "check_writable_folder"]
+__all__ = ["FORMATS", "atomic_write_bytes", "write_table", "check_writable_folder", "check_writable_file"]
 
 FORMATS = ("csv", "parquet")
 
@@ -69,7 +69,7 @@ def check_writable_folder(path, field: str) -> Path:
     only to be lost at the end. Creates nothing; returns path as a Path."""
     path = Path(path)
     if path.exists() and not path.is_dir():
-        raise ConfigError(f"{field}: {path} is a file, not a folder", field=field)
+        raise ConfigError(f"{field}: {path} exists and is not a folder", field=field)
     folder = path
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
@@ -79,4 +79,26 @@ def check_writable_folder(path, field: str) -> Path:
         where = "it is" if folder == path else f"its folder {folder} is"
         raise ConfigError(f"{field}: {path} cannot be written ({where} read-only); make it writable or "
                           f"choose another", field=field)
+    return path
+
+
+def check_writable_file(path, field: str) -> Path:
+    """Refuse at once, in one line (ConfigError naming field), a file path that cannot be
+    written: a folder, or a file whose folder cannot be written into (check_writable_folder:
+    read-only, or under a file), so that a figure or page is not computed only to be lost.
+    Creates nothing; returns path as a Path."""
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{field}: {path} is a folder, not a file to write", field=field)
+    if path.exists() and not os.access(path, os.W_OK):
+        raise ConfigError(f"{field}: {path} cannot be written (it is read-only); make it writable or "
+                          f"choose another", field=field)
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise ConfigError(f"{field}: {path}: {folder} is a file, not a folder", field=field)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ConfigError(f"{field}: {path} cannot be written (its folder {folder} is read-only); make it "
+                          f"writable or choose another", field=field)
     return path

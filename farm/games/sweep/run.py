@@ -33,7 +33,7 @@ from workers import ENGINE_VERSION, SEEDING, Case, CaptureStats, game_statistics
 
 from farm.runtime import metrics
 from farm.core.errors import ConfigError, SweepError
-from farm.core.output import atomic_write_bytes, write_table
+from farm.core.output import atomic_write_bytes, check_writable_folder, write_table
 from farm.games.shards import SWEEP_ID_KEY, play_shard, shard_problem, warn_coarse_steps, write_shard
 from farm.games.sweep.config import FULL_CHECK_POINTS, Point, SweepConfig
 
@@ -277,6 +277,7 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
     from farm.runtime import check_workers
 
     check_workers(workers)
+    check_writable_folder(out, "out")  # before planning and playing: a read-only out is found now
     check_size(config.size(), yes=yes, cpus=workers or 2)
     if show_progress and config.count() > FULL_CHECK_POINTS:  # planning them takes a while: say so first
         print(f"sweep: planning {config.count():,} points (each point's case and the sweep's id) ...", file=sys.stderr)

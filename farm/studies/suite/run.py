@@ -17,6 +17,7 @@ from farm.alloc.policies import PolicySpec, make_policy, policy_entry
 from farm.alloc.runs import RunFolder
 from farm.alloc.scenarios import SCENARIOS
 from farm.core.errors import ConfigError
+from farm.core.output import check_writable_folder
 from farm.studies.suite.config import SuiteConfig
 from farm.studies.suite.leaderboard import leaderboard, plot_leaderboard
 
@@ -98,6 +99,7 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"out: {out} exists and is not a folder", field="out")
+    check_writable_folder(out, "out")  # before the lattice and the episodes, not after them
     envs, jobs, skipped = _plan(config)
     _check_planners(jobs, envs)
     for scenario, path in skipped.items():
