@@ -1,4 +1,5 @@
-"""The `farm` CLI, run as a real subprocess: outputs, figures, and one-line errors."""
+"""The `farm` CLI, run as a real subprocess: outputs, figures, and one-line errors (the table of
+bad input through farm.cli.main in this process: the same one line, without an interpreter each)."""
 
 import json
 import subprocess
@@ -8,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+
+from conftest import farm_main
 
 FARM = [sys.executable, "-m", "farm.cli"]
 
@@ -112,12 +115,12 @@ def test_bad_cli_input_is_one_line(args, message, tmp_path):
     bad_arena = tmp_path / "arena.json"
     bad_arena.write_text(json.dumps([[0, 0], [10, 0], [5, 5], [10, 10], [0, 10]]))
     args = [str(bad_arena) if a == "ARENA_BAD" else a for a in args]
-    r = farm(*args)
-    assert r.returncode == 2
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1, r.stderr
+    status, _, stderr = farm_main(*args)
+    assert status == 2
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
     assert lines[0].startswith("farm: error: ") and message in lines[0]
-    assert "Traceback" not in r.stderr
+    assert "Traceback" not in stderr
 
 
 def test_unreachable_address_fails_at_once(tmp_path):

@@ -12,8 +12,6 @@ their exact resume, in process (`service.mode: local`), no Ray.
 """
 
 import pickle
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +27,8 @@ from farm.alloc.training import pretrain as pretrain_module
 from farm.alloc.training.labels import play_labelled
 from farm.alloc.training.pretrain import fit_actor, latest_iteration
 from farm.service import CaptureTimeClient
+
+from conftest import farm_main
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, team_sizes="lattice")
@@ -247,14 +247,14 @@ def test_a_bad_learner_setting_is_one_line_naming_the_field(tmp_path, changes, f
 
 
 def assert_refused_in_one_line(tmp_path: Path, raw: dict, field: str) -> None:
-    """`farm train` of the training config raw: one line on stderr naming field, no run folder."""
+    """`farm train` of the training config raw (farm.cli.main in this process): one line on stderr
+    naming field, no run folder."""
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(raw))
-    r = subprocess.run([sys.executable, "-m", "farm.cli", "train", str(path), "--out", str(tmp_path / "run")],
-                       capture_output=True, text=True, timeout=120)
-    assert r.returncode != 0
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    status, _, stderr = farm_main("train", path, "--out", tmp_path / "run")  # in process: the CLI's own
+    assert status != 0                                                        # process is test_alloc_train's
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in stderr, stderr
     assert field in lines[0], lines[0]
     assert not (tmp_path / "run").exists()
 

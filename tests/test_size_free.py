@@ -7,9 +7,9 @@
 - The live engagements' coarse tasks (farm.alloc.fidelity.pack_games).
 """
 
-import subprocess
-import sys
+import contextlib
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -22,11 +22,16 @@ from farm.alloc.fidelity import pack_games
 from farm.alloc.scenarios import SCENARIOS
 from farm.alloc.training import load_train_config, train
 
+from conftest import farm_main
+
 REPO = Path(__file__).resolve().parents[1]
 
 
-def farm(*args, cwd=REPO):
-    return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True, cwd=cwd)
+def farm(*args):
+    """`farm ARGS` from the repository's root, in this process (farm.cli.main): returncode, stdout, stderr."""
+    with contextlib.chdir(REPO):
+        status, out, err = farm_main(*args)
+    return SimpleNamespace(returncode=status, stdout=out, stderr=err)
 
 
 @pytest.fixture(scope="module")
