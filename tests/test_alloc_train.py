@@ -4,16 +4,27 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pandas as pd
 import pytest
+
+from conftest import farm_main
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def farm(*args, cwd=None):
+    """`farm ARGS` as a real subprocess: returncode, stdout, stderr."""
     return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True,
                           timeout=900, cwd=cwd)
+
+
+def farm_here(*args):
+    """`farm ARGS` through farm.cli.main in this process (no interpreter start, about 5 s with
+    torch): returncode, stdout, stderr. The first train and eval here stay real subprocesses."""
+    status, out, err = farm_main(*args)
+    return SimpleNamespace(returncode=status, stdout=out, stderr=err)
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +59,7 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
     saved = yaml.safe_load((run / "config.yaml").read_text())
     del saved["log_interval"]  # a run saved before a field existed resumes at the field's default
     (run / "config.yaml").write_text(yaml.safe_dump(saved))
-    r = farm("train", tiny_config, "--out", run, "--quiet", "--resume", "--timesteps", 450)
+    r = farm_here("train", tiny_config, "--out", run, "--quiet", "--resume", "--timesteps", 450)
     assert r.returncode == 0, r.stderr[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["timesteps"] == 450 and metrics["resumed_from"] == 300
@@ -63,7 +74,7 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
     assert len(list(run.glob("density_*.png"))) == 7
     assert (run / "training_curve.png").exists()
 
-    r = farm("eval", run, "--episodes", 2, "--fidelity", "games")
+    r = farm_here("eval", run, "--episodes", 2, "--fidelity", "games")
     assert r.returncode == 0, r.stderr[-2000:]
     assert "return, games minus service:" in r.stdout
     diffs = pd.read_csv(run / "fidelity_differences.csv")
@@ -76,14 +87,14 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
     before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
     if subprocess.run(["chattr", "+i", str(run)], capture_output=True).returncode == 0:
         try:
-            r = farm("eval", run, "--episodes", 2)
+            r = farm_here("eval", run, "--episodes", 2)
         finally:
             subprocess.run(["chattr", "-i", str(run)], check=True)
         assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr[-2000:]
         assert f"run_dir: {run} cannot be written (it is read-only)" in r.stderr
         assert {p.name: p.stat().st_mtime_ns for p in run.iterdir()} == before
 
-    r = farm("report", run, "-o", tmp_path / "report.html")
+    r = farm_here("report", run, "-o", tmp_path / "report.html")
     assert r.returncode == 0, r.stderr[-2000:]
     page = (tmp_path / "report.html").read_text()
     assert "share outside updates" in page and "density_td3.png" in page and "td3" in page
@@ -92,13 +103,13 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
 def test_train_bad_config_and_refusals(tiny_config, tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: x\nenv: {grid_size: 1}\n")
-    r = farm("train", bad, "--out", tmp_path / "r")
+    r = farm_here("train", bad, "--out", tmp_path / "r")
     assert r.returncode == 2 and "env.grid_size: Input should be greater than or equal to 2" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     bad.write_text("name: x\ntd3: {learning_rate: -1}\n")
-    r = farm("train", bad, "--out", tmp_path / "r")
+    r = farm_here("train", bad, "--out", tmp_path / "r")
     assert r.returncode == 2 and "td3.learning_rate" in r.stderr
-    r = farm("eval", tmp_path / "nothing")
+    r = farm_here("eval", tmp_path / "nothing")
     assert r.returncode == 2 and "not a training run" in r.stderr
-    r = farm("train", tiny_config, "--out", tmp_path / "r2", "--resume")
+    r = farm_here("train", tiny_config, "--out", tmp_path / "r2", "--resume")
     assert r.returncode == 2 and "holds no run to resume" in r.stderr
