@@ -62,15 +62,10 @@ def write_table(df: pd.DataFrame, stem: Path, fmt: str, metadata: dict[str, str]
     return path
 
 
-def check_writable_folder(path, field: str) -> Path:
-    """Refuse at once, in one line (ConfigError naming field), a folder that results cannot be
-    written into: a path that is a file or lies below one, or whose nearest existing folder is
-    not writable (a read-only --out, or one under a read-only parent), so that no work is done
-    only to be lost at the end. Creates nothing; returns path as a Path."""
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise ConfigError(f"{field}: {path} exists and is not a folder", field=field)
-    folder = path
+def _writable_folder_at(path: Path, start: Path, field: str) -> None:
+    """Refuse path (ConfigError naming field) when the nearest existing folder at or above
+    start is a file or cannot be written into (os.access: a read-only folder, chattr +i)."""
+    folder = start
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     if not folder.is_dir():
@@ -79,13 +74,24 @@ def check_writable_folder(path, field: str) -> Path:
         where = "it is" if folder == path else f"its folder {folder} is"
         raise ConfigError(f"{field}: {path} cannot be written ({where} read-only); make it writable or "
                           f"choose another", field=field)
+
+
+def check_writable_folder(path, field: str) -> Path:
+    """Refuse at once, in one line (ConfigError naming field), a folder that results cannot be
+    written into: a path that is a file or lies below one, or whose nearest existing folder is
+    not writable (a read-only --out, or one under a read-only parent), so that no work is done
+    only to be lost at the end. Creates nothing; returns path as a Path."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{field}: {path} exists and is not a folder", field=field)
+    _writable_folder_at(path, path, field)
     return path
 
 
 def check_writable_file(path, field: str) -> Path:
     """Refuse at once, in one line (ConfigError naming field), a file path that cannot be
-    written: a folder, or a file whose folder cannot be written into (check_writable_folder:
-    read-only, or under a file), so that a figure or page is not computed only to be lost.
+    written: a folder, a read-only file, or a file whose folder cannot be written into (as
+    check_writable_folder), so that a figure or page is not computed only to be lost.
     Creates nothing; returns path as a Path."""
     path = Path(path)
     if path.is_dir():
@@ -93,12 +99,5 @@ def check_writable_file(path, field: str) -> Path:
     if path.exists() and not os.access(path, os.W_OK):
         raise ConfigError(f"{field}: {path} cannot be written (it is read-only); make it writable or "
                           f"choose another", field=field)
-    folder = path.parent
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
-    if not folder.is_dir():
-        raise ConfigError(f"{field}: {path}: {folder} is a file, not a folder", field=field)
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise ConfigError(f"{field}: {path} cannot be written (its folder {folder} is read-only); make it "
-                          f"writable or choose another", field=field)
+    _writable_folder_at(path, path.parent, field)
     return path

@@ -364,6 +364,11 @@ class TrainConfig(Strict):
         """The chosen algorithm's section."""
         return getattr(self, self.algo)
 
+    @property
+    def replay_buffer(self) -> bool:
+        """Whether the algorithm learns from a replay buffer (TD3, SAC), which its checkpoints hold; PPO has none."""
+        return self.algo != "ppo"
+
     def envs(self) -> list[AllocConfig]:
         """Every map the run plays: its env, then its pretraining curriculum's (pretrain.maps,
         the run's service games and seed), whose lattices are warmed before training."""

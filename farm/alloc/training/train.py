@@ -258,7 +258,7 @@ def _resume_point(cls, config: TrainConfig, run_dir: Path, env):
     seeds SB3's generators and the env's next reset again, and the RunState sets them after."""
     damaged = []  # said once the outcome is known (the checkpoint resumed from), or counted in the error
     try:
-        for steps in whole_checkpoints(run_dir, replay_buffer=config.algo != "ppo"):
+        for steps in whole_checkpoints(run_dir, replay_buffer=config.replay_buffer):
             model, saved, problem = _load_checkpoint(cls, config, run_dir, steps, env)
             if problem is None:
                 for line in damaged:

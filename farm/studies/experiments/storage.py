@@ -60,10 +60,11 @@ class ExperimentStorage:
                 first = (str(e).strip().splitlines() or [type(e).__name__])[0]
                 raise ConfigError(f"out: cannot open {out}: {first}", field="out") from None
             self.root = self.root.rstrip("/")
-            self.local = None
+            self.local = self.folder = None
         else:
             self.fs, self.local = None, Path(out).resolve()
             self.root = str(self.local)
+            self.folder = ExperimentFolder(self.local)  # a local experiment: every method is its folder's
 
     def __repr__(self) -> str:
         return f"ExperimentStorage({self.uri!r})"
@@ -95,7 +96,7 @@ class ExperimentStorage:
         """ExperimentFolder.check_for on the storage: ConfigError (one line, field out) when it
         holds another experiment or files that are not an experiment's."""
         if self.local is not None:
-            ExperimentFolder(self.local).check_for(digest)
+            self.folder.check_for(digest)
             return
         from pyarrow import fs
 
@@ -117,27 +118,27 @@ class ExperimentStorage:
     def write_manifest(self, doc: dict) -> None:
         """Write experiment.json once (an existing one stays)."""
         if self.local is not None:
-            ExperimentFolder(self.local).write_manifest(doc)
+            self.folder.write_manifest(doc)
         elif not self._exists(MANIFEST):
             self._write_bytes((json.dumps(doc, indent=2, default=float) + "\n").encode(), MANIFEST)
 
     def finished(self, key: str) -> bool:
         """Whether the trial has finished (its result.json)."""
         if self.local is not None:
-            return ExperimentFolder(self.local).finished(key)
+            return self.folder.finished(key)
         return self._exists("trials", key, RESULT)
 
     def read_result(self, key: str) -> dict:
         """The trial's result.json."""
         if self.local is not None:
-            return ExperimentFolder(self.local).read_result(key)
+            return self.folder.read_result(key)
         with self.fs.open_input_stream(self._path("trials", key, RESULT)) as f:
             return json.loads(f.read())
 
     def write_result(self, key: str, result: dict) -> None:
         """Write the trial's result.json (its last step: the trial has finished)."""
         if self.local is not None:
-            ExperimentFolder(self.local).write_result(key, result)
+            self.folder.write_result(key, result)
         else:
             self._write_bytes((json.dumps(result, indent=2, default=float) + "\n").encode(), "trials", key, RESULT)
 
@@ -147,7 +148,7 @@ class ExperimentStorage:
         the same node, so that one goes on from the folder when it is as recent as the
         checkpoint), removed once the trial has uploaded its results (finish)."""
         if self.local is not None:
-            return ExperimentFolder(self.local).run_dir(key)
+            return self.folder.run_dir(key)
         import hashlib
 
         where = hashlib.sha256(self.uri.encode()).hexdigest()[:16]

@@ -48,7 +48,7 @@ def run_trial(params: dict) -> None:
         return
     config = TrainConfig(**trial.config)
     run = RunFolder(storage.run_dir(trial.key))
-    restore_run(tune.get_checkpoint(), run.path, replay_buffer=config.algo != "ppo")
+    restore_run(tune.get_checkpoint(), run.path, replay_buffer=config.replay_buffer)
     every = max(1, min(config.checkpoint_freq, config.learner.n_timesteps // 10 or 1))
     t0 = time.perf_counter()
     metrics = train(config, run.path, resume=run.is_run(), show_progress=False,
