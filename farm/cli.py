@@ -397,7 +397,7 @@ def cmd_eval(a) -> int:
     references = None if a.references is None else [n for n in a.references.split(",") if n and n != "none"]
     with flags("episodes", "seed", "fidelity", "scenario", "references"):
         result = evaluate_run(run_dir, episodes=a.episodes, seed=a.seed, fidelity=a.fidelity, scenario=a.scenario,
-                              references=references, animate=a.animate)
+                              references=references, animate=a.animate, show_progress=not a.quiet)
     if a.scenario is not None:
         run_dir = run_dir / "scenarios" / a.scenario
     print(result.table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
@@ -591,6 +591,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--episodes", type=int, default=20)
     ev.add_argument("--seed", type=int, default=1000)
     ev.add_argument("--fidelity", choices=["service", "games"], default="service")
+    ev.add_argument("--quiet", action="store_true", help="no progress bar (--fidelity games)")
     ev.add_argument("--animate", nargs="?", const="episode.gif", metavar="PATH",
                     help="also animate the trained allocator's first episode (.gif or .mp4, in the run folder; "
                          "default episode.gif); under --fidelity games with one engaged cell's game beside it")

@@ -205,3 +205,24 @@ def test_under_the_games_fidelity_every_engagement_is_a_game_of_its_own(tmp_path
     np.testing.assert_allclose(removed, captured.mean(axis=1))
     assert len(np.unique(removed)) > 1  # 70 games, not one answer repeated
     service.close()
+
+
+def test_the_games_fidelity_shows_its_steps_and_games_per_second(tmp_path, capsys):
+    """evaluate_fidelity's bar counts the policies' steps (max_steps each, the steps of episodes
+    that ended early included at a policy's end) and shows the games played and their games/s,
+    the same count as the returned live summary's."""
+    from farm.alloc.fidelity import evaluate_fidelity
+    from farm.alloc.policies import make_policy
+    from farm.service import CaptureTimeClient
+
+    config = SCENARIOS["outnumbered_3x3"].config(games=2, max_steps=4)
+    client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
+    policies = {p: make_policy(p, config, client) for p in ("intercept", "spread_evenly")}
+    _, differences, live = evaluate_fidelity(config, policies, client, 2, 1000, in_process=True)
+    last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert last.startswith("live engagements: 100%") and "8/8" in last, last
+    assert f"games={live['games']:,}" in last and "games_per_s=" in last, last
+    assert live["games"] == len(differences) > 0
+    _, _, quiet = evaluate_fidelity(config, policies, client, 2, 1000, in_process=True, show_progress=False)
+    assert capsys.readouterr().err == "" and quiet["games"] == live["games"]
+    client.close()

@@ -70,7 +70,7 @@ def evaluate_trained(run: RunFolder, config, policies: dict, client, episodes: i
 
 def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str = "service",
                  scenario: str | None = None, references: list[str] | None = None,
-                 animate=None) -> RunEvaluation:
+                 animate=None, show_progress: bool = True) -> RunEvaluation:
     """`farm eval`: evaluate a run folder's trained allocator (see the module doc) with the
     capture-time service of its config (service.mode local: in this process, the games of
     fidelity "games" too, no Ray). scenario: a suite scenario's name, to evaluate the run on
@@ -83,7 +83,8 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     scenario's map, a run folder the tables cannot be written into, an animate path that is not
     a .gif or .mp4. animate: also write an animation of the trained allocator's first episode
     there (farm.alloc.animation; under fidelity "games" with one engaged cell's game inset),
-    a path relative to the folder the tables go into."""
+    a path relative to the folder the tables go into. show_progress: fidelity "games" shows
+    its steps, games and games/s on stderr (evaluate_fidelity)."""
     from farm.alloc.scenarios import SCENARIOS
     from farm.alloc.training.config import store_of
     from farm.service.client import open_client
@@ -137,7 +138,8 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
         result = RunEvaluation(table, per, steps, settings.games)
         if fidelity == "games":
             result.games_table, result.differences, result.live = evaluate_fidelity(config.env, policies, client, episodes, seed,
-                                                                       in_process=mode == "local")
+                                                                       in_process=mode == "local",
+                                                                       show_progress=show_progress)
             run.write_fidelity(result.games_table, result.differences)
         if animate is not None:
             from farm.alloc.animation import write_episode_animation

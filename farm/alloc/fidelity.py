@@ -64,13 +64,15 @@ class FreshGames(Lookup):
 
     service_client: the CaptureTimeClient of the service being checked; first_game: the
     number of a case's first fresh game (default: the service's games per case);
-    in_process: play the games here (the same games: play_shard), not as Ray tasks.
+    in_process: play the games here (the same games: play_shard), not as Ray tasks;
+    progress: called with the games of each ask (one a step) once they are played, or None.
     """
 
     repeatable = False  # every ask is another game
 
-    def __init__(self, service_client, first_game: int | None = None, in_process: bool = False):
+    def __init__(self, service_client, first_game: int | None = None, in_process: bool = False, progress=None):
         self.service = service_client
+        self.progress = progress
         self.in_process = in_process
         self.first_game = service_client.settings.games if first_game is None else first_game
         self.played: dict[str, int] = {}  # case key -> games played so far
@@ -114,6 +116,8 @@ class FreshGames(Lookup):
             outcomes = self._on_ray(jobs)
         self.games += len(jobs)
         self.seconds += time.perf_counter() - t0
+        if self.progress is not None:
+            self.progress(len(jobs))
         return outcomes
 
     def _on_ray(self, jobs: list) -> dict[int, tuple]:
@@ -145,19 +149,35 @@ class FreshGames(Lookup):
 
 
 def evaluate_fidelity(config, policies: dict, client, episodes: int, seed: int,
-                      in_process: bool = False) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
+                      in_process: bool = False, show_progress: bool = True) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
     """`farm eval --fidelity games`: every policy on the same seeded episodes with each engaged
     cell's game simulated (each policy meets the same fresh games; in_process: played here,
     else as Ray tasks); returns (the evaluation table, one row per engagement: the game's and
-    the service's outcomes, FreshGames.live() summed over the policies)."""
+    the service's outcomes, FreshGames.live() summed over the policies). show_progress: a bar
+    on stderr over the policies' steps (max_steps each, the episodes stepped together; the ETA
+    an upper bound, since episodes may end sooner) with the games played and their games/s."""
+    from farm.core.progress import GameProgress
+
     tables, differences = [], []
     live = {"games": 0, "tasks": 0, "seconds": 0.0}
-    for name, policy in policies.items():
-        games = FreshGames(client, in_process=in_process)
-        games_client = CaptureTimeClient(client.settings, backend=games)
-        tables.append(evaluate_policies(config, {name: policy}, games_client, episodes, seed)[0])
-        differences += [{"policy": name, **d} for d in games.differences]
-        for key in live:
-            live[key] += games.live()[key]
+    bar = GameProgress(len(policies) * config.max_steps, enabled=show_progress, desc="live engagements", unit="step")
+
+    def played(games_now: int) -> None:
+        bar.update(1)
+        done = live["games"] + games.games
+        seconds = live["seconds"] + games.seconds
+        bar.postfix(games=f"{done:,}", games_per_s=f"{done / seconds:.0f}" if seconds > 0 else "-")
+
+    try:
+        for k, (name, policy) in enumerate(policies.items()):
+            games = FreshGames(client, in_process=in_process, progress=played)
+            games_client = CaptureTimeClient(client.settings, backend=games)
+            tables.append(evaluate_policies(config, {name: policy}, games_client, episodes, seed)[0])
+            differences += [{"policy": name, **d} for d in games.differences]
+            for key in live:
+                live[key] += games.live()[key]
+            bar.advance_to((k + 1) * config.max_steps)  # the steps of episodes that ended early
+    finally:
+        bar.close()
     live["games_per_second"] = live["games"] / live["seconds"] if live["seconds"] > 0 else float("nan")
     return pd.concat(tables, ignore_index=True), pd.DataFrame(differences), live

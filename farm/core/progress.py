@@ -26,6 +26,16 @@ class GameProgress:
         if self.bar is not None:
             self.bar.update(n)
 
+    def postfix(self, **values) -> None:
+        """Show these name=value pairs after the bar (tqdm's postfix)."""
+        if self.bar is not None:
+            self.bar.set_postfix(values, refresh=False)
+
+    def advance_to(self, n: int) -> None:
+        """Advance the bar to n units done (never back)."""
+        if self.bar is not None and n > self.bar.n:
+            self.bar.update(n - self.bar.n)
+
     def close(self) -> None:
         """Close the bar (its last line stays on stderr)."""
         if self.bar is not None:
