@@ -65,7 +65,7 @@ class FreshGames(Lookup):
     service_client: the CaptureTimeClient of the service being checked; first_game: the
     number of a case's first fresh game (default: the service's games per case);
     in_process: play the games here (the same games: play_shard), not as Ray tasks;
-    progress: called with the games of each ask (one a step) once they are played, or None.
+    progress: called with this FreshGames once each ask's games (one ask a step) are played, or None.
     """
 
     repeatable = False  # every ask is another game
@@ -117,7 +117,7 @@ class FreshGames(Lookup):
         self.games += len(jobs)
         self.seconds += time.perf_counter() - t0
         if self.progress is not None:
-            self.progress(len(jobs))
+            self.progress(self)
         return outcomes
 
     def _on_ray(self, jobs: list) -> dict[int, tuple]:
@@ -162,10 +162,9 @@ def evaluate_fidelity(config, policies: dict, client, episodes: int, seed: int,
     live = {"games": 0, "tasks": 0, "seconds": 0.0}
     bar = GameProgress(len(policies) * config.max_steps, enabled=show_progress, desc="live engagements", unit="step")
 
-    def played(games_now: int) -> None:
+    def played(games: FreshGames) -> None:
         bar.update(1)
-        done = live["games"] + games.games
-        seconds = live["seconds"] + games.seconds
+        done, seconds = live["games"] + games.games, live["seconds"] + games.seconds
         bar.postfix(games=f"{done:,}", games_per_s=f"{done / seconds:.0f}" if seconds > 0 else "-")
 
     try:
