@@ -161,6 +161,23 @@ def test_a_missing_run_folder_is_one_line_before_ray(tmp_path):
 
 
 # ----------------------------------------------------------------------------- runs on Ray
+def test_a_cell_is_cut_into_tasks_by_its_episodes_cost():
+    """cell_tasks: small maps' cells stay one task, a 32 x 32 map's episodes are a task each,
+    an 8 x 8 map's shared evenly; every episode of every cell in exactly one task, in order."""
+    from farm.studies.suite.run import TASK_COST, _cost, cell_tasks
+
+    costs = [_cost(SCENARIOS[name].config()) for name in ("paper_3x3_c1_1.5", "theatre_8x8", "theatre_32x32")]
+    assert costs[0] * 20 <= TASK_COST < costs[2]
+    tasks = cell_tasks(costs, 20)
+    assert tasks[0] == (0, 0, 20)
+    assert [t for t in tasks if t[0] == 1] == [(1, 0, 6), (1, 6, 7), (1, 13, 7)]  # 8 x 8 cells x 8 steps: 8 a task at most
+    assert [t for t in tasks if t[0] == 2] == [(2, k, 1) for k in range(20)]
+    for cell in range(3):
+        covered = [e for c, first, count in tasks if c == cell for e in range(first, first + count)]
+        assert covered == list(range(20))
+    assert cell_tasks([1.0], 1) == [(0, 0, 1)] and cell_tasks([1e9], 3) == [(0, 0, 1), (0, 1, 1), (0, 2, 1)]
+
+
 @pytest.fixture(scope="module")
 def demo(ray_local, tmp_path_factory):
     """`farm suite configs/suite_demo.yaml --episodes 2 --games 8` through the CLI's main(), in
@@ -233,12 +250,17 @@ def test_the_report_shows_the_leaderboard(demo):
     assert "leaderboard.png" not in games  # the chart is shown once, in its section
 
 
-def test_a_rerun_gives_the_same_numbers(demo, tmp_path):
-    """One of the demo's scenarios again, every policy, over the store the first run filled."""
+def test_a_rerun_gives_the_same_numbers(demo, tmp_path, monkeypatch):
+    """One of the demo's scenarios again, every policy, over the store the first run filled,
+    each cell's 2 episodes cut into 2 tasks of one (a TASK_COST below a 3 x 3 episode's, as a
+    32 x 32 map's cells are cut): the same episodes and leaderboard as the first run, whose
+    cells were one task each."""
     out, store, _ = demo
     config = load_suite_config(ROOT / "configs" / "suite_demo.yaml").model_copy(
         update={"store": str(store), "scenarios": ["outnumbered_3x3"], "env": {"games": DEMO_GAMES}})
-    run_suite(config, tmp_path / "again", episodes=2, show_progress=False)
+    monkeypatch.setattr("farm.studies.suite.run.TASK_COST", 1)
+    _, info = run_suite(config, tmp_path / "again", episodes=2, show_progress=False)
+    assert info["tasks"] == 2 * info["cells"] == 2 * len(config.policy_names())
 
     def rows(folder, name, timed):
         df = pd.read_csv(folder / name)

@@ -107,7 +107,8 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
     store = Path(config.store or default_store_path())
     first = next(iter(envs.values()))
     starts_ray = starts_local_ray(address)
-    info: dict = {"tasks": len(jobs), "skipped_runs": skipped, "warmed_cases": 0}
+    tasks = cell_tasks([_cost(envs[scenario]) for scenario, _ in jobs], config.episodes)
+    info: dict = {"tasks": len(tasks), "cells": len(jobs), "skipped_runs": skipped, "warmed_cases": 0}
     t0 = time.perf_counter()
     with open_client(first.service_settings(), mode="ray", store=store, address=address,
                      num_cpus=workers if starts_ray else None) as client:
@@ -123,22 +124,25 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
         n = tasks_in_flight(workers, cpus, address)
         info["workers"] = n
         # The largest maps first, so that the last tasks to finish are short ones.
-        order = sorted(range(len(jobs)), key=lambda j: -_cost(envs[jobs[j][0]]))
-        results: dict[int, list[dict]] = {}
+        order = sorted(tasks, key=lambda t: -_cost(envs[jobs[t[0]][0]]))
+        results: dict[tuple[int, int], list[dict]] = {}
         bar = GameProgress(len(jobs) * config.episodes, enabled=show_progress, desc="episodes", unit="episode")
         t1 = time.perf_counter()
         try:
-            def submit(j):
+            def submit(task):
+                j, first, count = task
                 scenario, spec = jobs[j]
-                return remote_suite_cell.remote(envs[scenario], spec, actor, config.episodes, config.seed)
+                return remote_suite_cell.remote(envs[scenario], spec, actor, count, config.seed + first)
 
-            for j, ref in bounded(submit, order, n):
-                results[j] = _result(ray, ref, *jobs[j])
-                bar.update(config.episodes)
+            for (j, first, count), ref in bounded(submit, order, n):
+                results[j, first] = [{**row, "episode": first + row["episode"]}
+                                     for row in _result(ray, ref, *jobs[j])]
+                bar.update(count)
         finally:
             bar.close()
         info["evaluation_seconds"] = time.perf_counter() - t1
-    rows = [{"scenario": jobs[j][0], "policy": jobs[j][1].name, **row} for j in range(len(jobs)) for row in results[j]]
+    rows = [{"scenario": jobs[j][0], "policy": jobs[j][1].name, **row}
+            for j, first, _ in sorted(tasks) for row in results[j, first]]
     per = pd.DataFrame(rows)
     board = leaderboard(per)
     info["seconds"] = time.perf_counter() - t0
@@ -199,8 +203,29 @@ def _result(ray, ref, scenario: str, spec: PolicySpec) -> list[dict]:
 
 
 def _cost(env: AllocConfig) -> float:
-    """A task's rough relative cost: cells times steps."""
+    """An episode's rough relative cost: cells times steps."""
     return env.grid_size ** 2 * env.max_steps
+
+
+TASK_COST = 16 ** 2 * 16  # a task holds at least a 16 x 16 episode's cells x steps
+
+
+def cell_tasks(costs: list[float], episodes: int) -> list[tuple[int, int, int]]:
+    """Each (scenario, policy) cell's episodes cut into Ray tasks: (cell, first episode,
+    episodes) of each, in cell order. costs: each cell's cost of one episode (_cost). A task
+    holds as few episodes as make up TASK_COST (an episode costing more is a task of its
+    own), the cell's episodes shared evenly between its tasks: small maps stay one task a
+    cell (a 3 x 3 episode takes milliseconds), and a 32 x 32 cell, whose receding_horizon
+    episodes take minutes each, runs on every worker and moves the progress bar an episode
+    at a time. Episode k of a cell is seeded seed + k whatever the cut, and is the same
+    episode (farm.alloc.rollout.play), so the cut changes no number."""
+    tasks = []
+    for cell, cost in enumerate(costs):
+        per_task = min(episodes, max(1, int(TASK_COST // max(cost, 1))))
+        pieces = -(-episodes // per_task)
+        bounds = [episodes * i // pieces for i in range(pieces + 1)]
+        tasks += [(cell, bounds[i], bounds[i + 1] - bounds[i]) for i in range(pieces)]
+    return tasks
 
 
 def _write_manifest(config: SuiteConfig, envs: dict, jobs: list, skipped: dict, store: Path, info: dict,

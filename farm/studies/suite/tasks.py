@@ -1,5 +1,6 @@
-"""The suite's Ray task: one (scenario, allocator), all its episodes (evaluate_cell on a
-worker). Imports Ray: imported only by farm.studies.suite.run.run_suite, once Ray is up
+"""The suite's Ray task: episodes of one (scenario, allocator) cell (evaluate_cell on a
+worker; farm.studies.suite.run.cell_tasks cuts a cell's episodes into tasks). Imports Ray:
+imported only by farm.studies.suite.run.run_suite, once Ray is up
 (farm.runtime.ray_cluster sets Ray's loopback switch before Ray's import)."""
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ __all__ = ["remote_suite_cell"]
 def remote_suite_cell(config, spec, service, episodes: int, seed: int) -> list[dict]:
     """evaluate_cell on a worker, its client built on the shared capture-time service actor
     `service` (a handle): config: the scenario's AllocConfig; spec: the allocator (a
-    farm.alloc.policies.PolicySpec); returns one dict per episode. While the client waits for
-    the actor (ray.get), Ray lends this task's CPU to the service's game tasks."""
+    farm.alloc.policies.PolicySpec); the episodes seeded seed .. seed + episodes - 1; returns
+    one dict per episode, numbered from 0. While the client waits for the actor (ray.get), Ray
+    lends this task's CPU to the service's game tasks."""
     from farm.service.client import CaptureTimeClient
 
     client = CaptureTimeClient(config.service_settings(), service=service)
