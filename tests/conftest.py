@@ -1,6 +1,7 @@
 import contextlib
 import os
 import socket
+import time
 from pathlib import Path
 
 # Every local Ray of the tests binds 127.0.0.1 (farm.runtime's module doc): Ray reads this when imported.
@@ -56,12 +57,27 @@ def _without_ray(item) -> bool:
     return module in WITHOUT_RAY or (module in MIXED and "ray_local" not in getattr(item, "fixturenames", ()))
 
 
+def _takes_ray_local(item) -> bool:
+    return "ray_local" in getattr(item, "fixturenames", ())
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist's hook, which reads the groups
 def pytest_collection_modifyitems(items):
     for item in items:
         module = Path(str(item.fspath)).stem
         group = "ray" if not _without_ray(item) else module if module in WITHOUT_RAY else f"{module}-without-ray"
         item.add_marker(pytest.mark.xdist_group(group))
+    # The Ray group's tests on the shared local Ray (ray_local) first, one after another, then
+    # its tests that start Rays of their own: one Ray start for all of the former.
+    items.sort(key=lambda item: not _without_ray(item) and not _takes_ray_local(item))
+
+
+_NEXT = {}  # the item that runs after the one being torn down (pytest_runtest_teardown)
+
+
+@pytest.hookimpl(tryfirst=True)  # before the fixtures' finalizers run
+def pytest_runtest_teardown(item, nextitem):
+    _NEXT["item"] = nextitem
 
 
 @pytest.fixture(autouse=True)
@@ -84,23 +100,78 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+class _SharedRay:
+    """One real 2-CPU local Ray (farm.runtime.ray_cluster, metrics reported every 0.5 s through
+    Ray's RAY_<setting> environment) for the Ray group's modules that take ray_local, one after
+    another: a Ray start costs about 8 s of CPU on 2 cores. It is started inside an S3 bucket
+    `farm` (s3_bucket) so that its workers have the bucket's endpoint and credentials
+    (tests/test_experiments.py's object storage). Between modules every named actor is killed
+    and the Ray's CPUs are free again, as on a Ray of their own; it is shut down before any test
+    that does not take ray_local (another group's, or one that starts a Ray of its own)."""
+
+    def __init__(self):
+        self.stack = None
+        self.port = None
+        self.s3 = None
+
+    def start(self):
+        if self.stack is not None:
+            return
+        from farm.runtime import ray_cluster
+
+        stack = contextlib.ExitStack()
+        try:
+            self.s3 = stack.enter_context(s3_bucket("farm"))
+            self.port = free_port()
+            before = os.environ.get("RAY_metrics_report_interval_ms")
+            os.environ["RAY_metrics_report_interval_ms"] = "500"
+            stack.callback(lambda: os.environ.__setitem__("RAY_metrics_report_interval_ms", before)
+                           if before is not None else os.environ.pop("RAY_metrics_report_interval_ms", None))
+            stack.enter_context(ray_cluster(num_cpus=2, metrics_port=self.port, dashboard=False))
+        except BaseException:
+            stack.close()
+            raise
+        self.stack = stack
+
+    def clean(self):
+        """Kill every named actor and wait (at most 60 s) until both CPUs are free."""
+        import ray
+
+        for actor in ray.util.list_named_actors(all_namespaces=True):
+            with contextlib.suppress(Exception):  # gone already
+                ray.kill(ray.get_actor(actor["name"], namespace=actor["namespace"]))
+        deadline = time.monotonic() + 60
+        while ray.available_resources().get("CPU", 0) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+
+    def stop(self):
+        if self.stack is not None:
+            stack, self.stack, self.s3 = self.stack, None, None
+            stack.close()
+
+
+_SHARED_RAY = _SharedRay()
+
+
 @pytest.fixture(scope="module")
 def ray_local():
-    """A real 2-CPU local Ray for one test module (farm.runtime.ray_cluster, metrics reported
-    every 0.5 s through Ray's RAY_<setting> environment); yields its Prometheus metrics port."""
-    from farm.runtime import ray_cluster
-
-    port = free_port()
-    before = os.environ.get("RAY_metrics_report_interval_ms")
-    os.environ["RAY_metrics_report_interval_ms"] = "500"
+    """The shared local Ray (_SharedRay) for one test module, as clean as a Ray of its own;
+    yields its Prometheus metrics port."""
+    _SHARED_RAY.start()
     try:
-        with ray_cluster(num_cpus=2, metrics_port=port, dashboard=False):
-            yield port
+        yield _SHARED_RAY.port
     finally:
-        if before is None:
-            os.environ.pop("RAY_metrics_report_interval_ms", None)
+        nextitem = _NEXT.get("item")
+        if nextitem is not None and _takes_ray_local(nextitem):
+            _SHARED_RAY.clean()
         else:
-            os.environ["RAY_metrics_report_interval_ms"] = before
+            _SHARED_RAY.stop()
+
+
+@pytest.fixture(scope="module")
+def ray_s3(ray_local):
+    """A boto3 client of the S3 server the shared Ray was started in (bucket `farm`)."""
+    return _SHARED_RAY.s3
 
 
 S3_ENV = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1",

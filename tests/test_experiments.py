@@ -18,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import bucket_keys, cmdline, processes, s3_bucket, session, signal_all
+from conftest import bucket_keys, cmdline, processes, session, signal_all
 
 from farm.core.errors import ClusterError, ConfigError
 from farm.studies.experiments import RESULT
@@ -245,17 +245,10 @@ DEADLINE = 240  # seconds for a file to appear: generous, the tests poll
 
 
 @pytest.fixture(scope="module")
-def s3():
-    """An S3 bucket `farm` on localhost (conftest.s3_bucket), for the module: made before the
-    module's Ray (ray_local below) so that its workers have its endpoint and credentials."""
-    with s3_bucket("farm") as client:
-        yield client
-
-
-@pytest.fixture(scope="module")
-def ray_local(s3, ray_local):
-    """conftest's ray_local, started inside the module's S3 environment."""
-    yield ray_local
+def s3(ray_s3):
+    """The S3 bucket `farm` on localhost (conftest.s3_bucket) that the shared Ray (conftest's
+    ray_local) was started in, so that its workers have its endpoint and credentials."""
+    return ray_s3
 
 
 def kill_config(tmp: Path, store: Path, **changes) -> Path:

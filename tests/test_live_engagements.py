@@ -17,8 +17,8 @@ def test_a_theatre_episode_plays_the_same_games_on_ray_as_in_process(ray_local, 
     config = SCENARIOS["theatre_16x16"].config(games=2)
     client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
     policies = {name: make_policy(name, config, client) for name in ("intercept", "receding_horizon")}
-    ray_table, ray_games, live = evaluate_fidelity(config, policies, client, 2, 1000)
-    here_table, here_games, here = evaluate_fidelity(config, policies, client, 2, 1000, in_process=True)
+    ray_table, ray_games, live = evaluate_fidelity(config, policies, client, 1, 1000)
+    here_table, here_games, here = evaluate_fidelity(config, policies, client, 1, 1000, in_process=True)
     pd.testing.assert_frame_equal(ray_table, here_table)
     pd.testing.assert_frame_equal(ray_games, here_games)
     assert len(ray_games) == live["games"] == here["games"] > 30 and here["tasks"] == 0
