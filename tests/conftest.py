@@ -54,7 +54,7 @@ MIXED = {"test_refuses_store", "test_service", "test_suite", "test_sweep_ray", "
 def _without_ray(item) -> bool:
     """Whether a test starts no Ray: its module is WITHOUT_RAY, or MIXED and it takes no ray_local."""
     module = Path(str(item.fspath)).stem
-    return module in WITHOUT_RAY or (module in MIXED and "ray_local" not in getattr(item, "fixturenames", ()))
+    return module in WITHOUT_RAY or (module in MIXED and not _takes_ray_local(item))
 
 
 def _takes_ray_local(item) -> bool:
