@@ -11,8 +11,10 @@ predict(obs, deterministic=True) on those same observations, timed one by one:
                     farm train builds it: MlpPolicy, 400-300 pi and vf networks), its
                     policy wrapped by the registry's learned entry (make_policy("ppo", ...,
                     policy=model.policy)), which is what `farm eval` and `farm suite` predict
-                    through. Its weights are untrained: the time of a step depends on the
+                    through, with the config's `repair` (levels: farm.alloc.policies.repair).
+                    Its weights are untrained: the time of a step depends on the
                     architecture, not the weights, so no trained model.zip is needed;
+  ppo network       the same network alone, without the repair;
   intercept         the cheap planner, for context.
 ms/step is the mean CPU ms per predict() over the states (the suite's seconds_per_step is the
 same mean: predict seconds over steps), the best of --repeats passes, the policies taken in
@@ -78,7 +80,7 @@ def learned_policy(name: str, client, tmp: Path):
     tc = load_train_config(CONFIGS / f"best_{name}.yaml")
     vec_env, _, _ = training_envs(tc, client)  # the env training builds the model on (n_envs batched episodes)
     model = make_model(tc, vec_env, tmp / name)
-    return tc, make_policy(tc.algo, tc.env, client, policy=model.policy)
+    return tc, make_policy(tc.algo, tc.env, client, policy=model.policy, repair=tc.repair), model.policy
 
 
 def timed(policies: dict, observations: list, repeats: int) -> dict:
@@ -128,11 +130,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for name in SCENARIO_NAMES:
             config = configs[name]
-            tc, learned = learned_policy(name, client, Path(tmp))
+            tc, learned, network = learned_policy(name, client, Path(tmp))
             assert tc.env == config, f"best_{name}.yaml's env is not the scenario's"
             observations = states(config, client, a.episodes)
             policies = {"receding_horizon": make_policy("receding_horizon", config, client), tc.algo: learned,
-                        "intercept": make_policy("intercept", config, client)}
+                        f"{tc.algo} network": network, "intercept": make_policy("intercept", config, client)}
             misses = client.stats()["misses"]
             costs = timed(policies, observations, a.repeats)
             assert client.stats()["misses"] == misses, "a service query missed the memo while timing"

@@ -140,3 +140,14 @@ def test_a_uri_pyarrow_cannot_open_is_one_line():
     with pytest.raises(ConfigError, match=r"^out: cannot open nosuch://x/y: ") as e:
         ExperimentStorage("nosuch://x/y")
     assert "\n" not in str(e.value)
+
+
+def test_a_relative_local_folder_is_kept_by_its_absolute_path(tmp_path, monkeypatch):
+    # the driver hands storage.uri to every trial, and Tune runs a trial in a working folder of its
+    # own: a relative path there named another folder, where the trials' run folders went
+    monkeypatch.chdir(tmp_path)
+    storage = ExperimentStorage("results/exp")
+    assert storage.uri == str(tmp_path / "results" / "exp")
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    assert ExperimentStorage(storage.uri).run_dir("p0_s0") == tmp_path / "results" / "exp" / "trials" / "p0_s0" / "run"

@@ -320,6 +320,9 @@ class TrainConfig(Strict):
     n_envs: int = Field(1, ge=1, le=1024)  # episodes stepped at once (> 1: the batched vector env)
     pretrain: PretrainParams | None = None  # planner-guided pretraining before RL; None: none
     keep: Literal["final", "best"] = "final"  # model.zip: the final model, or the best of the periodic evaluations
+    # how the trained allocator acts, in the periodic evaluations and after: its network's action (none),
+    # or that action moved onto the game levels it almost plays (levels: farm.alloc.policies.repair)
+    repair: Literal["none", "levels"] = "none"
     eval: EvalParams = EvalParams()  # the periodic evaluation during training
     checkpoint_freq: int = Field(5000, ge=1)  # env steps between checkpoints (what --resume goes on from)
     log_interval: int = Field(100, ge=1)  # episodes between TensorBoard rollout records

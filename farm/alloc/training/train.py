@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from farm.alloc.env import SwarmAllocationEnv
 from farm.alloc.lattice import lattice_groups, warm_lattices
 from farm.alloc.policies.learned import algorithm_class
+from farm.alloc.policies.repair import RepairedActions
 from farm.alloc.runs import DAMAGED, RunFolder, RunMetrics, checkpoint_files, move_damaged, whole_checkpoints
 from farm.alloc.training.callbacks import Checkpointer, DivergenceGuard, StepProgress, UpdateTimer
 from farm.alloc.training.config import TrainConfig, store_of
@@ -154,8 +155,9 @@ def _eval_envs(config: TrainConfig, client):
     """(the periodic evaluation's env, as EvalCallback takes it, the env whose state a checkpoint
     keeps), seeded once (config.seed + EVAL_SEED_OFFSET)."""
     eval_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+    played = RepairedActions(eval_env) if config.repair == "levels" else eval_env  # as the allocator acts after
     if config.n_envs == 1:
-        eval_monitor = Monitor(eval_env)
+        eval_monitor = Monitor(played)
         # EvalCallback resets without a seed, which would leave the curve's episodes to OS entropy:
         # seeding once here makes evaluations.npz the same on every run of the same config.
         eval_monitor.reset(seed=config.seed + EVAL_SEED_OFFSET)
@@ -163,7 +165,7 @@ def _eval_envs(config: TrainConfig, client):
     from stable_baselines3.common.vec_env import VecMonitor
 
     eval_env.reset(seed=config.seed + EVAL_SEED_OFFSET)
-    return VecMonitor(DummyVecEnv([lambda: eval_env])), eval_env  # the training env's type: EvalCallback's check
+    return VecMonitor(DummyVecEnv([lambda: played])), eval_env  # the training env's type: EvalCallback's check
 
 
 def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list,

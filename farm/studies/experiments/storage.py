@@ -50,7 +50,9 @@ class ExperimentStorage:
     ConfigError (one line, field out) for a URI pyarrow cannot open."""
 
     def __init__(self, out):
-        self.uri = str(out)
+        # a local folder by its absolute path: trials run in Tune's own working folders, where a
+        # relative one would name another place than the driver's
+        self.uri = str(out) if is_uri(out) else str(Path(out).resolve())
         if is_uri(out):
             from pyarrow import fs
 

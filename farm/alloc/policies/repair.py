@@ -1,0 +1,196 @@
+"""The level repair: a learned allocator's action moved onto the games it almost plays.
+
+Why. Under `team_sizes: lattice` a target cell's game is a step function of its defender
+count (docs/model.md section 5, "Levels"): 27.5 defenders play a 24-defender game, 27.7 play
+32. receding_horizon plans each target at the least count of the level it wants (its window's
+low end, `levels().lo`, 0.1 defender inside the rounding threshold), so an allocator that
+imitates it to within 1% of a cell's mass lands on the wrong side of the threshold about half
+the time and plays the smaller game with the defenders of the larger. That, not the choice of
+targets, is most of what separated the learned allocators from the planner: receding_horizon's
+own action with Gaussian noise of 0.02 added (a 10% change of a move's probability at the
+softmax's beta = 5) returns 1.2276 against 1.2344 on paper_3x3_c1_1.5 and -0.352 against -0.286
+on outnumbered_3x3; repaired, 1.2341 and -0.286.
+
+What. LevelRepair(config)(obs, action) -> action. With the action's move probabilities p (the
+env's own map, farm.alloc.dynamics.move_probabilities) the defenders' flows along each move
+are f = p D[src] n_defenders, and each cell's count after the move is x = the inflow. The
+targets are the cells that hold intruders after their advance (the env's own advance). For
+each target, the most intruder mass first, whose count lies within `tol` below the low end of
+the next level's window, lo - x <= max(tol, rel lo), the defect is filled from free defenders
+of the target's neighbours (the cells with a move into it): those whose move goes to a cell
+that is no target, or that plays no game, or to a target above its own window's low end (the
+surplus beyond it), in move order. A target is filled whole or not at all: when the free
+defenders are short, nothing moves. The new flows are turned back into the action with the
+planners' own action_from_probabilities.
+
+Why it is right (and what it does not do). It moves defenders only along feasible moves of
+their own cell, so every source keeps its mass (each cell's slice of probabilities sums to
+1) and the realised action is a legal one; it never takes a defender from a target below its
+window's low end, so no game it did not aim at gets smaller, and a target it fills plays the
+next level's game (the window's margin absorbs the softmax's leak, as for the planners). It
+never raises a count by more than the tolerance, so the learner's choice of targets and
+levels stands: the repair only decides the side of a threshold the learner came within a
+tolerance of. It knows the config (levels, advance) and nothing of the capture-time
+statistics. With no target near a threshold it returns an action whose move probabilities
+equal the learner's (to the softmax's floor of exp(-2 beta) p_max on unwanted moves).
+
+Cost: one pass over the targets and their neighbours' moves, a few tenths of a millisecond on
+8 x 8 (benchmarks/learners.py).
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+
+from farm.alloc.config import AllocConfig
+from farm.alloc.dynamics import Layout, move_probabilities
+from farm.alloc.model import advance_intruders, team_sizes
+from farm.alloc.policies.planners.core import action_from_probabilities, levels
+from farm.core.errors import ConfigError
+
+__all__ = ["REPAIRS", "LevelRepair", "Repaired", "RepairedActions", "check_repair", "repaired"]
+
+REPAIRS = ("none", "levels")  # a learned allocator's output: its network's action, or that action repaired
+TOL = 0.5  # defenders: the least gap to the next level's window that the repair fills
+REL = 0.15  # ... and the share of that window's low end, when larger
+
+
+def check_repair(value, field: str = "repair") -> str:
+    """value if it is one of REPAIRS, else ConfigError (one line naming field)."""
+    if not isinstance(value, str) or value not in REPAIRS:
+        raise ConfigError(f"{field}: must be one of {', '.join(REPAIRS)}, got {value!r}", field=field)
+    return value
+
+
+class LevelRepair:
+    """The level repair of a config's actions (the module doc): LevelRepair(config)(obs, action).
+
+    config: AllocConfig; tol: defenders, rel: a share of the next window's low end (the gap
+    filled is at most max(tol, rel lo)).
+    """
+
+    def __init__(self, config: AllocConfig, tol: float = TOL, rel: float = REL):
+        self.config, self.tol, self.rel = config, float(tol), float(rel)
+        self.layout = Layout(config.grid_size)
+        self.levels = levels(config)
+        L = self.layout
+        self.into = [np.flatnonzero(L.dst == d) for d in range(L.cells)]  # the moves into each cell
+        self.ends = L.start + L.n_moves
+        self.leak = 8.0 * np.exp(-2.0 * config.softmax_beta) if config.action_map == "softmax" else 0.0
+
+    def floors(self, x: np.ndarray) -> np.ndarray:
+        """The least count that plays the game each count x plays, inside its window: x: (k,)
+        float64 -> (k,) float64 (x itself where that window's low end is above x, a count just
+        past a rounding threshold, with nothing to spare; 0.0 for a count that plays no game)."""
+        x = np.asarray(x, dtype=np.float64)
+        n_p, _ = team_sizes(self.config, x / self.config.n_defenders, np.ones_like(x))
+        if self.config.team_sizes == "lattice":
+            low = self.levels.lo[np.minimum(np.searchsorted(self.levels.sizes, n_p), len(self.levels.lo) - 1)]
+        else:
+            low = n_p - 0.4 + self.leak * n_p
+        return np.where(n_p == 0, 0.0, np.minimum(x, low))
+
+    def flows(self, obs: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(f: (A,) float64 the defenders along each move, x: (N^2,) float64 each cell's count after
+        the move, target: (N^2,) bool the cells holding intruders after their advance, I2: (N^2,)
+        float64 that mass) of obs: (2 N^2,) [D, I] and action: (A,)."""
+        c, L = self.config, self.layout
+        k = L.cells
+        obs = np.asarray(obs, dtype=np.float64)
+        D, I = np.maximum(obs[:k], 0.0), np.maximum(obs[k:], 0.0)
+        p = move_probabilities(L, c, np.asarray(action, dtype=np.float64).reshape(1, -1))[0]
+        f = p * D[L.src] * c.n_defenders
+        I2, _ = advance_intruders(I, L.n, c.vertical_drift)
+        x = np.bincount(L.dst, weights=f, minlength=k)
+        return f, x, I2 > c.engage_min_mass, I2
+
+    def __call__(self, obs, action) -> np.ndarray:
+        """The repaired action: obs (2 N^2,) [D, I], action (A,) -> (A,) float32 in [-1, 1]."""
+        L, lo = self.layout, self.levels.lo
+        f, x, target, I2 = self.flows(obs, action)
+        free = np.where(target, x - self.floors(x), x)  # what each cell's count can give without a smaller game
+        changed = False
+        for d in np.argsort(-I2, kind="stable"):
+            if not target[d]:
+                break
+            i = int(np.searchsorted(lo, x[d], side="right"))
+            if i >= len(lo):
+                continue
+            need = lo[i] - x[d] + 1e-9
+            if need > max(self.tol, self.rel * lo[i]):
+                continue
+            takes, got = [], 0.0
+            for m_in in self.into[d]:
+                s = L.src[m_in]
+                for m in range(L.start[s], self.ends[s]):
+                    e = L.dst[m]
+                    if e == d or f[m] <= 0.0:
+                        continue
+                    amount = min(f[m], free[e], need - got)
+                    if amount > 0.0:
+                        takes.append((m, e, m_in, amount))
+                        free[e] -= amount
+                        got += amount
+                    if got >= need:
+                        break
+                if got >= need:
+                    break
+            if got < need:  # not filled whole: nothing moves
+                for _, e, _, amount in takes:
+                    free[e] += amount
+                continue
+            for m, e, m_in, amount in takes:
+                f[m] -= amount
+                x[e] -= amount
+                f[m_in] += amount
+                x[d] += amount
+            free[d] = 0.0  # at its new window's low end
+            changed = True
+        if not changed:
+            return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0).astype(np.float32)
+        total = np.add.reduceat(f, L.start)[L.src]
+        p = move_probabilities(L, self.config, np.asarray(action, dtype=np.float64).reshape(1, -1))[0]
+        q = np.where(total > 0.0, f / np.where(total > 0.0, total, 1.0), p)
+        return action_from_probabilities(self.config, q, L.start, L.src)
+
+
+class Repaired:
+    """An allocator whose actions go through a LevelRepair: policy (predict() as SB3's) and config."""
+
+    def __init__(self, policy, config: AllocConfig):
+        self.policy, self.repair = policy, LevelRepair(config)
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        """The policy's action for obs, repaired (LevelRepair), and its state."""
+        action, state = self.policy.predict(obs, state, episode_start, deterministic)
+        return self.repair(np.asarray(obs), np.asarray(action).reshape(-1)), state
+
+
+def repaired(policy, config: AllocConfig, repair: str):
+    """policy as it is (`none`) or its actions repaired (`levels`) for config's map."""
+    return Repaired(policy, config) if check_repair(repair) == "levels" else policy
+
+
+
+class RepairedActions(gymnasium.Wrapper):
+    """A single allocation env (SwarmAllocationEnv) whose actions are repaired (LevelRepair)
+    against the observation it last returned: training's periodic evaluations of a run with
+    `repair: levels` play so, as the trained allocator acts afterwards."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.repair = LevelRepair(env.unwrapped.config)
+        self.last_obs = None
+
+    def reset(self, **kwargs):
+        """The env's reset; its observation kept for the next step's repair."""
+        obs, info = self.env.reset(**kwargs)
+        self.last_obs = obs
+        return obs, info
+
+    def step(self, action):
+        """The env's step with the action repaired against the last observation."""
+        obs, reward, terminated, truncated, info = self.env.step(self.repair(self.last_obs, action))
+        self.last_obs = obs
+        return obs, reward, terminated, truncated, info

@@ -1,0 +1,182 @@
+"""The level repair of learned allocators (farm.alloc.policies.repair): hand-made states whose
+repaired games are worked out by hand, the invariants on random actions (every cell keeps its
+mass, no target's game shrinks, no count rises by more than the tolerance), receding_horizon's
+actions left as they are, and the settings that choose it."""
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from farm.alloc import AllocConfig
+from farm.alloc.dynamics import Layout, move_probabilities
+from farm.alloc.model import advance_intruders, team_sizes
+from farm.alloc.policies import make_policy
+from farm.alloc.policies.planners import action_from_probabilities
+from farm.alloc.policies.repair import REL, TOL, LevelRepair, Repaired, RepairedActions
+from farm.alloc.training import TrainConfig
+from farm.core.errors import ConfigError
+
+from test_learners import assert_refused_in_one_line
+from test_planners import curve_client
+
+PAPER = AllocConfig(grid_size=3, n_defenders=100, n_intruders=50, c_capture=1.5, team_sizes="lattice")
+FEW = AllocConfig(grid_size=3, n_defenders=4, n_intruders=100, c_capture=1.5, team_sizes="lattice")
+DRIFT = AllocConfig(grid_size=5, n_defenders=20, n_intruders=100, vertical_drift=0.25, max_steps=16,
+                    c_capture=1.5, team_sizes="lattice")
+
+
+def base_state(config, rows):
+    """obs [D, I]: every defender at the base (row N//2, col 0), the intruders' row shares in the right column."""
+    n = config.grid_size
+    D, I = np.zeros(n * n), np.zeros(n * n)
+    D[(n // 2) * n] = 1.0
+    I[np.arange(n) * n + n - 1] = rows
+    return np.concatenate([D, I]).astype(np.float32)
+
+
+def action_sending(config, obs, wanted: dict) -> np.ndarray:
+    """The action that sends the base's defenders to {cell: share} (the planners' own map back)."""
+    L = Layout(config.grid_size)
+    base = (config.grid_size // 2) * config.grid_size
+    p = np.zeros(len(L.src))
+    for s in range(L.cells):  # every other cell stays
+        p[L.start[s] + list(L.dst[L.start[s]:L.start[s] + L.n_moves[s]]).index(s)] = 1.0
+    sl = slice(L.start[base], L.start[base] + L.n_moves[base])
+    p[sl] = 0.0
+    for cell, share in wanted.items():
+        p[L.start[base] + list(L.dst[sl]).index(cell)] = share
+    return action_from_probabilities(config, p, L.start, L.src)
+
+
+def realised(config, obs, action):
+    """(p: (A,) the realised move probabilities, x: (N^2,) counts after the move, n_p: (N^2,) their
+    games' defenders at the cells holding intruders after the advance (0 elsewhere))."""
+    L = Layout(config.grid_size)
+    k = L.cells
+    p = move_probabilities(L, config, np.asarray(action, dtype=np.float64)[None])[0]
+    x = np.bincount(L.dst, weights=p * obs[:k].astype(np.float64)[L.src], minlength=k)
+    I2, _ = advance_intruders(obs[k:].astype(np.float64), config.grid_size, config.vertical_drift)
+    n_p, _ = team_sizes(config, x, np.maximum(I2, 1e-3))
+    return p, x * config.n_defenders, np.where(I2 > config.engage_min_mass, n_p, 0)
+
+
+@pytest.mark.parametrize("spare", [3, 0])
+def test_a_target_just_short_of_a_level_is_filled_from_free_defenders(spare):
+    # 27.3 defenders round to 27, which snaps to 24 (32's window starts at 27.6); the other row's
+    # 60 play 64 (its window from 55.6, 96's from 78.6, too far to fill); 12.7 go to a cell no
+    # intruder comes to (staying at the base, or the corner), the first free defenders in the
+    # base's moves
+    obs = base_state(PAPER, [0.35, 0.2, 0.45])
+    action = action_sending(PAPER, obs, {1: 0.273, 7: 0.6, spare: 0.127})
+    _, x0, n0 = realised(PAPER, obs, action)
+    assert n0[1] == 24 and n0[7] == 64
+    _, x, n_p = realised(PAPER, obs, LevelRepair(PAPER)(obs, action))
+    assert n_p[1] == 32 and n_p[7] == 64
+    assert 27.6 <= x[1] <= 27.7 and x.sum() == pytest.approx(100.0, abs=1e-9)
+    assert x[spare] == pytest.approx(x0[spare] - (x[1] - x0[1]), abs=0.05) and x[7] == pytest.approx(x0[7], abs=0.05)
+
+
+def test_no_target_near_a_threshold_leaves_the_moves_as_they_were():
+    obs = base_state(PAPER, [0.35, 0.2, 0.45])
+    action = action_sending(PAPER, obs, {1: 0.40, 7: 0.60})  # 48's window from 39.6, 64's from 55.6
+    repaired = LevelRepair(PAPER)(obs, action)
+    np.testing.assert_array_equal(realised(PAPER, obs, repaired)[0], realised(PAPER, obs, action)[0])
+
+
+def test_a_target_that_cannot_be_filled_whole_is_left_and_no_game_shrinks():
+    # 4 defenders: 1.8 and 2.2 play 2 each; 2.2 is 0.4 short of 3 (2.6), but the only free
+    # defenders are the 0.2 of the other row above its window's low end (1.6)
+    obs = base_state(FEW, [0.35, 0.2, 0.45])
+    action = action_sending(FEW, obs, {1: 0.45, 7: 0.55})
+    repaired = LevelRepair(FEW)(obs, action)
+    np.testing.assert_array_equal(realised(FEW, obs, repaired)[0], realised(FEW, obs, action)[0])
+    assert list(realised(FEW, obs, repaired)[2][[1, 7]]) == [2, 2]
+
+
+def test_defenders_that_play_no_game_fill_a_target():
+    # 4 defenders: 2.2 towards row 2's intruders (2 plays), 1.8 stay at the base, where no intruder comes
+    obs = base_state(FEW, [0.35, 0.2, 0.45])
+    action = action_sending(FEW, obs, {7: 0.55, 3: 0.45})
+    _, x, n_p = realised(FEW, obs, LevelRepair(FEW)(obs, action))
+    assert n_p[7] == 3 and 2.6 <= x[7] <= 2.7
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(which=st.sampled_from([0, 1, 2]), seed=st.integers(0, 2**31 - 1))
+def test_random_actions_keep_every_cells_mass_shrink_no_game_and_move_within_the_tolerance(which, seed):
+    config = (PAPER, FEW, DRIFT)[which]
+    rng = np.random.default_rng(seed)
+    L = Layout(config.grid_size)
+    k = L.cells
+    D = rng.dirichlet(np.full(k, 0.3))
+    I = rng.dirichlet(np.full(k, 0.3)) * rng.uniform(0.2, 1.0)
+    obs = np.concatenate([D, I]).astype(np.float32)
+    action = rng.uniform(-1, 1, len(L.src)).astype(np.float32)
+    p0, x0, n0 = realised(config, obs, action)
+    p, x, n_p = realised(config, obs, LevelRepair(config)(obs, action))
+    np.testing.assert_allclose(np.add.reduceat(p, L.start), 1.0, atol=1e-12)  # every cell's mass goes somewhere
+    assert np.all(n_p >= n0)  # no target's game gets smaller
+    leak = 0.01 * config.n_defenders * 8 * np.exp(-2 * config.softmax_beta) + 1e-6
+    assert np.all(x - x0 <= np.maximum(TOL, REL * x) + leak)  # no count rises by more than the tolerance
+
+
+def test_receding_horizons_actions_play_the_same_games_repaired():
+    client = curve_client(PAPER)
+    planner = make_policy("receding_horizon", PAPER, client)
+    repair = LevelRepair(PAPER)
+    rng = np.random.default_rng(5)
+    for _ in range(6):
+        obs = base_state(PAPER, rng.dirichlet(np.ones(3)))
+        action, _ = planner.predict(obs)
+        np.testing.assert_array_equal(realised(PAPER, obs, repair(obs, action))[2], realised(PAPER, obs, action)[2])
+
+
+class Fixed:
+    """An allocator that answers every observation with one action."""
+
+    def __init__(self, action, n: int = 3):
+        import gymnasium
+
+        self.action = action
+        self.observation_space = gymnasium.spaces.Box(0.0, 1.0, (2 * n * n,))
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        return self.action, state
+
+
+def test_a_runs_repair_setting_makes_its_allocator_repaired(tmp_path):
+    obs = base_state(PAPER, [0.35, 0.2, 0.45])
+    network = Fixed(action_sending(PAPER, obs, {1: 0.273, 7: 0.6, 3: 0.127}))
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump({"name": "x", "algo": "ppo", "repair": "levels"}))
+    allocator = make_policy("ppo", PAPER, None, policy=network, run=str(tmp_path))
+    assert isinstance(allocator, Repaired) and realised(PAPER, obs, allocator.predict(obs)[0])[2][1] == 32
+    assert make_policy("ppo", PAPER, None, policy=network, run=str(tmp_path), repair="none") is network
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump({"name": "x", "algo": "ppo"}))  # a run from before it
+    assert make_policy("ppo", PAPER, None, policy=network, run=str(tmp_path)) is network
+
+
+def test_the_evaluation_env_of_a_repaired_run_plays_the_repaired_action():
+    from farm.alloc import SwarmAllocationEnv
+
+    env = RepairedActions(SwarmAllocationEnv(PAPER, client=curve_client(PAPER)))
+    obs, _ = env.reset(seed=3)
+    action = action_sending(PAPER, obs, {1: 0.273, 7: 0.6, 3: 0.127})
+    wanted = LevelRepair(PAPER)(obs, action)
+    inner = env.unwrapped
+    D, I = obs[:9].astype(np.float64), obs[9:].astype(np.float64)
+    env.step(action)
+    L = Layout(3)
+    moved = np.bincount(L.dst, weights=move_probabilities(L, PAPER, wanted[None].astype(np.float64))[0] * D[L.src],
+                        minlength=9)
+    np.testing.assert_allclose(inner.D, moved, atol=1e-12)
+    assert I.sum() > 0
+
+
+def test_bad_repair_settings_are_one_line(tmp_path):
+    with pytest.raises(ConfigError, match=r"^repair: must be one of none, levels, got 'round'$"):
+        make_policy("ppo", PAPER, None, policy=Fixed(None), repair="round")
+    with pytest.raises(Exception, match="repair"):
+        TrainConfig(name="x", algo="ppo", repair="round")
+    assert_refused_in_one_line(tmp_path, {"name": "x", "algo": "ppo", "repair": "round"}, "repair")
