@@ -41,7 +41,7 @@ WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "tes
                "test_claims", "test_cli", "test_compiled", "test_docs", "test_docstrings", "test_engine", "test_env_api",
                "test_escapes", "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners", "test_montecarlo",
                "test_planners", "test_policy_registry", "test_reference_selfcheck", "test_refuses_cli", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
-               "test_refuses_training", "test_refuses_workers", "test_resume_damaged", "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
+               "test_refuses_training", "test_refuses_workers", "test_repair", "test_resume_damaged", "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
                "test_workers_layout"}
 
 

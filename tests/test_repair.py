@@ -18,7 +18,8 @@ from farm.alloc.policies.repair import REL, TOL, LevelRepair, Repaired, Repaired
 from farm.alloc.training import TrainConfig
 from farm.core.errors import ConfigError
 
-from test_learners import assert_refused_in_one_line
+from test_learners import (Stop, StopAt, assert_refused_in_one_line, assert_same, client,  # noqa: F401 (fixtures)
+                           config, store)
 from test_planners import curve_client
 
 PAPER = AllocConfig(grid_size=3, n_defenders=100, n_intruders=50, c_capture=1.5, team_sizes="lattice")
@@ -180,3 +181,20 @@ def test_bad_repair_settings_are_one_line(tmp_path):
     with pytest.raises(Exception, match="repair"):
         TrainConfig(name="x", algo="ppo", repair="round")
     assert_refused_in_one_line(tmp_path, {"name": "x", "algo": "ppo", "repair": "round"}, "repair")
+
+
+def test_a_repaired_run_evaluates_repaired_and_resumes_bit_identical(store, client, tmp_path):  # noqa: F811
+    from farm.alloc.training import train
+    from farm.alloc.training.train import _eval_envs
+
+    cfg = config(store, "ppo", n_envs=4, repair="levels", keep="best")
+    eval_vec, _ = _eval_envs(cfg, client)
+    assert isinstance(eval_vec.venv.envs[0], RepairedActions)  # the periodic evaluations act repaired
+    train(cfg, tmp_path / "whole", show_progress=False)
+    with pytest.raises(Stop):
+        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[StopAt(200)])
+    train(cfg, tmp_path / "stopped", resume=True, show_progress=False)
+    assert_same(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
+    with np.load(tmp_path / "whole" / "evaluations.npz") as a, np.load(tmp_path / "stopped" / "evaluations.npz") as b:
+        np.testing.assert_array_equal(a["results"], b["results"])
+    assert isinstance(make_policy("ppo", cfg.env, None, run=str(tmp_path / "whole")), Repaired)
