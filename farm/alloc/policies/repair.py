@@ -52,8 +52,8 @@ from farm.core.errors import ConfigError
 __all__ = ["REPAIRS", "LevelRepair", "Repaired", "RepairedActions", "check_repair", "repaired"]
 
 REPAIRS = ("none", "levels")  # a learned allocator's output: its network's action, or that action repaired
-TOL = 0.5  # defenders: the least gap to the next level's window that the repair fills
-REL = 0.15  # ... and the share of that window's low end, when larger
+TOL = 0.5  # defenders: the repair fills a gap to the next level's window of up to this many,
+REL = 0.15  # ... or up to this share of that window's low end, when that is more
 
 
 def check_repair(value, field: str = "repair") -> str:
