@@ -91,10 +91,11 @@ class LevelRepair:
             low = n_p - 0.4 + self.leak * n_p
         return np.where(n_p == 0, 0.0, np.minimum(x, low))
 
-    def flows(self, obs: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(f: (A,) float64 the defenders along each move, x: (N^2,) float64 each cell's count after
-        the move, target: (N^2,) bool the cells holding intruders after their advance, I2: (N^2,)
-        float64 that mass) of obs: (2 N^2,) [D, I] and action: (A,)."""
+    def flows(self, obs: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(p: (A,) float64 the action's move probabilities, f: (A,) float64 the defenders along
+        each move, x: (N^2,) float64 each cell's count after the move, target: (N^2,) bool the
+        cells holding intruders after their advance, I2: (N^2,) float64 that mass) of obs:
+        (2 N^2,) [D, I] and action: (A,)."""
         c, L = self.config, self.layout
         k = L.cells
         obs = np.asarray(obs, dtype=np.float64)
@@ -103,12 +104,12 @@ class LevelRepair:
         f = p * D[L.src] * c.n_defenders
         I2, _ = advance_intruders(I, L.n, c.vertical_drift)
         x = np.bincount(L.dst, weights=f, minlength=k)
-        return f, x, I2 > c.engage_min_mass, I2
+        return p, f, x, I2 > c.engage_min_mass, I2
 
     def __call__(self, obs, action) -> np.ndarray:
         """The repaired action: obs (2 N^2,) [D, I], action (A,) -> (A,) float32 in [-1, 1]."""
         L, lo = self.layout, self.levels.lo
-        f, x, target, I2 = self.flows(obs, action)
+        p, f, x, target, I2 = self.flows(obs, action)
         free = np.where(target, x - self.floors(x), x)  # what each cell's count can give without a smaller game
         changed = False
         for d in np.argsort(-I2, kind="stable"):
@@ -150,7 +151,6 @@ class LevelRepair:
         if not changed:
             return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0).astype(np.float32)
         total = np.add.reduceat(f, L.start)[L.src]
-        p = move_probabilities(L, self.config, np.asarray(action, dtype=np.float64).reshape(1, -1))[0]
         q = np.where(total > 0.0, f / np.where(total > 0.0, total, 1.0), p)
         return action_from_probabilities(self.config, q, L.start, L.src)
 
