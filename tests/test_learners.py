@@ -298,9 +298,10 @@ def test_the_flows_fit_moves_the_defenders_as_the_expert_does(store, client):
     assert after < 0.2 * before and after < 0.1, (before, after)
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
-def test_a_run_on_the_batched_env_resumed_after_a_stop_is_bit_identical(store, tmp_path, algo):
-    cfg = config(store, algo, n_envs=4)
+@pytest.mark.parametrize("algo, repair", [("ppo", "none"), ("sac", "none"), ("ppo", "levels")])
+def test_a_run_on_the_batched_env_resumed_after_a_stop_is_bit_identical(store, tmp_path, algo, repair):
+    # repair levels: the periodic evaluations act through the level repair (test_repair)
+    cfg = config(store, algo, n_envs=4, repair=repair, keep="best" if repair == "levels" else "final")
     metrics = train(cfg, tmp_path / "whole", show_progress=False)
     assert metrics["timesteps"] >= 300
     with np.load(tmp_path / "whole" / "evaluations.npz") as e:  # every eval.freq steps, as with one env
