@@ -11,7 +11,10 @@ predict(obs, deterministic=True) on those same observations, timed one by one, i
       configs/train/size_free.yaml builds it (on theatre_8x8), its weights moved to each map by
       the registry's learned entry (make_policy("ppo", config, policy=...): cell_policy.resized),
       as `farm eval RUN --scenario NAME` does; --run RUN times a trained run's instead. A step's
-      time depends on the architecture and the map, not on the weights.
+      time depends on the architecture and the map, not on the weights. Its actions go through
+      the level repair when size_free.yaml (or the run) says `repair: levels`, as they do in
+      `farm eval`;
+  ppo network: the same network alone, without the repair.
 ms/step is CPU ms per predict(), mean over the states, best of --repeats passes, after one
 untimed call each; one process pinned to one core, torch and the numerical libraries at one
 thread; every lattice pair is in the client's memo before timing (farm.alloc.lattice.memo_client),
@@ -121,11 +124,13 @@ def step_times(a) -> None:
     from farm.alloc.lattice import memo_client
     from farm.alloc.policies import make_policy
     from farm.alloc.scenarios import SCENARIOS
+    from farm.alloc.training.config import load_train_config
 
     torch.set_num_threads(1)
     configs = {name: SCENARIOS[name].config() for name in MAPS}
     client, pairs, t_warm = memo_client(configs.values(), "local", a.store)
     trained = size_free_policy(client, a.run)
+    repair = None if a.run else load_train_config(CONFIG).repair  # None: the run's own setting
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core from here on
     print(f"store {a.store}: {len(pairs)} lattice pairs warm in {t_warm:.1f} s; timing on one core (load average "
@@ -134,13 +139,14 @@ def step_times(a) -> None:
     for name, config in configs.items():
         observations = states(config, client, a.episodes, a.states)
         policies = {p: make_policy(p, config, client) for p in REFERENCES}
-        policies["ppo"] = make_policy("ppo", config, client, policy=trained)
+        policies["ppo"] = make_policy("ppo", config, client, policy=trained, run=a.run, repair=repair)
+        policies["ppo network"] = make_policy("ppo", config, client, policy=trained, repair="none")
         misses = client.stats()["misses"]
         table[name] = timed(policies, observations, a.repeats)
         assert client.stats()["misses"] == misses, "a service query missed the memo while timing"
         print(f"  {name}: {len(observations)} states timed", flush=True)
     client.close()
-    names = [*REFERENCES, "ppo"]
+    names = [*REFERENCES, "ppo", "ppo network"]
     print(f"\nCPU ms per predict(obs), mean over {a.states} states of intercept's episodes, best of {a.repeats}; "
           f"ppo: CellPolicy ({'run ' + a.run if a.run else 'untrained, as size_free.yaml builds it'})")
     print(f"{'allocator':<18}" + "".join(f"{m:>17}" for m in MAPS))

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
@@ -491,37 +491,45 @@ def test_clients_and_observations_refused():
 
 
 # ----------------------------------------------------------------------------- sub-regions
-def _bands_by_hand(cfg, client, D, I, bands, inner="receding_horizon", **options):
+def _bands_by_hand(cfg, client, D, I, bands, inner="receding_horizon", shares=None, **options):
     """Sub-regions' plan computed the slow, obvious way: each band's rows masked, its share of
-    the force by its intruder mass, the inner planner made afresh per band, plans mixed by share."""
+    the force by its intruder mass, the inner planner made afresh per band, plans mixed by share.
+    shares: the bands' shares to use (default: computed here). A planner's plan jumps where a
+    count crosses a level's threshold, so a share that differs in its last bit (a sum taken in
+    another order) can move a plan by 0.1: the join is checked on the planner's own shares, and
+    the shares apart from it."""
     n = cfg.grid_size
     rows = np.arange(n * n) // n
     mass = np.array([I[np.isin(rows, band)].sum() for band in bands])
+    shares = mass / mass.sum() if shares is None else shares
     p = 0.0
-    for band, m in zip(bands, mass):
-        if m > 0:
+    for band, share in zip(bands, shares):
+        if share > 0:
             planner = make_policy(inner, cfg, client, **options)
-            p = p + (m / mass.sum()) * planner.probabilities(D * m / mass.sum(), np.where(np.isin(rows, band), I, 0.0))
+            p = p + share * planner.probabilities(D * share, np.where(np.isin(rows, band), I, 0.0))
     return p
 
 
 @pytest.mark.parametrize("inner", ["intercept", "mmr", "receding_horizon"])
-# derandomize: with receding_horizon, about 1 random state in 27 disagrees with the by-hand join
-# in 2 cells (seed 73164: a known defect, in the stop note, not fixed), so random examples made
-# this a coin flip in CI; the fixed examples pass.
-@settings(max_examples=3, deadline=None, derandomize=True)
+@settings(max_examples=3, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
+@example(seed=73164)
 def test_subregions_join_the_bands_plans_by_their_shares(inner, seed):
-    """On 6 x 6 in 3 bands of 2 rows: the plan is each band's inner plan (its rows' intruders, its
-    share of every cell's defenders) mixed by the shares, as computed by hand; each cell's
-    probabilities sum to 1."""
+    """On 6 x 6 in 3 bands of 2 rows: the shares are the bands' intruder mass over the whole, and
+    the plan is each band's inner plan (its rows' intruders, its share of every cell's defenders)
+    mixed by the shares, as computed by hand; each cell's probabilities sum to 1. (Seed 73164 is
+    a state where a reference share 1e-17 off the planner's moved receding_horizon's plan by 0.105.)"""
     rng = np.random.default_rng(seed)
     cfg = AllocConfig(grid_size=6, n_defenders=100, n_intruders=50, team_sizes="lattice", vertical_drift=0.25)
     client = curve_client(cfg)
     D, I = random_state(rng, 6)
     planner = make_policy("subregions", cfg, client, regions=3, planner=inner)
+    bands = [[0, 1], [2, 3], [4, 5]]
+    rows = np.arange(36) // 6
+    mass = np.array([I[np.isin(rows, band)].sum() for band in bands])
+    np.testing.assert_allclose(planner.shares(I), mass / mass.sum(), rtol=1e-12)
     p = planner.probabilities(D, I)
-    np.testing.assert_allclose(p, _bands_by_hand(cfg, client, D, I, [[0, 1], [2, 3], [4, 5]], inner), atol=1e-12)
+    np.testing.assert_allclose(p, _bands_by_hand(cfg, client, D, I, bands, inner, shares=planner.shares(I)), atol=1e-12)
     assert np.allclose(np.add.reduceat(p, planner.start), 1.0)
     assert sum(planner.last["shares"]) == pytest.approx(1.0)
 

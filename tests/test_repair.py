@@ -15,6 +15,7 @@ from farm.alloc.model import advance_intruders, team_sizes
 from farm.alloc.policies import make_policy
 from farm.alloc.policies.planners import action_from_probabilities
 from farm.alloc.policies.repair import REL, TOL, LevelRepair, Repaired, RepairedActions
+from farm.alloc.scenarios import SCENARIOS
 from farm.alloc.training import TrainConfig
 from farm.core.errors import ConfigError
 
@@ -120,6 +121,70 @@ def test_random_actions_keep_every_cells_mass_shrink_no_game_and_move_within_the
     assert np.all(n_p >= n0)  # no target's game gets smaller
     leak = 0.01 * config.n_defenders * 8 * np.exp(-2 * config.softmax_beta) + 1e-6
     assert np.all(x - x0 <= np.maximum(TOL, REL * x) + leak)  # no count rises by more than the tolerance
+
+
+def plain_repair(repair: LevelRepair, obs, action) -> np.ndarray:
+    """The repair's fill written plainly (the module doc, step by step): every target in order of
+    intruder mass, each checked against the next window at its count then, and every move of every
+    neighbour looked at. LevelRepair skips the targets that cannot be near a threshold."""
+    L, lo, config = repair.layout, repair.levels.lo, repair.config
+    p, f, x, target, I2 = repair.flows(obs, action)
+    free = np.where(target, x - repair.floors(x), x)
+    changed = False
+    for d in np.argsort(-I2, kind="stable"):
+        if not target[d]:
+            break
+        i = int(np.searchsorted(lo, x[d], side="right"))
+        if i >= len(lo) or lo[i] - x[d] + 1e-9 > max(repair.tol, repair.rel * lo[i]):
+            continue
+        need, takes, got = lo[i] - x[d] + 1e-9, [], 0.0
+        for m_in in np.flatnonzero(L.dst == d):
+            s = L.src[m_in]
+            for m in range(L.start[s], L.start[s] + L.n_moves[s]):
+                e = L.dst[m]
+                if e == d or f[m] <= 0.0:
+                    continue
+                amount = min(f[m], free[e], need - got)
+                if amount > 0.0:
+                    takes.append((m, e, m_in, amount))
+                    free[e] -= amount
+                    got += amount
+                if got >= need:
+                    break
+            if got >= need:
+                break
+        if got < need:
+            for _, e, _, amount in takes:
+                free[e] += amount
+            continue
+        for m, e, m_in, amount in takes:
+            f[m], x[e], f[m_in], x[d] = f[m] - amount, x[e] - amount, f[m_in] + amount, x[d] + amount
+        free[d], changed = 0.0, True
+    if not changed:
+        return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0).astype(np.float32)
+    total = np.add.reduceat(f, L.start)[L.src]
+    q = np.where(total > 0.0, f / np.where(total > 0.0, total, 1.0), p)
+    return action_from_probabilities(config, q, L.start, L.src)
+
+
+def test_the_repair_equals_its_plain_loop_over_every_target():
+    theatre = SCENARIOS["theatre_16x16"].config()
+    exact = AllocConfig(grid_size=5, n_defenders=100, n_intruders=50, c_capture=1.5, team_sizes="exact", max_steps=16)
+    rng = np.random.default_rng(7)
+    repaired_states = 0
+    for config in (PAPER, FEW, DRIFT, exact, theatre):
+        repair, L = LevelRepair(config), Layout(config.grid_size)
+        for _ in range(40):
+            spread = rng.choice([0.05, 0.3, 3.0])
+            D = rng.dirichlet(np.full(L.cells, spread))
+            I = rng.dirichlet(np.full(L.cells, spread)) * rng.uniform(0.2, 1.0)
+            I[rng.random(L.cells) < 0.3] = 0.0
+            obs = np.concatenate([D, I]).astype(np.float32)
+            action = rng.uniform(-1, 1, len(L.src)).astype(np.float32)
+            expected = plain_repair(repair, obs, action)
+            np.testing.assert_array_equal(repair(obs, action), expected)
+            repaired_states += not np.array_equal(expected, np.clip(action, -1, 1))
+    assert repaired_states >= 100  # most of the 200 states had a target filled
 
 
 def test_receding_horizons_actions_play_the_same_games_repaired():
