@@ -395,9 +395,9 @@ def cmd_eval(a) -> int:
 
     run_dir = Path(a.run_dir)
     references = None if a.references is None else [n for n in a.references.split(",") if n and n != "none"]
-    with flags("episodes", "seed", "fidelity", "scenario", "references"):
+    with flags("episodes", "seed", "fidelity", "scenario", "references", "repair"):
         result = evaluate_run(run_dir, episodes=a.episodes, seed=a.seed, fidelity=a.fidelity, scenario=a.scenario,
-                              references=references, animate=a.animate, show_progress=not a.quiet)
+                              references=references, animate=a.animate, show_progress=not a.quiet, repair=a.repair)
     if a.scenario is not None:
         run_dir = run_dir / "scenarios" / a.scenario
     print(result.table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
@@ -599,6 +599,8 @@ def build_parser() -> argparse.ArgumentParser:
                                        "acts on any map size); files go to RUN_DIR/scenarios/NAME/")
     ev.add_argument("--references", help="the baselines and planners to compare with, comma-separated, or 'none' "
                                          "(default: every one)")
+    ev.add_argument("--repair", help="the trained allocator's output: 'none' (its network alone) or 'levels' "
+                                     "(the level repair); default: the run's config's")
     ev.set_defaults(func=cmd_eval)
 
     su = sub.add_parser("suite", help="every policy on every scenario, same seeded episodes: a leaderboard")

@@ -19,6 +19,7 @@ from farm.alloc.scenarios import SCENARIOS
 from farm.alloc.training import TrainConfig
 from farm.core.errors import ConfigError
 
+from conftest import farm_main
 from test_learners import assert_refused_in_one_line, client, config, store  # noqa: F401 (fixtures)
 from test_planners import curve_client
 
@@ -261,3 +262,20 @@ def test_a_repaired_run_evaluates_repaired_and_acts_repaired(store, client, tmp_
     train(config(store, "ppo", n_envs=4, repair="levels", ppo={"n_timesteps": 128, "n_steps": 32, "batch_size": 32,
                                                                "n_epochs": 1}), tmp_path / "run", show_progress=False)
     assert isinstance(make_policy("ppo", cfg.env, None, run=str(tmp_path / "run")), Repaired)
+    # farm eval acts as the run says, or as --repair says: the network alone is its own episodes
+    from farm.alloc.evaluation import evaluate_run
+    from farm.alloc.rollout import play
+
+    def learned_return(table):
+        return float(table.loc[table["policy"] == "ppo", "return_mean"].iloc[0])
+
+    as_run = evaluate_run(tmp_path / "run", episodes=2, references=[], show_progress=False)
+    repaired_eval = evaluate_run(tmp_path / "run", episodes=2, references=[], show_progress=False, repair="levels")
+    alone = evaluate_run(tmp_path / "run", episodes=2, references=[], show_progress=False, repair="none")
+    assert learned_return(as_run.table) == learned_return(repaired_eval.table)
+    for repair, result in (("levels", repaired_eval), ("none", alone)):
+        policy = make_policy("ppo", cfg.env, None, run=str(tmp_path / "run"), repair=repair)
+        episodes = play(cfg.env, policy, client, 2, 1000)
+        assert learned_return(result.table) == pytest.approx(np.mean([e.summary["return"] for e in episodes]), abs=1e-12)
+    status, _, stderr = farm_main("eval", tmp_path / "run", "--episodes", "1", "--repair", "round")
+    assert status != 0 and stderr.strip() == "farm: error: --repair: must be one of none, levels, got 'round'", stderr

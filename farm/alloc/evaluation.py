@@ -70,7 +70,7 @@ def evaluate_trained(run: RunFolder, config, policies: dict, client, episodes: i
 
 def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str = "service",
                  scenario: str | None = None, references: list[str] | None = None,
-                 animate=None, show_progress: bool = True) -> RunEvaluation:
+                 animate=None, show_progress: bool = True, repair: str | None = None) -> RunEvaluation:
     """`farm eval`: evaluate a run folder's trained allocator (see the module doc) with the
     capture-time service of its config (service.mode local: in this process, the games of
     fidelity "games" too, no Ray). scenario: a suite scenario's name, to evaluate the run on
@@ -84,7 +84,9 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     a .gif or .mp4. animate: also write an animation of the trained allocator's first episode
     there (farm.alloc.animation; under fidelity "games" with one engaged cell's game inset),
     a path relative to the folder the tables go into. show_progress: fidelity "games" shows
-    its steps, games and games/s on stderr (evaluate_fidelity)."""
+    its steps, games and games/s on stderr (evaluate_fidelity). repair: the trained allocator's
+    output, `none` (its network alone) or `levels` (farm.alloc.policies.repair); None: the run's
+    config's."""
     from farm.alloc.scenarios import SCENARIOS
     from farm.alloc.training.config import store_of
     from farm.service.client import open_client
@@ -110,7 +112,8 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
                               f"or none)", field="references")
     specs = None if references is None else [PolicySpec(policy_entry(name)) for name in references]
     try:
-        learned = make_policy(config.algo, config.env, None, run=run.path)  # a bad model.zip: one line, before Ray starts
+        learned = make_policy(config.algo, config.env, None, run=run.path,  # a bad model.zip: one line, before Ray starts
+                              repair=repair)
     except ConfigError as e:
         if scenario is not None or e.field != "scenario":
             raise
