@@ -398,8 +398,7 @@ def cmd_eval(a) -> int:
     with flags("episodes", "seed", "fidelity", "scenario", "references", "repair"):
         result = evaluate_run(run_dir, episodes=a.episodes, seed=a.seed, fidelity=a.fidelity, scenario=a.scenario,
                               references=references, animate=a.animate, show_progress=not a.quiet, repair=a.repair)
-    if a.scenario is not None:
-        run_dir = run_dir / "scenarios" / a.scenario
+    run_dir = result.folder
     print(result.table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     if result.games_table is not None:
         print("\n--fidelity games (every engaged cell's game simulated each step):")
@@ -600,7 +599,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--references", help="the baselines and planners to compare with, comma-separated, or 'none' "
                                          "(default: every one)")
     ev.add_argument("--repair", help="the trained allocator's output: 'none' (its network alone) or 'levels' "
-                                     "(the level repair); default: the run's config's")
+                                     "(the level repair); default: the run's config's. Another than the run's "
+                                     "own writes into repair_<value>/")
     ev.set_defaults(func=cmd_eval)
 
     su = sub.add_parser("suite", help="every policy on every scenario, same seeded episodes: a leaderboard")

@@ -4,6 +4,7 @@ mass, no target's game shrinks, no count rises by more than the tolerance), rece
 actions left as they are, and the settings that choose it."""
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 from hypothesis import given, settings
@@ -273,6 +274,11 @@ def test_a_repaired_run_evaluates_repaired_and_acts_repaired(store, client, tmp_
     repaired_eval = evaluate_run(tmp_path / "run", episodes=2, references=[], show_progress=False, repair="levels")
     alone = evaluate_run(tmp_path / "run", episodes=2, references=[], show_progress=False, repair="none")
     assert learned_return(as_run.table) == learned_return(repaired_eval.table)
+    assert as_run.folder == repaired_eval.folder == tmp_path / "run"  # the run's own: its folder
+    assert alone.folder == tmp_path / "run" / "repair_none"  # another: its own, the run's evaluation kept
+    kept = pd.read_csv(tmp_path / "run" / "eval_table.csv")
+    assert float(kept.loc[kept["policy"] == "ppo", "return_mean"].iloc[0]) == pytest.approx(learned_return(as_run.table))
+    assert (alone.folder / "eval_table.csv").is_file()
     for repair, result in (("levels", repaired_eval), ("none", alone)):
         policy = make_policy("ppo", cfg.env, None, run=str(tmp_path / "run"), repair=repair)
         episodes = play(cfg.env, policy, client, 2, 1000)

@@ -6,6 +6,7 @@ cell's game simulated (farm.alloc.fidelity)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import pandas as pd
 
@@ -36,6 +37,7 @@ class RunEvaluation:
     differences: pd.DataFrame | None = None
     live: dict | None = None
     animation: tuple | None = None  # (path, frames) of the episode's animation (animate)
+    folder: Path | None = None  # where its tables and figures were written
 
 
 def reference_specs() -> list[PolicySpec]:
@@ -86,7 +88,8 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     a path relative to the folder the tables go into. show_progress: fidelity "games" shows
     its steps, games and games/s on stderr (evaluate_fidelity). repair: the trained allocator's
     output, `none` (its network alone) or `levels` (farm.alloc.policies.repair); None: the run's
-    config's."""
+    config's. One other than the run's own writes into repair_<value>/ of the folder the
+    tables go into, so the run's own evaluation there is kept."""
     from farm.alloc.scenarios import SCENARIOS
     from farm.alloc.training.config import store_of
     from farm.service.client import open_client
@@ -122,23 +125,26 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
                           f"edited?)", field="run_dir") from None
     from farm.core.output import check_writable_folder
 
+    folder = run.path if scenario is None else run.path / "scenarios" / scenario
+    if repair is not None and repair != config.repair:
+        folder = folder / f"repair_{repair}"  # the run's own evaluation stays where it is
     # where the tables go, checked before any episode: a read-only run folder is found now, not at the end
-    check_writable_folder(run.path if scenario is None else run.path / "scenarios" / scenario, "run_dir")
+    check_writable_folder(folder, "run_dir")
     if animate is not None:
         from farm.core.animate import check_animation_path
         from farm.core.output import check_writable_file
 
-        animate = (run.path if scenario is None else run.path / "scenarios" / scenario) / check_animation_path(animate)
+        animate = folder / check_animation_path(animate)
         check_writable_file(animate, "animate")
-    if scenario is not None:
-        run = RunFolder(run.path / "scenarios" / scenario)  # where this evaluation's files go
+    if folder != run.path:
+        run = RunFolder(folder)  # where this evaluation's files go
         run.path.mkdir(parents=True, exist_ok=True)
     settings = config.env.service_settings()
     mode = config.service.mode  # local: the service and the games of fidelity "games" in this process, no Ray
     with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
         policies = allocators(run, config, client, specs, learned=learned)
         table, per, steps = evaluate_trained(run, config, policies, client, episodes, seed)
-        result = RunEvaluation(table, per, steps, settings.games)
+        result = RunEvaluation(table, per, steps, settings.games, folder=run.path)
         if fidelity == "games":
             result.games_table, result.differences, result.live = evaluate_fidelity(config.env, policies, client, episodes, seed,
                                                                        in_process=mode == "local",
