@@ -241,7 +241,7 @@ def test_smoke_grid_then_a_rerun_trains_nothing(cold):
 # checkpoint and its row equals the cold run's (an uninterrupted run of the same trials: a
 # checkpoint's timing changes nothing of a run, so these runs checkpoint every 50 steps for a
 # wide window to kill in) but for the timings and resumed_from.
-DEADLINE = 240  # seconds for a file to appear: generous, the tests poll
+DEADLINE = 600  # seconds for a file to appear: generous (240 ran out with three jobs on 2 cores); the tests poll
 
 
 @pytest.fixture(scope="module")
