@@ -123,8 +123,8 @@ class LevelRepair:
         free = np.where(target, x - self.floors(x), x)  # what each cell's count can give without a smaller game
         top = len(lo)
         above = np.searchsorted(lo, x, side="right")
-        gap = lo[np.minimum(above, top - 1)] - x + 1e-9
-        near = target & (above < top) & (gap <= np.maximum(self.tol, self.rel * lo[np.minimum(above, top - 1)]))
+        nxt = lo[np.minimum(above, top - 1)]  # the next window's low end (the top one's past it)
+        near = target & (above < top) & (nxt - x + 1e-9 <= np.maximum(self.tol, self.rel * nxt))
         order = np.argsort(-I2, kind="stable")
         order = order[: int(np.count_nonzero(target))].tolist()  # the targets, the most intruder mass first
         # A target is looked at when it starts near a threshold, or (only in round-off) after it gave
