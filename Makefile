@@ -40,7 +40,7 @@ browser:
 
 # Two xdist workers: the modules without Ray spread over both, the Ray ones in turn on one (tests/conftest.py).
 test: $(STAMP) browser
-	$(PY) -m pytest -q -n 2 --dist loadgroup
+	$(PY) -m pytest -q -n 2 --dist loadgroup --no-loadscope-reorder
 
 bench: $(STAMP)
 	$(PY) benchmarks/engine.py

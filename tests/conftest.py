@@ -1,6 +1,9 @@
+import collections
 import contextlib
+import fcntl
 import os
 import socket
+import tempfile
 import time
 from pathlib import Path
 
@@ -31,12 +34,18 @@ def points_in(arena_vertices, shape, rng):
     return make_arena(arena_vertices).sample_uniform(rng, shape)
 
 
-# `make test` runs the suite on 2 pytest-xdist workers (--dist loadgroup). The modules below
-# start no Ray (their `farm` commands run in process: --no-ray, service.mode local): each is a
-# group of its own (its module fixtures made once), spread over both workers. Every other
-# module starts or joins Ray, in this process or through `farm` and `ray` subprocesses; they
-# form one group and so run one after another on one worker, as without xdist: two Rays
-# starting at once on 2 cores can miss Ray's 30 s start deadline.
+# `make test` runs the suite on 2 pytest-xdist workers (--dist loadgroup, the groups in the
+# order of the items below: --no-loadscope-reorder). The modules below start no Ray (their
+# `farm` commands run in process: --no-ray, service.mode local): each is a group of its own
+# (its module fixtures made once), spread over both workers. Every other module starts or joins
+# Ray, in this process or through `farm` and `ray` subprocesses; they form one group and so run
+# one after another on one worker, as without xdist, but for OWN_CLUSTERS: its tests start
+# Rays of their own with `ray start` and `farm` subprocesses, never the shared one, so they are
+# a group of their own, first on the other worker, beside the Ray group (the suite's critical
+# path). Two Rays starting at once on 2 cores can miss Ray's 30 s start deadline, so every Ray
+# start of the tests is made under ray_start_lock, one at a time across the workers; and a
+# test that signals or kills Ray workers picks them among its own process's descendants
+# (descendants), never the other worker's.
 WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "test_report", "test_alloc_td3", "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy",
                "test_claims", "test_cli", "test_compiled", "test_docs", "test_docstrings", "test_engine", "test_env_api",
                "test_escapes", "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners", "test_montecarlo",
@@ -51,6 +60,15 @@ WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "tes
 MIXED = {"test_refuses_store", "test_service", "test_suite", "test_sweep_ray", "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
 
 
+# Modules whose Ray tests start Rays of their own only (`ray start` clusters and `farm`
+# subprocesses), under ray_start_lock: a group of their own beside the Ray group.
+OWN_CLUSTERS = {"test_cluster_cli"}
+
+# The groups without Ray that take 40-140 s (of about 880 s of them, measured on 2 cores).
+LONG = {"test_engine", "test_docs", "test_policy_registry", "test_learners", "test_alloc_train", "test_size_free",
+        "test_animate", "test_report"}
+
+
 def _without_ray(item) -> bool:
     """Whether a test starts no Ray: its module is WITHOUT_RAY, or MIXED and it takes no ray_local."""
     module = Path(str(item.fspath)).stem
@@ -63,13 +81,54 @@ def _takes_ray_local(item) -> bool:
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's hook, which reads the groups
 def pytest_collection_modifyitems(items):
+    groups = {}
     for item in items:
         module = Path(str(item.fspath)).stem
-        group = "ray" if not _without_ray(item) else module if module in WITHOUT_RAY else f"{module}-without-ray"
+        if _without_ray(item):
+            group = module if module in WITHOUT_RAY else f"{module}-without-ray"
+        else:
+            group = "ray-own-clusters" if module in OWN_CLUSTERS else "ray"
+        groups[item.nodeid] = group
         item.add_marker(pytest.mark.xdist_group(group))
-    # The Ray group's tests on the shared local Ray (ray_local) first, one after another, then
-    # its tests that start Rays of their own: one Ray start for all of the former.
-    items.sort(key=lambda item: not _without_ray(item) and not _takes_ray_local(item))
+    sizes = collections.Counter(groups.values())
+
+    # The Ray group first (one worker starts on it at once: the critical path), its tests on
+    # the shared local Ray (ray_local) first, one after another, then its tests that start
+    # Rays of their own: one Ray start for all of the former. Then OWN_CLUSTERS (the other
+    # worker starts on it), then the other groups, LONG first, then the largest first (as
+    # xdist's own --loadscope-reorder would), so that no long group is left for the end.
+    def order(item):
+        group = groups[item.nodeid]
+        if group == "ray":
+            return (0, _takes_ray_local(item) is False, 0, "")
+        if group == "ray-own-clusters":
+            return (1, False, 0, "")
+        return (2, group not in LONG, -sizes[group], group)
+
+    items.sort(key=order)
+
+
+RAY_START_LOCK = Path(tempfile.gettempdir()) / "swarm-farm-tests-ray-start.lock"
+
+
+@contextlib.contextmanager
+def ray_start_lock():
+    """Held while a test starts a Ray (the shared one, a `ray start` node, a `farm` command
+    starting its own): one start at a time across the xdist workers (the module doc)."""
+    with open(RAY_START_LOCK, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def descendants() -> list[int]:
+    """The pids of this process's descendants: the shared Ray's processes (its workers among
+    them) and the subprocesses this test started, but no other xdist worker's."""
+    import psutil
+
+    return [p.pid for p in psutil.Process().children(recursive=True)]
 
 
 _NEXT = {}  # the item that runs after the one being torn down (pytest_runtest_teardown)
@@ -127,7 +186,8 @@ class _SharedRay:
             os.environ["RAY_metrics_report_interval_ms"] = "500"
             stack.callback(lambda: os.environ.__setitem__("RAY_metrics_report_interval_ms", before)
                            if before is not None else os.environ.pop("RAY_metrics_report_interval_ms", None))
-            stack.enter_context(ray_cluster(num_cpus=2, metrics_port=self.port, dashboard=False))
+            with ray_start_lock():
+                stack.enter_context(ray_cluster(num_cpus=2, metrics_port=self.port, dashboard=False))
         except BaseException:
             stack.close()
             raise

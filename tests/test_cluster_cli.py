@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from conftest import cmdline, free_port, processes, session, signal_all, write_sweep
+from conftest import cmdline, free_port, ray_start_lock, session, signal_all, write_sweep
 
 from farm.games.sweep import SweepRun, load_sweep_config, run_sweep
 
@@ -86,8 +86,11 @@ def groups():
 
 
 def ray_start(groups, *args):
-    proc = groups.popen([str(BIN / "ray"), "start", "--node-ip-address=127.0.0.1", *args])
-    out, _ = proc.communicate(timeout=180)
+    """`ray start <args>` on loopback (ray_start_lock held); returns its pid, the id of the
+    session its daemons and their workers run in."""
+    with ray_start_lock():
+        proc = groups.popen([str(BIN / "ray"), "start", "--node-ip-address=127.0.0.1", *args])
+        out, _ = proc.communicate(timeout=180)
     assert proc.returncode == 0, out
     return proc.pid
 
@@ -104,20 +107,22 @@ def start_head(groups, cpus, dashboard_port=None):
                  f"--dashboard-agent-listen-port={free_port()}"]
     else:
         args += ["--include-dashboard=false"]
-    ray_start(groups, *args)
-    return f"127.0.0.1:{port}"
+    pid = ray_start(groups, *args)
+    return f"127.0.0.1:{port}", pid
 
 
 def test_driver_sigkill_then_rerun_equals_uninterrupted(groups, config_path, tmp_path):
     out = tmp_path / "out"
     farm = [sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out), "--workers", "2", "--quiet"]
-    driver = groups.popen(farm)
-    wait_for_shards(out, 4, driver)
+    with ray_start_lock():  # its local Ray starts, and is up once it stores shards
+        driver = groups.popen(farm)
+        wait_for_shards(out, 4, driver)
     groups.kill(driver.pid)  # the driver and the local Ray it started
     driver.wait(timeout=60)
     stored = len(list((out / "shards").glob("*.parquet")))
     assert 4 <= stored < 32
-    rerun = subprocess.run(farm, env=ENV, capture_output=True, text=True, timeout=600)
+    with ray_start_lock():
+        rerun = subprocess.run(farm, env=ENV, capture_output=True, text=True, timeout=600)
     assert rerun.returncode == 0, rerun.stderr
     runs = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
     assert runs[-1]["skipped"] >= stored and runs[-1]["done"] == 32 - runs[-1]["skipped"]
@@ -131,7 +136,7 @@ def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
     The head's shard workers are held stopped until the second node's worker plays a shard (on a
     loaded machine the head played all 32 before the second node's worker started); whether
     the second node stored shards before it died is not asserted."""
-    address = start_head(groups, cpus=1)
+    address, head_session = start_head(groups, cpus=1)
     second = ray_start(groups, f"--address={address}", "--num-cpus=1")
     out = tmp_path / "out"
     driver = groups.popen([sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out),
@@ -141,8 +146,7 @@ def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
     try:
         while not any(cmdline(pid).startswith(b"ray::_remote_shard") for pid in session(second)):
             assert time.time() < deadline and driver.poll() is None, "the second node ran no shard"
-            on_second = set(session(second))
-            head = {p for p in processes() if p not in on_second and cmdline(p).startswith(b"ray::_remote_shard")}
+            head = {p for p in session(head_session) if cmdline(p).startswith(b"ray::_remote_shard")}
             signal_all(head - held, signal.SIGSTOP)  # on a loaded machine the head played all 32 first
             held |= head
             time.sleep(0.02)
@@ -250,8 +254,9 @@ def test_a_local_command_runs_on_a_ray_of_its_own_beside_a_ray_start_cluster_and
     env = {k: v for k, v in ENV.items() if k != "RAY_ADDRESS"}
 
     def sweep(out):
-        r = subprocess.run([sys.executable, "-m", "farm.cli", "sweep", str(config), "--out", str(tmp_path / out),
-                            "--workers", "1", "--quiet"], env=env, capture_output=True, text=True, timeout=300)
+        with ray_start_lock():  # its own local Ray
+            r = subprocess.run([sys.executable, "-m", "farm.cli", "sweep", str(config), "--out", str(tmp_path / out),
+                                "--workers", "1", "--quiet"], env=env, capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr
         return pd.read_parquet(tmp_path / out / "summary.parquet")
 

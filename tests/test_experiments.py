@@ -18,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import bucket_keys, cmdline, processes, session, signal_all
+from conftest import bucket_keys, cmdline, descendants, session, signal_all
 
 from farm.core.errors import ClusterError, ConfigError
 from farm.studies.experiments import RESULT
@@ -263,10 +263,10 @@ def kill_config(tmp: Path, store: Path, **changes) -> Path:
 
 
 def holder(folder: Path) -> int | None:
-    """The pid of a Ray worker holding a file under folder open (Linux's /proc; a trial's
-    worker holds its run's TensorBoard file while it trains), or None."""
+    """The pid of a Ray worker of the shared Ray holding a file under folder open (Linux's
+    /proc; a trial's worker holds its run's TensorBoard file while it trains), or None."""
     prefix = str(folder) + os.sep
-    for pid in (p for p in processes() if cmdline(p).startswith(b"ray::")):
+    for pid in ray_workers():
         with contextlib.suppress(OSError):  # gone, or not ours to look into
             if any(os.readlink(fd).startswith(prefix) for fd in Path(f"/proc/{pid}/fd").iterdir()):
                 return pid
@@ -292,7 +292,8 @@ def stopped_when(what: str, ready, stop, resume, run_for: float = 0.02, alive=la
 
 
 def ray_workers() -> list[int]:
-    return [pid for pid in processes() if cmdline(pid).startswith(b"ray::")]
+    """The shared Ray's workers (this process's descendants: never another xdist worker's)."""
+    return [pid for pid in descendants() if cmdline(pid).startswith(b"ray::")]
 
 
 def held_at_checkpoint(run: Path, step: int, alive=lambda: True) -> int:
@@ -300,8 +301,12 @@ def held_at_checkpoint(run: Path, step: int, alive=lambda: True) -> int:
     is on disk. Every Ray worker runs in slices and is stopped while we look, from before the
     trainer starts: a poll of running processes races them (an idle machine trained on from
     the checkpoint of step 150 to the end at 300 before a kill landed; on a loaded CI machine
-    finding the trainer took as long), so here the trainer goes at most one slice past it."""
+    finding the trainer took as long), so here the trainer goes at most one slice past it.
+    Slices are slow, so they begin at the checkpoint two before (checkpoint_freq 50 steps):
+    100 steps are seconds of training, and the poll for it takes 0.05 s."""
     stopped: list[int] = []
+    if step > 100:
+        wait_for(f"checkpoint of step {step - 100}", lambda: checkpointed(run, step - 100), alive=alive)
 
     def stop():
         stopped[:] = ray_workers()

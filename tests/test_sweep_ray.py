@@ -9,9 +9,8 @@ import time
 import urllib.request
 
 import pandas as pd
-import psutil
 import pytest
-from conftest import write_sweep
+from conftest import cmdline, descendants, write_sweep
 
 import numpy as np
 
@@ -86,11 +85,11 @@ def test_worker_killed_mid_sweep_every_shard_exactly_once(ray_local, tmp_path, r
     killed = None
     deadline = time.time() + 120
     while killed is None and time.time() < deadline and thread.is_alive():
-        for proc in psutil.process_iter(["pid", "cmdline"]):
-            if "_remote_shard" in " ".join(proc.info["cmdline"] or []):
+        for pid in descendants():  # the shared Ray's workers, never another xdist worker's
+            if cmdline(pid).startswith(b"ray::_remote_shard"):
                 time.sleep(0.3)  # let it get into the shard
-                os.kill(proc.info["pid"], signal.SIGKILL)
-                killed = proc.info["pid"]
+                os.kill(pid, signal.SIGKILL)
+                killed = pid
                 break
         time.sleep(0.05)
     thread.join(timeout=600)
