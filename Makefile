@@ -38,7 +38,8 @@ browser:
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || \
 	  echo "warning: could not install chromium; the browser test will be skipped outside CI"
 
-# Two xdist workers: the modules without Ray spread over both, the Ray ones in turn on one (tests/conftest.py).
+# Two xdist workers: the Ray group on one, the `ray start` clusters' module on the other, then the
+# modules without Ray over both (tests/conftest.py).
 test: $(STAMP) browser
 	$(PY) -m pytest -q -n 2 --dist loadgroup --no-loadscope-reorder
 
