@@ -42,10 +42,11 @@ def points_in(arena_vertices, shape, rng):
 # one after another on one worker, as without xdist, but for OWN_CLUSTERS: its tests start
 # Rays of their own with `ray start` and `farm` subprocesses, never the shared one, so they are
 # a group of their own, first on the other worker, beside the Ray group (the suite's critical
-# path). Two Rays starting at once on 2 cores can miss Ray's 30 s start deadline, so every Ray
-# start of the tests is made under ray_start_lock, one at a time across the workers; and a
-# test that signals or kills Ray workers picks them among its own process's descendants
-# (descendants), never the other worker's.
+# path). Two Rays starting at once on 2 cores can miss Ray's 30 s start deadline, so the shared
+# Ray and every Ray of OWN_CLUSTERS start under ray_start_lock, one at a time across the
+# workers (the Ray group's tests with Rays of their own run last in it, long after
+# OWN_CLUSTERS); and a test that signals or kills Ray workers picks them among its own
+# process's descendants (descendants), never the other worker's.
 WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "test_report", "test_alloc_td3", "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy",
                "test_claims", "test_cli", "test_compiled", "test_docs", "test_docstrings", "test_engine", "test_env_api",
                "test_escapes", "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners", "test_montecarlo",
