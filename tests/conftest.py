@@ -101,7 +101,7 @@ def pytest_collection_modifyitems(items):
     def order(item):
         group = groups[item.nodeid]
         if group == "ray":
-            return (0, _takes_ray_local(item) is False, 0, "")
+            return (0, not _takes_ray_local(item), 0, "")
         if group == "ray-own-clusters":
             return (1, False, 0, "")
         return (2, group not in LONG, -sizes[group], group)
