@@ -40,6 +40,37 @@ def test_get_service_refuses_an_actor_that_serves_another_store(ray_local, tmp_p
     assert msg.startswith("store:") and "a.sqlite" in msg and "b.sqlite" in msg and "\n" not in msg
 
 
+
+def test_a_client_block_stops_the_service_it_made_so_the_next_block_may_name_another_store(ray_local, tmp_path):
+    # CI's failure (stop 43): a handle left in a reference cycle kept the first block's service
+    # alive until a garbage collection, and the next block, naming another store, was refused.
+    import gc
+
+    import ray
+
+    from farm.service import ServiceSettings
+    from farm.service.actor import SERVICE_NAME, _running, get_service
+    from farm.service.client import open_client
+
+    gc.disable()
+    try:
+        with open_client(ServiceSettings(), store=tmp_path / "a.sqlite") as client:
+            cycle = [client]
+            cycle.append(cycle)
+        assert not _running(SERVICE_NAME)
+        with open_client(ServiceSettings(), store=tmp_path / "b.sqlite") as client:
+            assert ray.get(client.backend.actor.store_path.remote()) == str((tmp_path / "b.sqlite").resolve())
+        # a service running before the block (an outer one's) is left running
+        outer = get_service(tmp_path / "c.sqlite")
+        with open_client(ServiceSettings(), store=tmp_path / "c.sqlite"):
+            pass
+        assert _running(SERVICE_NAME)
+        ray.kill(outer, no_restart=True)
+    finally:
+        del cycle
+        gc.enable()
+
+
 def test_bounded_keeps_at_most_the_limit_in_flight_also_across_threads(ray_local):
     import ray
 

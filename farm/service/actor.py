@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import importlib
 import re
+import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import ray
@@ -23,7 +25,7 @@ from farm.runtime import NAMESPACE
 from farm.service.lookup import ServiceLookup
 from farm.service.store import check_store
 
-__all__ = ["SERVICE_NAME", "CaptureTimeService", "get_service", "project_error_of"]
+__all__ = ["SERVICE_NAME", "CaptureTimeService", "get_service", "project_error_of", "service_of"]
 
 SERVICE_NAME = "capture-time-service"
 MAX_CONCURRENT_ASKS = 64
@@ -110,3 +112,28 @@ def get_service(store_path, *, name: str = SERVICE_NAME, max_shards_in_flight: i
         raise ConfigError(f"store: the capture-time service {name!r} running on this cluster serves {served}, "
                           f"not {wanted}; name that store, or stop that service", field="store")
     return actor
+
+
+STOP_TIMEOUT_S = 60.0
+
+
+@contextmanager
+def service_of(store_path, *, name: str = SERVICE_NAME):
+    """get_service for the duration of the block; a service this block made is stopped at its
+    end, and its name is free again before the block returns.
+
+    Without this, the actor, a named actor that is not detached, lives until Ray collects its
+    last handle: at once, or at the driver's next garbage collection when a handle sits in a
+    reference cycle. Until then a later block in the same driver that names another store
+    finds the old actor under that name, and get_service refuses it. A service that was
+    running before the block (an outer block's) is left running."""
+    made = not _running(name)
+    actor = get_service(store_path, name=name)
+    try:
+        yield actor
+    finally:
+        if made:
+            ray.kill(actor, no_restart=True)
+            deadline = time.monotonic() + STOP_TIMEOUT_S
+            while _running(name) and time.monotonic() < deadline:
+                time.sleep(0.05)

@@ -189,8 +189,9 @@ def open_client(settings: ServiceSettings, *, mode: str = "ray", store, address:
 
     mode "ray": joins the cluster at address (or starts a local Ray, farm.runtime.ray_cluster)
     and uses the named service actor of `store` on it, which must serve that store;
-    mode "local": an in-process lookup over `store`. The cluster and the in-process store
-    are released at the block's end. A store no service can use (a folder, read-only,
+    mode "local": an in-process lookup over `store`. The cluster, the service actor if this
+    block made it (farm.service.actor.service_of) and the in-process store are released at
+    the block's end. A store no service can use (a folder, read-only,
     damaged) is refused in one line before any work (before Ray starts, when it is local).
     """
     if mode == "local":
@@ -208,6 +209,7 @@ def open_client(settings: ServiceSettings, *, mode: str = "ray", store, address:
     if starts_local_ray(address):
         check_store(store)  # a new Ray on this machine, its store here: a folder, read-only or damaged, before Ray
     with ray_cluster(address, num_cpus=num_cpus):
-        from farm.service.actor import get_service
+        from farm.service.actor import service_of
 
-        yield CaptureTimeClient(settings, service=get_service(Path(store)))
+        with service_of(Path(store)) as service:
+            yield CaptureTimeClient(settings, service=service)
