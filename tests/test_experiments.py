@@ -179,8 +179,8 @@ def cold(ray_local, tmp_path_factory):
 
 
 def test_every_trial_is_an_mlflow_run_whose_metrics_are_its_trials_csv_row(cold):
-    """The smoke grid is tracked (tracking.mlflow, an SQLite store): Ray Tune's MLflow logger
-    made one FINISHED run per trial in the experiment's MLflow experiment, its params the trial's
+    """The smoke grid is tracked (tracking.mlflow, an SQLite store): the MLflow logger
+    (farm.studies.experiments.tracking.TrialRuns) made one FINISHED run per trial in the experiment's MLflow experiment, its params the trial's
     config, its last metrics the trial's row of trials.csv, its steps the training's; the rerun
     (test_smoke_grid_then_a_rerun_trains_nothing) trains nothing and logs no run."""
     from mlflow.tracking import MlflowClient
@@ -429,7 +429,8 @@ def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, t
     from farm.studies.experiments import load_experiment_config, plan, trials_table
 
     _, cold_trials, _, store, _, _ = cold
-    path = kill_config(tmp_path, store)
+    mlflow_db = tmp_path / "mlflow.db"
+    path = kill_config(tmp_path, store, tracking={"mlflow": {"tracking_uri": str(mlflow_db)}})
     out = tmp_path / "exp"
     command = [sys.executable, "-m", "farm.cli", "experiments", str(path), "--out", str(out), "--quiet",
                "--address", ray.get_runtime_context().gcs_address]
@@ -465,3 +466,12 @@ def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, t
     trials = trials_table(plan(load_experiment_config(path)), out)  # trials.csv's rows, from result.json
     assert trials["trial"].tolist() == ["p0_s0", "p0_s1"] and (out / "trials.csv").exists()
     assert_rows_equal_cold(trials, cold_trials)
+    # tracked: the resumed trial went on logging into the MLflow run it had before the kill
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{mlflow_db}")
+    runs = client.search_runs([client.get_experiment_by_name("smoke").experiment_id])
+    assert sorted(r.info.run_name for r in runs) == ["p0_s0", "p0_s1"]
+    again = next(r for r in runs if r.info.run_name == unfinished)
+    steps = sorted(m.step for m in client.get_metric_history(again.info.run_id, "timesteps_total"))
+    assert again.info.status == "FINISHED" and steps[0] < resumed_from and steps[-1] == 300

@@ -3,8 +3,9 @@ store, read back with MLflow's own client: the run's params, its evaluation curv
 metrics and artifacts are the run folder's (metrics.json, evaluations.npz, model.zip); a resume
 goes on logging into the same MLflow run; tracking changes no number; a store MLflow cannot
 open is one line before anything is written. `farm experiments`' MLflow runs (one per trial,
-through Ray Tune's MLflowLoggerCallback) are checked in tests/test_experiments.py, on its
-tracked smoke grid."""
+through farm.studies.experiments.tracking.TrialRuns) are checked in tests/test_experiments.py,
+on its tracked smoke grid and its tracked driver-killed run; here, what TrialRuns logs of a
+report."""
 
 import json
 from pathlib import Path
@@ -136,3 +137,17 @@ def test_a_local_path_becomes_a_store_uri_and_params_are_flat(tmp_path):
     flat = flat_params({"env": {"grid_size": 3, "seed": None}, "net": [400, 300], "algo": "td3", "long": "x" * 7000})
     assert flat["env.grid_size"] == "3" and flat["env.seed"] == "null" and flat["net"] == "[400, 300]"
     assert flat["algo"] == "td3" and len(flat["long"]) == 6000
+
+
+def test_a_tune_report_s_numbers_are_its_metrics_flattened_without_its_config():
+    from farm.studies.experiments.tracking import flat_slash, report_metrics
+
+    assert flat_slash({"a": {"b": 1, "c": {"d": "x"}}, "e": {}, "f": [1]}) == {"a/b": 1, "a/c/d": "x", "e": {}, "f": [1]}
+    report = {"timesteps_total": 300, "done": True, "eval": {"return": np.float32(1.5), "note": "best"},
+              "phase": "done", "config": {"spec": {"seed": 0}}, "missing": None, "curve": [1.0, 2.0],
+              "ratio": float("nan"), "count": np.int64(7), "flag": np.bool_(False)}
+    metrics = report_metrics(report)
+    assert set(metrics) == {"timesteps_total", "done", "eval/return", "ratio", "count", "flag"}
+    assert metrics["timesteps_total"] == 300.0 and metrics["done"] == 1.0 and metrics["eval/return"] == 1.5
+    assert np.isnan(metrics["ratio"]) and metrics["count"] == 7.0 and metrics["flag"] == 0.0
+    assert all(type(v) is float for v in metrics.values())

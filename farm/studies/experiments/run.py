@@ -59,11 +59,11 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
     if not is_uri(out):
         check_writable_folder(out, "out")  # before Ray, the lattice and the trials
     the_plan = plan(config, source)
-    tracker = _mlflow_callback(config, the_plan.name)  # before Ray starts: a store MLflow refuses is one line
+    storage = ExperimentStorage(out)
+    tracker = _mlflow_callback(config, the_plan.name, storage)  # before Ray starts: a store MLflow refuses is one line
     if not warm:
         for t in the_plan.trials:
             t.config["service"]["warm_lattice"] = False
-    storage = ExperimentStorage(out)
     storage.check_for(the_plan.digest)
     storage.write_manifest({"name": the_plan.name, "digest": the_plan.digest,
                             "config": config.model_dump(mode="json", exclude_unset=True), "store": the_plan.store,
@@ -131,23 +131,22 @@ def _write_claims_and_curves(out: Path) -> dict:
             "learning_curves": write_learning_curves(out)}
 
 
-def _mlflow_callback(config: ExperimentConfig, name: str):
-    """Ray Tune's MLflowLoggerCallback for config.tracking.mlflow (None when it is not set):
-    every trial an MLflow run of the experiment named there (default: the experiment's name),
-    created here first (farm.core.tracking.mlflow_experiment: an SQLite store keeps its
-    artifacts beside its database), its params the trial's spec, its metrics what the trial
-    reports (at step= its timesteps). ConfigError (one line) when MLflow cannot open the store."""
+def _mlflow_callback(config: ExperimentConfig, name: str, storage: ExperimentStorage):
+    """The MLflow logger (farm.studies.experiments.tracking.TrialRuns) for config.tracking.mlflow
+    (None when it is not set): every trial an MLflow run of the experiment named there (default:
+    the experiment's name), made here first (farm.core.tracking.mlflow_experiment: an SQLite
+    store keeps its artifacts beside its database). ConfigError (one line) when MLflow cannot
+    open the store."""
     params = config.tracking.mlflow
     if params is None:
         return None
-    from ray.air.integrations.mlflow import MLflowLoggerCallback
-
     from farm.core.tracking import mlflow_client, mlflow_experiment
+    from farm.studies.experiments.tracking import TrialRuns
 
     experiment = params.experiment or name
     mlflow_experiment(mlflow_client(params), params, experiment)
-    return MLflowLoggerCallback(tracking_uri=params.tracking_uri, experiment_name=experiment,
-                                tags={"farm.kind": "experiment", "farm.experiment": name})
+    return TrialRuns(params, experiment, storage.uri.split("?")[0],
+                     tags={"farm.kind": "experiment", "farm.experiment": name})
 
 
 def _fit(plan: Plan, storage: ExperimentStorage, workers: int, share: float, callbacks: list):
