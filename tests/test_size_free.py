@@ -226,3 +226,43 @@ def test_the_games_fidelity_shows_its_steps_and_games_per_second(tmp_path, capsy
     _, _, quiet = evaluate_fidelity(config, policies, client, 2, 1000, in_process=True, show_progress=False)
     assert capsys.readouterr().err == "" and quiet["games"] == live["games"]
     client.close()
+
+
+def test_lateral_summaries_tell_left_from_right_in_a_row_beyond_the_convolutions():
+    """Three 3 x 3 layers see 3 cells to each side. On a 24 x 24 map, intruders 6 cells left of
+    cell (12, 12) and intruders 5 cells right of it are beyond what it sees, and the cells they
+    reach are beyond the edges' reach (the convolutions are translation-equivariant there):
+    without `lateral` they reach its features only through the row's maximum, the same
+    features to the bit; with it through the left and right maxima too, and differently."""
+    from farm.alloc.training.cell_policy import CellNet
+
+    n = 24
+
+    def features(lateral: bool, column: int) -> torch.Tensor:
+        torch.manual_seed(0)
+        net = CellNet(n, 8, 3, teams=(10, 5), positions=False, lateral=lateral)
+        obs = torch.zeros(1, 2 * n * n)
+        obs[0, n * n + 12 * n + column] = 0.4  # intruders at (12, column)
+        with torch.no_grad():
+            return net.actor(obs, net.geometry)[0, :, 12, 12]
+
+    assert torch.equal(features(False, 6), features(False, 17))
+    assert not torch.allclose(features(True, 6), features(True, 17), atol=1e-6)
+
+
+def test_a_lateral_policy_keeps_its_weights_and_option_on_another_map():
+    import gymnasium as gym
+
+    from farm.alloc.training.cell_policy import CellPolicy, resized
+
+    n = 4
+    policy = CellPolicy(gym.spaces.Box(0.0, 1.0, (2 * n * n,), np.float32),
+                        gym.spaces.Box(-1.0, 1.0, (n_actions(n),), np.float32), lambda _: 1e-3, channels=8, layers=2,
+                        teams=(10, 5), lateral=True)
+    config = SCENARIOS["theatre_16x16"].config()
+    other = resized(policy, config)
+    assert other.lateral and other.grid == 16
+    mine = {k: v for k, v in policy.state_dict().items() if k != "log_std"}
+    assert any(".left." in k for k in mine) and all(torch.equal(other.state_dict()[k], v) for k, v in mine.items())
+    action, _ = other.predict(np.full(2 * 16 * 16, 0.01, np.float32), deterministic=True)
+    assert action.shape == (n_actions(16),) and np.all(np.abs(action) <= 1)

@@ -18,7 +18,10 @@ computes them the way they are defined, per cell, with weights that do not depen
   the maximum over the rows above it and over the rows below it (where to send defenders, up or
   down, on a map of any height), and the maximum over the map. Maxima, not means: a mean over a
   row of N cells dilutes one cell's signal by N, so what a network learnt on an 8 x 8 map would
-  read four times weaker on a 32 x 32 one; a maximum reads the same on any map;
+  read four times weaker on a 32 x 32 one; a maximum reads the same on any map. With `lateral`,
+  two more: the maximum over the cells to the left of the cell in its row and over those to its
+  right (where to send defenders along the row, however far: without them the three 3 x 3
+  layers see 3 cells to each side, most of an 8 x 8 row but a tenth of a 32 x 32 one);
 - the actor: a 1 x 1 convolution to 9 scores per cell, one per move (d_row, d_col) in row-major
   order, of which each cell's feasible moves are gathered in the action vector's order: the
   moves off the map are masked by never being in the action;
@@ -73,9 +76,9 @@ class _Trunk(nn.Module):
     """(B, 2 N^2) observations of a map (its MapGeometry) -> (B, channels, N, N) per-cell
     features (the module doc)."""
 
-    def __init__(self, channels: int, layers: int, positions: bool = True):
+    def __init__(self, channels: int, layers: int, positions: bool = True, lateral: bool = False):
         super().__init__()
-        self.positions = positions
+        self.positions, self.lateral = positions, lateral
         inputs = 7 if positions else 5
         self.convs = nn.ModuleList(nn.Conv2d(inputs if i == 0 else channels, channels, 3, padding=1)
                                    for i in range(layers))
@@ -83,6 +86,9 @@ class _Trunk(nn.Module):
         self.above = nn.ModuleList(nn.Conv1d(channels, channels, 1, bias=False) for _ in range(layers))
         self.below = nn.ModuleList(nn.Conv1d(channels, channels, 1, bias=False) for _ in range(layers))
         self.top = nn.ModuleList(nn.Linear(channels, channels, bias=False) for _ in range(layers))
+        if lateral:
+            self.left = nn.ModuleList(nn.Conv2d(channels, channels, 1, bias=False) for _ in range(layers))
+            self.right = nn.ModuleList(nn.Conv2d(channels, channels, 1, bias=False) for _ in range(layers))
 
     def forward(self, obs: torch.Tensor, geometry: MapGeometry) -> torch.Tensor:
         n = geometry.n
@@ -91,13 +97,18 @@ class _Trunk(nn.Module):
         place = geometry.place if self.positions else geometry.place[:, :1]
         h = torch.cat([torch.log1p(counts) / COUNT_SCALE, torch.log1p(rows) / COUNT_SCALE,
                        place.expand(len(obs), -1, -1, -1)], dim=1)
-        for conv, row, above, below, top in zip(self.convs, self.row, self.above, self.below, self.top):
+        for i, (conv, row, above, below, top) in enumerate(zip(self.convs, self.row, self.above, self.below, self.top)):
             h = conv(h)
             r = h.amax(dim=3)  # (B, C, N) each row's maximum
             low = torch.full_like(r[:, :, :1], -1e4)  # "nothing there": above the top row, below the bottom one
             before = torch.cat([low, torch.cummax(r, dim=2).values[:, :, :-1]], dim=2)  # over the rows above
             after = torch.cat([torch.cummax(r.flip(2), dim=2).values.flip(2)[:, :, 1:], low], dim=2)  # below
             summary = (row(r) + above(torch.relu(before)) + below(torch.relu(after)))[..., None]
+            if self.lateral:
+                edge = torch.full_like(h[..., :1], -1e4)
+                left = torch.cat([edge, torch.cummax(h, dim=3).values[..., :-1]], dim=3)  # the cells to the left
+                right = torch.cat([torch.cummax(h.flip(3), dim=3).values.flip(3)[..., 1:], edge], dim=3)
+                summary = summary + self.left[i](torch.relu(left)) + self.right[i](torch.relu(right))
             h = torch.relu(h + summary + top(h.amax(dim=(2, 3)))[:, :, None, None])
         return h
 
@@ -107,11 +118,12 @@ class CellNet(nn.Module):
     forward_critic (B, 2 channels) pooled features, from (B, 2 N^2) float32 observations of
     the map it is on (use(); first the map of n and teams). Its parameters fit any map."""
 
-    def __init__(self, n: int, channels: int, layers: int, teams: tuple[int, int] = (1, 1), positions: bool = True):
+    def __init__(self, n: int, channels: int, layers: int, teams: tuple[int, int] = (1, 1), positions: bool = True,
+                 lateral: bool = False):
         super().__init__()
-        self.actor = _Trunk(channels, layers, positions)
+        self.actor = _Trunk(channels, layers, positions, lateral)
         self.scores = nn.Conv2d(channels, 9, 1)
-        self.critic = _Trunk(channels, layers, positions)
+        self.critic = _Trunk(channels, layers, positions, lateral)
         self.latent_dim_vf = 2 * channels
         self._maps: dict[tuple, MapGeometry] = {}
         self.use(n, teams)
@@ -142,14 +154,14 @@ class CellNet(nn.Module):
 
 class CellPolicy(ActorCriticPolicy):
     """PPO's policy of per-cell shared weights (the module doc). channels: int >= 1, layers:
-    int >= 1; teams: (n_defenders, n_intruders) of the env; the other arguments are
-    ActorCriticPolicy's."""
+    int >= 1; teams: (n_defenders, n_intruders) of the env; positions, lateral: the module doc's
+    options; the other arguments are ActorCriticPolicy's."""
 
     def __init__(self, observation_space, action_space, lr_schedule, channels: int = 32, layers: int = 3,
-                 teams: tuple[int, int] = (1, 1), positions: bool = True, **kwargs):
+                 teams: tuple[int, int] = (1, 1), positions: bool = True, lateral: bool = False, **kwargs):
         self.grid = int(round(np.sqrt(observation_space.shape[0] / 2)))
         self.channels, self.layers, self.teams = channels, layers, (int(teams[0]), int(teams[1]))
-        self.positions = positions
+        self.positions, self.lateral = positions, lateral
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
         self.action_net = nn.Identity()  # the scores are the means
         nn.init.orthogonal_(self.mlp_extractor.scores.weight, gain=0.01)  # as SB3 starts its action net
@@ -157,7 +169,7 @@ class CellPolicy(ActorCriticPolicy):
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def _build_mlp_extractor(self) -> None:
-        self.mlp_extractor = CellNet(self.grid, self.channels, self.layers, self.teams, self.positions)
+        self.mlp_extractor = CellNet(self.grid, self.channels, self.layers, self.teams, self.positions, self.lateral)
 
 
 def resized(policy: CellPolicy, config) -> CellPolicy:
@@ -178,7 +190,8 @@ def resized(policy: CellPolicy, config) -> CellPolicy:
     # no orthogonal initialisation, whose QR of SB3's (A, A) action net (replaced by the identity)
     # took 6 s on 32 x 32 (A = 8,836).
     other = CellPolicy(obs_space, act_space, lambda _: 0.0, channels=policy.channels, layers=policy.layers,
-                       teams=teams, positions=policy.positions, ortho_init=False)
+                       teams=teams, positions=policy.positions, lateral=policy.lateral,
+                       ortho_init=False)
     state = policy.state_dict()
     state["log_std"] = torch.full((n_actions(n),), float(state["log_std"].mean()))
     other.load_state_dict(state)
