@@ -140,9 +140,12 @@ def test_a_local_path_becomes_a_store_uri_and_params_are_flat(tmp_path):
 
 
 def test_a_tune_report_s_numbers_are_its_metrics_flattened_without_its_config():
-    from farm.studies.experiments.tracking import flat_slash, report_metrics
+    from farm.core.tracking import flattened
+    from farm.studies.experiments.tracking import report_metrics
 
-    assert flat_slash({"a": {"b": 1, "c": {"d": "x"}}, "e": {}, "f": [1]}) == {"a/b": 1, "a/c/d": "x", "e": {}, "f": [1]}
+    nested = {"a": {"b": 1, "c": {"d": "x"}}, "e": {}, "f": [1]}
+    assert flattened(nested, "/") == {"a/b": 1, "a/c/d": "x", "e": {}, "f": [1]}
+    assert flattened(nested) == {"a.b": 1, "a.c.d": "x", "e": {}, "f": [1]}
     report = {"timesteps_total": 300, "done": True, "eval": {"return": np.float32(1.5), "note": "best"},
               "phase": "done", "config": {"spec": {"seed": 0}}, "missing": None, "curve": [1.0, 2.0],
               "ratio": float("nan"), "count": np.int64(7), "flag": np.bool_(False)}
@@ -151,3 +154,55 @@ def test_a_tune_report_s_numbers_are_its_metrics_flattened_without_its_config():
     assert metrics["timesteps_total"] == 300.0 and metrics["done"] == 1.0 and metrics["eval/return"] == 1.5
     assert np.isnan(metrics["ratio"]) and metrics["count"] == 7.0 and metrics["flag"] == 0.0
     assert all(type(v) is float for v in metrics.values())
+
+
+def test_a_trial_started_again_after_a_restore_reopens_its_run_even_finished_and_a_new_experiment_opens_its_own(tmp_path):
+    """The order CI met (stop 44): Tune ended p0_s0 (its run FINISHED), the driver was killed before
+    Tune saved that, and the restored experiment (its callbacks unpickled from Tune's state)
+    started p0_s0 again. That reopens p0_s0's run; it does not open a second. An experiment made
+    again in the same storage (a new TrialRuns: a new instance) opens runs of its own."""
+    import pickle
+
+    from mlflow.tracking import MlflowClient
+    from ray.tune.experiment import Trial
+
+    from farm.core.tracking import MlflowParams, mlflow_client, mlflow_experiment
+    from farm.studies.experiments.tracking import TrialRuns
+
+    params = MlflowParams(tracking_uri=str(tmp_path / "mlflow.db"))
+    mlflow_experiment(mlflow_client(params), params, "smoke")
+
+    def trial(name: str) -> Trial:
+        made = Trial("run_trial", config={"spec": {"seed": int(name[-1])}}, stub=True)
+        made.custom_trial_name = name
+        return made
+
+    storage = str(tmp_path / "exp")
+    first = TrialRuns(params, "smoke", storage, tags={"farm.kind": "experiment"})
+    done, going = trial("p0_s0"), trial("p0_s1")
+    for t in (done, going):
+        first.log_trial_start(t)
+        first.log_trial_result(1, t, {"timesteps_total": 150})
+    first.log_trial_result(2, done, {"timesteps_total": 300})
+    first.log_trial_end(done)
+
+    restored = pickle.loads(pickle.dumps(first))  # as Tune's restore has it: no client, no run map
+    for t in (done, going):
+        restored.log_trial_start(t)
+        restored.log_trial_result(2, t, {"timesteps_total": 300})
+        restored.log_trial_end(t)
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
+    experiment_id = client.get_experiment_by_name("smoke").experiment_id
+    runs = client.search_runs([experiment_id])
+    assert sorted(r.info.run_name for r in runs) == ["p0_s0", "p0_s1"]
+    assert all(r.info.status == "FINISHED" for r in runs)
+    for r in runs:
+        steps = sorted(m.step for m in client.get_metric_history(r.info.run_id, "timesteps_total"))
+        assert steps == {"p0_s0": [150, 300, 300], "p0_s1": [150, 300]}[r.info.run_name]
+        assert r.data.params["spec/seed"] == r.info.run_name[-1]
+
+    again = TrialRuns(params, "smoke", storage, tags={"farm.kind": "experiment"})  # the folder deleted, made again
+    again.log_trial_start(trial("p0_s0"))
+    again.log_trial_end(trial("p0_s0"))
+    assert sorted(r.info.run_name for r in client.search_runs([experiment_id])) == ["p0_s0", "p0_s0", "p0_s1"]

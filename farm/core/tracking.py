@@ -27,7 +27,7 @@ from pydantic import Field, field_validator
 from farm.core.config import Strict
 from farm.core.errors import ConfigError
 
-__all__ = ["MlflowParams", "TrackingParams", "flat_params", "mlflow_client", "mlflow_experiment", "URI_FIELD"]
+__all__ = ["MlflowParams", "TrackingParams", "flat_params", "flattened", "param_text", "mlflow_client", "mlflow_experiment", "URI_FIELD"]
 
 URI_FIELD = "tracking.mlflow.tracking_uri"
 _SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]+:")  # two letters at least: C:\ is a Windows path, not a scheme
@@ -117,18 +117,26 @@ def _first_sentence(e: Exception) -> str:
     return text.split(". ")[0].rstrip(".")[:300] or type(e).__name__
 
 
-def _flat(value, prefix: str, out: dict) -> None:
-    if isinstance(value, dict) and value:
-        for key, item in value.items():
-            _flat(item, f"{prefix}.{key}" if prefix else str(key), out)
-    else:
-        text = value if isinstance(value, str) else json.dumps(value)
-        out[prefix] = text if len(text) <= MAX_PARAM_LENGTH else text[: MAX_PARAM_LENGTH - 3] + "..."
+def flattened(values: dict, sep: str = ".", prefix: str = "") -> dict:
+    """Nested mappings flattened by sep ({"a": {"b": 1}} -> {"a.b": 1}), the leaves as they are
+    (an empty mapping is a leaf)."""
+    out = {}
+    for key, value in values.items():
+        name = f"{prefix}{sep}{key}" if prefix else str(key)
+        if isinstance(value, dict) and value:
+            out.update(flattened(value, sep, name))
+        else:
+            out[name] = value
+    return out
+
+
+def param_text(text: str) -> str:
+    """text cut to MLflow's longest param value (ending in "..." when cut)."""
+    return text if len(text) <= MAX_PARAM_LENGTH else text[: MAX_PARAM_LENGTH - 3] + "..."
 
 
 def flat_params(values: dict) -> dict[str, str]:
     """Plain values (a config's, as JSON) as MLflow params: nested mappings by dotted key
     (env.grid_size), every leaf as text (strings as they are, others as JSON: null, [400, 300])."""
-    out: dict[str, str] = {}
-    _flat(values, "", out)
-    return out
+    return {key: param_text(value if isinstance(value, str) else json.dumps(value))
+            for key, value in flattened(values).items()}

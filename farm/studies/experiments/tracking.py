@@ -2,7 +2,9 @@
 LoggerCallback (Tune's public callback API) writing through MLflow's public client.
 
 Every trial is one MLflow run, named after the trial (`p0_s1`) and tagged with it
-(`farm.trial`) and with the experiment's storage (`farm.storage`). Its params are the trial's
+(`farm.trial`), with the experiment's storage (`farm.storage`) and with the experiment's
+instance (`farm.instance`, drawn when the experiment starts and kept in Tune's state with this
+callback, so an experiment made again in the same folder logs into runs of its own). Its params are the trial's
 config flattened by "/" (`spec/trial/seed`, `spec/trial/config/env/c_capture`, ...), its
 metrics each report's numbers (bools as 0/1, the config left out: it is in the params) at
 step = the report's `timesteps_total`, else its `training_iteration`.
@@ -12,7 +14,9 @@ call of its own, which on an SQLite store is a transaction each, about 1 s a rep
 60 numbers, spent in Tune's controller loop while the trials wait for it; TrialRuns writes a
 report in one `log_batch`. It also finds a trial's run again: a trial that runs again after
 the driver was restarted (`farm experiments` run again on the same folder) goes on logging
-into the run it had, found by its tags, where Ray's logger, whose trial-to-run map lives only
+into the run it had, found by its tags, whatever that run's status (a trial that had finished
+when the driver was killed, before Tune saved its state, is started again by Tune's restore and
+returns its result at once: it reopens its run, it does not open a second), where Ray's logger, whose trial-to-run map lives only
 in the driver's memory, opened a second one. It changes no process-wide MLflow setting.
 Tune saves its callbacks with the experiment's state, so TrialRuns pickles without its client.
 """
@@ -21,52 +25,40 @@ from __future__ import annotations
 
 import numbers
 import time
+import uuid
 
 import numpy as np
 
 from ray.tune.logger import LoggerCallback
 
-from farm.core.tracking import MAX_PARAM_LENGTH, MlflowParams, mlflow_client, mlflow_experiment
+from farm.core.tracking import MlflowParams, flattened, mlflow_client, mlflow_experiment, param_text
 
-__all__ = ["TrialRuns", "flat_slash", "report_metrics"]
+__all__ = ["TrialRuns", "report_metrics"]
 
 _MAX_PARAMS = 100  # MLflow's most params in one log_batch
 _MAX_METRICS = 1000  # and most metrics
 
 
-def flat_slash(values: dict, prefix: str = "") -> dict:
-    """Nested mappings flattened by "/" ({"a": {"b": 1}} -> {"a/b": 1}), leaves as they are."""
-    out = {}
-    for key, value in values.items():
-        name = f"{prefix}/{key}" if prefix else str(key)
-        if isinstance(value, dict) and value:
-            out.update(flat_slash(value, name))
-        else:
-            out[name] = value
-    return out
-
-
 def report_metrics(result: dict) -> dict[str, float]:
     """A Tune report's numbers as MLflow metrics: flattened by "/", bools as 0/1, its config
     and what is not a real number (text, None, lists) left out."""
-    return {key: float(value) for key, value in flat_slash({k: v for k, v in result.items() if k != "config"}).items()
+    return {key: float(value) for key, value in flattened({k: v for k, v in result.items() if k != "config"}, "/").items()
             if isinstance(value, (numbers.Real, np.bool_))}
-
-
-def _param_text(value) -> str:
-    text = str(value)
-    return text if len(text) <= MAX_PARAM_LENGTH else text[: MAX_PARAM_LENGTH - 3] + "..."
 
 
 class TrialRuns(LoggerCallback):
     """One MLflow run a trial (the module doc). params: where (MlflowParams); experiment: the
     MLflow experiment's name (made by the caller, farm.core.tracking.mlflow_experiment, before
     Ray starts); storage: the experiment's storage (its folder or URI), a tag that tells this
-    experiment's runs from another's of the same trial names; tags: added to every run."""
+    experiment's runs from another's of the same trial names; tags: added to every run. Its
+    instance (a random hex id, the `farm.instance` tag) tells this experiment's runs from those of
+    an earlier one made in the same storage and since deleted; a restored experiment has it back
+    with this callback from Tune's state."""
 
     def __init__(self, params: MlflowParams, experiment: str, storage: str, tags: dict[str, str]):
         self.params, self.experiment, self.storage = params, experiment, storage
-        self.tags = {**tags, "farm.storage": storage}
+        self.instance = uuid.uuid4().hex
+        self.tags = {**tags, "farm.storage": storage, "farm.instance": self.instance}
         self._client = None
         self._experiment_id: str | None = None
         self._runs: dict[str, str] = {}  # trial name -> MLflow run id
@@ -83,16 +75,18 @@ class TrialRuns(LoggerCallback):
         return self._client
 
     def _found(self, name: str):
-        """This experiment's run of the trial, not finished, when there is one (a trial run again).
-        Trial names are the plan's keys (p0_s1): safe in a filter; the storage is compared here."""
-        runs = self.client.search_runs([self._experiment_id], filter_string=f"tags.`farm.trial` = '{name}'",
-                                       order_by=["attributes.start_time DESC"])
-        mine = [r for r in runs if r.data.tags.get("farm.storage") == self.storage and r.info.status != "FINISHED"]
+        """This experiment's run of the trial, whatever its status, when there is one (a trial run
+        again). Trial names are the plan's keys (p0_s1) and the instance is hex: safe in a filter;
+        the storage is compared here."""
+        runs = self.client.search_runs(
+            [self._experiment_id], filter_string=f"tags.`farm.trial` = '{name}' and tags.`farm.instance` = '{self.instance}'",
+            order_by=["attributes.start_time DESC"])
+        mine = [r for r in runs if r.data.tags.get("farm.storage") == self.storage]
         return mine[0] if mine else None
 
     def log_trial_start(self, trial) -> None:
-        """The trial's run: its unfinished one of this experiment (a trial run again), else a
-        new one; the config's params it has not logged yet, in batches."""
+        """The trial's run: its run of this experiment (a trial run again, reopened), else a new
+        one; the config's params it has not logged yet, in batches."""
         from mlflow.entities import Param
 
         name = str(trial)
@@ -106,7 +100,7 @@ class TrialRuns(LoggerCallback):
             self.client.update_run(run.info.run_id, status="RUNNING")
             logged = run.data.params
         self._runs[name] = run.info.run_id
-        new = [Param(k, _param_text(v)) for k, v in flat_slash(trial.config).items() if k not in logged]
+        new = [Param(k, param_text(str(v))) for k, v in flattened(trial.config, "/").items() if k not in logged]
         for i in range(0, len(new), _MAX_PARAMS):
             self.client.log_batch(run.info.run_id, params=new[i:i + _MAX_PARAMS])
 
