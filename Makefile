@@ -82,11 +82,12 @@ experiments-learners-near: $(STAMP)
 	$(VENV)/bin/farm experiments configs/experiments/learners_near.yaml --out results/experiments/learners_near
 	$(VENV)/bin/farm report results
 
-# The size-free learner (configs/train/size_free.yaml) over 3 seeds; then its runs on the larger theatres.
+# The size-free learner (configs/train/size_free_transport.yaml: DAgger from the transport planner on maps
+# of at most 8 x 8) over 3 seeds; then its runs on the larger theatres.
 experiments-size-free: $(STAMP)
-	$(VENV)/bin/farm experiments configs/experiments/size_free.yaml --out results/experiments/size_free
+	$(VENV)/bin/farm experiments configs/experiments/size_free_transport.yaml --out results/experiments/size_free_transport
 	for s in 0 1 2; do for m in theatre_16x16 theatre_32x32; do \
-	  $(VENV)/bin/farm eval results/experiments/size_free/trials/p0_s$$s/run --scenario $$m --references none; done; done
+	  $(VENV)/bin/farm eval results/experiments/size_free_transport/trials/p0_s$$s/run --scenario $$m --references none; done; done
 	$(VENV)/bin/farm report results
 
 docs: $(STAMP)

@@ -5,14 +5,14 @@ Part 1, time per step. For each of outnumbered_3x3, theatre_8x8, theatre_16x16 a
 (farm.alloc.scenarios), the states of --episodes seeded episodes (seeds 1000..) played by the
 intercept planner, --states of them evenly spaced, then every allocator's
 predict(obs, deterministic=True) on those same observations, timed one by one, in turn:
-  stay_at_base, greedy_nearest, spread_evenly, intercept, mmr, receding_horizon: the registry's
+  stay_at_base, greedy_nearest, spread_evenly, intercept, transport, mmr, receding_horizon: the registry's
       baselines and planners (default options);
   ppo (CellPolicy): the size-free learner, a PPO model built exactly as
-      configs/train/size_free.yaml builds it (on theatre_8x8), its weights moved to each map by
+      configs/train/size_free_transport.yaml builds it (on theatre_8x8), its weights moved to each map by
       the registry's learned entry (make_policy("ppo", config, policy=...): cell_policy.resized),
       as `farm eval RUN --scenario NAME` does; --run RUN times a trained run's instead. A step's
       time depends on the architecture and the map, not on the weights. Its actions go through
-      the level repair when size_free.yaml (or the run) says `repair: levels`, as they do in
+      the level repair when size_free_transport.yaml (or the run) says `repair: levels`, as they do in
       `farm eval`;
   ppo network: the same network alone, without the repair.
 ms/step is CPU ms per predict(), mean over the states, best of --repeats passes, after one
@@ -63,8 +63,8 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__)
 import numpy as np  # noqa: E402
 
 MAPS = ("outnumbered_3x3", "theatre_8x8", "theatre_16x16", "theatre_32x32")
-REFERENCES = ("stay_at_base", "greedy_nearest", "spread_evenly", "intercept", "mmr", "receding_horizon")
-CONFIG = Path(__file__).resolve().parent.parent / "configs" / "train" / "size_free.yaml"
+REFERENCES = ("stay_at_base", "greedy_nearest", "spread_evenly", "intercept", "transport", "mmr", "receding_horizon")
+CONFIG = Path(__file__).resolve().parent.parent / "configs" / "train" / "size_free_transport.yaml"
 STEP_TARGET = 1 / 20  # the size-free learner's ms/step over receding_horizon's, at most
 LIVE_TARGET = 1.8  # games/s on 2 workers over 1, at least
 
@@ -89,7 +89,7 @@ def states(config, client, episodes: int, keep: int) -> list[np.ndarray]:
 
 
 def size_free_policy(client, run: str | None):
-    """The size-free learner's policy: a trained run's, or an untrained one built as size_free.yaml builds it."""
+    """The size-free learner's policy: a trained run's, or an untrained one built as size_free_transport.yaml builds it."""
     if run is not None:
         from farm.alloc.policies.learned import load_model
 
@@ -148,7 +148,7 @@ def step_times(a) -> None:
     client.close()
     names = [*REFERENCES, "ppo", "ppo network"]
     print(f"\nCPU ms per predict(obs), mean over {a.states} states of intercept's episodes, best of {a.repeats}; "
-          f"ppo: CellPolicy ({'run ' + a.run if a.run else 'untrained, as size_free.yaml builds it'})")
+          f"ppo: CellPolicy ({'run ' + a.run if a.run else 'untrained, as size_free_transport.yaml builds it'})")
     print(f"{'allocator':<18}" + "".join(f"{m:>17}" for m in MAPS))
     for p in names:
         print(f"{p:<18}" + "".join(f"{table[m][p]:>17.3f}" for m in MAPS))

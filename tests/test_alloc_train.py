@@ -68,10 +68,10 @@ def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_p
     assert r.returncode == 0, r.stderr[-2000:]
     table = pd.read_csv(run / "eval_table.csv")
     assert list(table["policy"]) == ["td3", "stay_at_base", "greedy_nearest", "spread_evenly", "intercept", "mmr",
-                                     "receding_horizon"]
+                                     "receding_horizon", "transport"]
     assert {"return_mean", "return_ci95", "eliminated_mean", "breached_mean", "length_mean"} <= set(table.columns)
     assert (table["episodes"] == 3).all()
-    assert len(list(run.glob("density_*.png"))) == 7
+    assert len(list(run.glob("density_*.png"))) == 8
     assert (run / "training_curve.png").exists()
 
     r = farm_here("eval", run, "--episodes", 2, "--fidelity", "games")

@@ -21,8 +21,9 @@ from farm.alloc import AllocConfig, SwarmAllocationEnv
 from farm.alloc.policies.baselines import GreedyNearestIntruder
 from farm.alloc.model import advance_intruders, team_sizes
 from farm.alloc.policies import make_policy, policy_entry, policy_names
-from farm.alloc.policies.planners import (Intercept, MaxMarginalReturn, RecedingHorizon, action_from_probabilities,
-                                 levels)
+from farm.alloc.policies.planners import (Intercept, MaxMarginalReturn, RecedingHorizon, Transport,
+                                          action_from_probabilities, levels)
+from farm.alloc.policies.planners.transport import apportion
 from farm.core.errors import ConfigError, InputError
 from farm.service import CaptureTimeClient
 from farm.service.lookup import Lookup
@@ -214,6 +215,74 @@ def test_intercept_anticipates_the_advance():
     share = Intercept(cfg).meetings(I)[32]
     assert share[cells(8, (0, 3))[0]] == pytest.approx(0.75) and share[cells(8, (7, 3))[0]] == pytest.approx(0.25)
     assert Intercept(cfg, ties="largest").meetings(I)[32][cells(8, (0, 3))[0]] == 1.0
+
+
+def _apportion_slowly(units, weights):
+    """Hamilton's method the obvious way: each whole quota, then one unit at a time to the largest
+    remainder left (the lowest index on ties)."""
+    quota = [units * w / sum(weights) for w in weights]
+    whole = [math.floor(q) for q in quota]
+    rest = [q - f for q, f in zip(quota, whole)]
+    for _ in range(units - sum(whole)):
+        k = max(range(len(rest)), key=lambda i: (rest[i], -i))
+        whole[k], rest[k] = whole[k] + 1, -1.0
+    return whole
+
+
+@settings(max_examples=50, deadline=None)
+@given(units=st.integers(0, 40), weights=st.lists(st.sampled_from([0.0, 0.1, 0.25, 1.0, 3.0, 7.5]), min_size=1,
+                                                   max_size=12).filter(lambda w: sum(w) > 0))
+def test_transport_apportions_whole_units_by_largest_remainders(units, weights):
+    whole = apportion(units, np.array(weights))
+    assert whole.tolist() == _apportion_slowly(units, weights)
+    assert whole.sum() == units and np.all(np.abs(whole - units * np.array(weights) / sum(weights)) < 1)
+
+
+def _run_moves(planner, cfg, D, I, steps):
+    """D after `steps` steps of the planner's move probabilities, the intruders advancing (drift
+    included) and never engaged: (N^2,) float64 each step, the probabilities applied exactly."""
+    src, dst = planner.src, planner.dst
+    out = []
+    for _ in range(steps):
+        D = np.bincount(dst, weights=planner.probabilities(D, I) * D[src], minlength=len(D))
+        I = advance_intruders(I, cfg.grid_size, cfg.vertical_drift)[0]
+        out.append(D)
+    return out
+
+
+def test_transport_sends_one_defender_to_each_row_of_a_front_where_intercept_diffuses():
+    """16 x 16, 16 defenders at the base (8, 0), the same intruder mass on every row of the right-most
+    column, no drift: every row's intruders can be met 8 steps on, in column 7. Transport matches the
+    defenders to the rows once (one unit a row) and each unit travels straight: after 8 steps every
+    cell of column 7 holds exactly one defender. Intercept re-splits its mass each step among the
+    rows it can still meet as early, so the outer rows get a fraction of a defender (no game)."""
+    n = 16
+    cfg = AllocConfig(grid_size=n, n_defenders=16, n_intruders=1600, max_steps=n, team_sizes="lattice")
+    D, I = np.zeros(n * n), np.zeros(n * n)
+    D[8 * n] = 1.0
+    I[np.arange(n) * n + n - 1] = 0.5 / n
+    column_7 = np.arange(n) * n + 7
+    D8 = _run_moves(Transport(cfg), cfg, D, I, 8)[-1]
+    np.testing.assert_allclose(D8[column_7] * cfg.n_defenders, 1.0, rtol=0, atol=1e-12)
+    intercept_8 = _run_moves(Intercept(cfg), cfg, D, I, 8)[-1]
+    assert intercept_8[column_7[[0, -1]]].max() * cfg.n_defenders < 0.5
+
+
+def test_transport_keeps_order_and_follows_thinned_rows():
+    """Two intruder rows far apart (0 and 15 of 16, masses 3:1): the 8 defenders split 6:2 in one
+    step and never cross; the parts of each row meet it 8 steps on and then move with it (left a
+    column a step, still engaged every step)."""
+    n = 16
+    cfg = AllocConfig(grid_size=n, n_defenders=8, n_intruders=1600, max_steps=n, team_sizes="lattice")
+    D, I = np.zeros(n * n), np.zeros(n * n)
+    D[8 * n] = 1.0
+    I[n - 1], I[n * n - 1] = 0.3, 0.1
+    path = _run_moves(Transport(cfg), cfg, D, I, 11)
+    up, down = cells(n, (7, 1), (9, 1))
+    assert path[0][up] * 8 == pytest.approx(6.0) and path[0][down] * 8 == pytest.approx(2.0)
+    for k, col in ((8, 7), (9, 6), (11, 4)):  # met at step 8 in column 7, then escorted
+        top, bottom = cells(n, (0, col), (15, col))
+        assert path[k - 1][top] * 8 == pytest.approx(6.0) and path[k - 1][bottom] * 8 == pytest.approx(2.0)
 
 
 def test_mmr_splits_by_the_marginal_rule():
@@ -454,6 +523,10 @@ def test_planners_beat_the_swap_on_real_games(real_client):
     ("mmr", {"speed": 1}, "speed"),
     ("intercept", {"ties": "random"}, "ties"),
     ("intercept", {"horizon": 2}, "horizon"),
+    ("transport", {"power": 0}, "power"),
+    ("transport", {"power": math.inf}, "power"),
+    ("transport", {"min_count": -1}, "min_count"),
+    ("transport", {"ties": "largest"}, "ties"),
     ("subregions", {"regions": 0}, "regions"),
     ("subregions", {"regions": 4}, "regions"),  # more bands than the 3 rows
     ("subregions", {"planner": "subregions"}, "planner"),

@@ -266,3 +266,44 @@ def test_a_lateral_policy_keeps_its_weights_and_option_on_another_map():
     assert any(".left." in k for k in mine) and all(torch.equal(other.state_dict()[k], v) for k, v in mine.items())
     action, _ = other.predict(np.full(2 * 16 * 16, 0.01, np.float32), deterministic=True)
     assert action.shape == (n_actions(16),) and np.all(np.abs(action) <= 1)
+
+
+def test_balance_shares_equal_a_cell_by_cell_count_of_the_rows_above_and_below():
+    """`balance`'s inputs against the plain definition, cell by cell: the defenders' share in
+    the rows above the cell's and below it, and the intruders' share of the intruder mass left
+    on the map there; the same on every cell of a row; 0 where nothing is left."""
+    from farm.alloc.training.cell_policy import balance_shares
+
+    rng = np.random.default_rng(5)
+    n, B = 7, 3
+    densities = rng.dirichlet(np.ones(n * n), size=(B, 2)).reshape(B, 2, n, n)
+    densities[:, 1] *= np.array([1.0, 0.3, 0.0])[:, None, None]  # intruders partly eliminated, then all
+    densities[0, :, 2, :] = 0.0  # an empty row
+    got = balance_shares(torch.as_tensor(densities, dtype=torch.float32)).numpy()
+    assert got.shape == (B, 4, n, n)
+    for b in range(B):
+        left = densities[b, 1].sum()
+        for r in range(n):
+            for c in range(n):
+                want = [densities[b, 0, :r].sum(), densities[b, 0, r + 1:].sum(),
+                        densities[b, 1, :r].sum() / left if left > 0 else 0.0,
+                        densities[b, 1, r + 1:].sum() / left if left > 0 else 0.0]
+                np.testing.assert_allclose(got[b, :, r, c], want, atol=1e-6)
+
+
+def test_a_balance_policy_keeps_its_option_and_weights_on_another_map():
+    """resized() keeps `balance` (its first layer reads 4 more channels) and the weights, and
+    the policy acts on the other map."""
+    import gymnasium as gym
+
+    from farm.alloc.training.cell_policy import CellPolicy, resized
+
+    policy = CellPolicy(gym.spaces.Box(0.0, 1.0, (2 * 4 * 4,), np.float32),
+                        gym.spaces.Box(-1.0, 1.0, (n_actions(4),), np.float32), lambda _: 1e-3, channels=8, layers=2,
+                        teams=(10, 5), lateral=True, balance=True)
+    other = resized(policy, SCENARIOS["theatre_16x16"].config())
+    assert other.balance and other.lateral and other.grid == 16
+    mine = {k: v for k, v in policy.state_dict().items() if k != "log_std"}
+    assert all(torch.equal(other.state_dict()[k], v) for k, v in mine.items())
+    action, _ = other.predict(np.full(2 * 16 * 16, 0.01, np.float32), deterministic=True)
+    assert action.shape == (n_actions(16),) and np.all(np.abs(action) <= 1)

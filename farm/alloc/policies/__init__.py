@@ -7,7 +7,7 @@ in your own module: registering there puts it in every evaluation of that proces
 
 from farm.alloc.policies import learned
 from farm.alloc.policies.baselines import GreedyNearestIntruder, SpreadEvenly, StayAtBase
-from farm.alloc.policies.planners import Intercept, MaxMarginalReturn, RecedingHorizon, SubRegions
+from farm.alloc.policies.planners import Intercept, MaxMarginalReturn, RecedingHorizon, SubRegions, Transport
 from farm.alloc.policies.registry import (KINDS, PolicyEntry, PolicySpec, make_policy, policy_entry, policy_names,
                                           register_policy, unregister_policy)
 
@@ -20,6 +20,7 @@ register_policy("spread_evenly", SpreadEvenly.make, kind="baseline")
 register_policy("intercept", Intercept, kind="planner")
 register_policy("mmr", MaxMarginalReturn, kind="planner")
 register_policy("receding_horizon", RecedingHorizon, kind="planner")
+register_policy("transport", Transport, kind="planner")
 register_policy("subregions", SubRegions, kind="planner", reference=False)
 register_policy("td3", learned.td3, kind="learned")
 register_policy("ppo", learned.ppo, kind="learned")

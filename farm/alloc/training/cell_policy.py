@@ -12,7 +12,11 @@ computes them the way they are defined, per cell, with weights that do not depen
   n_defenders, I_c n_intruders, the engagement's own inputs) and its row's totals, each
   log1p-scaled by log1p(256) (the lattice's largest team); a channel of ones (so that the zero
   padding beyond the map's edge is seen as outside, unlike an empty cell inside it); the cell's
-  column and row scaled to [0, 1], unless `positions` is false;
+  column and row scaled to [0, 1], unless `positions` is false; with `balance`, four more: the
+  shares of the intruder mass in the rows above the cell's and in the rows below it (of the mass
+  left on the map) and the shares of the defenders there (the transport balance: a cell whose
+  rows above hold more of the intruders than of the defenders sends defenders up, however far;
+  shares, so the same on any map);
 - `layers` 3 x 3 convolutions of `channels` channels, each followed by adding linear maps of
   four summaries and a ReLU: the maximum over the cell's row (what its row holds, however far),
   the maximum over the rows above it and over the rows below it (where to send defenders, up or
@@ -72,14 +76,40 @@ class MapGeometry:
         self.index = torch.as_tensor(move * n * n + src)
 
 
+def _maxima_before_after(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """x: (..., N) float32 -> (before, after), (..., N) float32 each: at k the maximum of x over
+    the entries before k and over those after it; -1e4 ("nothing there") where there are none."""
+    edge = torch.full_like(x[..., :1], -1e4)
+    before = torch.cat([edge, torch.cummax(x, dim=-1).values[..., :-1]], dim=-1)
+    after = torch.cat([torch.cummax(x.flip(-1), dim=-1).values.flip(-1)[..., 1:], edge], dim=-1)
+    return before, after
+
+
+def balance_shares(densities: torch.Tensor) -> torch.Tensor:
+    """densities: (B, 2, N, N) float32 the defenders' and intruders' shares per cell -> (B, 4, N, N)
+    float32, per cell: the defenders' share in the rows above the cell's and in the rows below
+    it, then the intruders' share of the intruder mass on the map in those rows (0 on an empty
+    map). Row 0 is the top: nothing is above it."""
+    rows = densities.sum(dim=3)  # (B, 2, N)
+    total = rows.sum(dim=2, keepdim=True)  # (B, 2, 1)
+    above = torch.cumsum(rows, dim=2) - rows
+    below = total - above - rows
+    scale = torch.ones_like(total)
+    scale[:, 1] = 1.0 / torch.clamp(total[:, 1], min=1e-6)  # intruders: shares of what is left
+    n = densities.shape[3]
+    shares = torch.stack([above * scale, below * scale], dim=2)  # (B, 2 teams, 2 sides, N)
+    return torch.clamp(shares, 0.0, 1.0).reshape(-1, 4, shares.shape[3], 1).expand(-1, -1, -1, n)
+
+
 class _Trunk(nn.Module):
     """(B, 2 N^2) observations of a map (its MapGeometry) -> (B, channels, N, N) per-cell
     features (the module doc)."""
 
-    def __init__(self, channels: int, layers: int, positions: bool = True, lateral: bool = False):
+    def __init__(self, channels: int, layers: int, positions: bool = True, lateral: bool = False,
+                 balance: bool = False):
         super().__init__()
-        self.positions, self.lateral = positions, lateral
-        inputs = 7 if positions else 5
+        self.positions, self.lateral, self.balance = positions, lateral, balance
+        inputs = (7 if positions else 5) + (4 if balance else 0)
         self.convs = nn.ModuleList(nn.Conv2d(inputs if i == 0 else channels, channels, 3, padding=1)
                                    for i in range(layers))
         self.row = nn.ModuleList(nn.Conv1d(channels, channels, 1) for _ in range(layers))
@@ -95,19 +125,18 @@ class _Trunk(nn.Module):
         counts = obs.reshape(-1, 2, n, n) * geometry.scale
         rows = counts.sum(dim=3, keepdim=True).expand(-1, -1, -1, n)
         place = geometry.place if self.positions else geometry.place[:, :1]
-        h = torch.cat([torch.log1p(counts) / COUNT_SCALE, torch.log1p(rows) / COUNT_SCALE,
-                       place.expand(len(obs), -1, -1, -1)], dim=1)
+        channels = [torch.log1p(counts) / COUNT_SCALE, torch.log1p(rows) / COUNT_SCALE,
+                    place.expand(len(obs), -1, -1, -1)]
+        if self.balance:
+            channels.append(balance_shares(obs.reshape(-1, 2, n, n)))
+        h = torch.cat(channels, dim=1)
         for i, (conv, row, above, below, top) in enumerate(zip(self.convs, self.row, self.above, self.below, self.top)):
             h = conv(h)
             r = h.amax(dim=3)  # (B, C, N) each row's maximum
-            low = torch.full_like(r[:, :, :1], -1e4)  # "nothing there": above the top row, below the bottom one
-            before = torch.cat([low, torch.cummax(r, dim=2).values[:, :, :-1]], dim=2)  # over the rows above
-            after = torch.cat([torch.cummax(r.flip(2), dim=2).values.flip(2)[:, :, 1:], low], dim=2)  # below
+            before, after = _maxima_before_after(r)  # over the rows above, over the rows below
             summary = (row(r) + above(torch.relu(before)) + below(torch.relu(after)))[..., None]
             if self.lateral:
-                edge = torch.full_like(h[..., :1], -1e4)
-                left = torch.cat([edge, torch.cummax(h, dim=3).values[..., :-1]], dim=3)  # the cells to the left
-                right = torch.cat([torch.cummax(h.flip(3), dim=3).values.flip(3)[..., 1:], edge], dim=3)
+                left, right = _maxima_before_after(h)  # over the cells to the left in the row, to the right
                 summary = summary + self.left[i](torch.relu(left)) + self.right[i](torch.relu(right))
             h = torch.relu(h + summary + top(h.amax(dim=(2, 3)))[:, :, None, None])
         return h
@@ -119,11 +148,11 @@ class CellNet(nn.Module):
     the map it is on (use(); first the map of n and teams). Its parameters fit any map."""
 
     def __init__(self, n: int, channels: int, layers: int, teams: tuple[int, int] = (1, 1), positions: bool = True,
-                 lateral: bool = False):
+                 lateral: bool = False, balance: bool = False):
         super().__init__()
-        self.actor = _Trunk(channels, layers, positions, lateral)
+        self.actor = _Trunk(channels, layers, positions, lateral, balance)
         self.scores = nn.Conv2d(channels, 9, 1)
-        self.critic = _Trunk(channels, layers, positions, lateral)
+        self.critic = _Trunk(channels, layers, positions, lateral, balance)
         self.latent_dim_vf = 2 * channels
         self._maps: dict[tuple, MapGeometry] = {}
         self.use(n, teams)
@@ -154,14 +183,15 @@ class CellNet(nn.Module):
 
 class CellPolicy(ActorCriticPolicy):
     """PPO's policy of per-cell shared weights (the module doc). channels: int >= 1, layers:
-    int >= 1; teams: (n_defenders, n_intruders) of the env; positions, lateral: the module doc's
+    int >= 1; teams: (n_defenders, n_intruders) of the env; positions, lateral, balance: the module doc's
     options; the other arguments are ActorCriticPolicy's."""
 
     def __init__(self, observation_space, action_space, lr_schedule, channels: int = 32, layers: int = 3,
-                 teams: tuple[int, int] = (1, 1), positions: bool = True, lateral: bool = False, **kwargs):
+                 teams: tuple[int, int] = (1, 1), positions: bool = True, lateral: bool = False,
+                 balance: bool = False, **kwargs):
         self.grid = int(round(np.sqrt(observation_space.shape[0] / 2)))
         self.channels, self.layers, self.teams = channels, layers, (int(teams[0]), int(teams[1]))
-        self.positions, self.lateral = positions, lateral
+        self.positions, self.lateral, self.balance = positions, lateral, balance
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
         self.action_net = nn.Identity()  # the scores are the means
         nn.init.orthogonal_(self.mlp_extractor.scores.weight, gain=0.01)  # as SB3 starts its action net
@@ -169,7 +199,8 @@ class CellPolicy(ActorCriticPolicy):
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def _build_mlp_extractor(self) -> None:
-        self.mlp_extractor = CellNet(self.grid, self.channels, self.layers, self.teams, self.positions, self.lateral)
+        self.mlp_extractor = CellNet(self.grid, self.channels, self.layers, self.teams, self.positions, self.lateral,
+                                    self.balance)
 
 
 def resized(policy: CellPolicy, config) -> CellPolicy:
@@ -191,6 +222,7 @@ def resized(policy: CellPolicy, config) -> CellPolicy:
     # took 6 s on 32 x 32 (A = 8,836).
     other = CellPolicy(obs_space, act_space, lambda _: 0.0, channels=policy.channels, layers=policy.layers,
                        teams=teams, positions=policy.positions, lateral=policy.lateral,
+                       balance=policy.balance,
                        ortho_init=False)
     state = policy.state_dict()
     state["log_std"] = torch.full((n_actions(n),), float(state["log_std"].mean()))

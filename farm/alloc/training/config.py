@@ -33,7 +33,7 @@ POLICY_KWARGS = {
             "log_std_init", "ortho_init", "full_std", "use_expln", "squash_output"),
 }
 # CellPolicy's (farm.alloc.training.cell_policy, PPO only): its sizes and ActorCriticPolicy's plain values
-CELL_POLICY_KWARGS = ("channels", "layers", "positions", "lateral", "log_std_init", "ortho_init", "optimizer_kwargs")
+CELL_POLICY_KWARGS = ("channels", "layers", "positions", "lateral", "balance", "log_std_init", "ortho_init", "optimizer_kwargs")
 ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu")  # torch.nn's ReLU, Tanh, ELU, LeakyReLU, GELU
 
 
@@ -56,7 +56,7 @@ def _check_policy_kwargs(v: dict, algo: str, policy: str = "MlpPolicy") -> dict:
     for name in ("channels", "layers"):
         if name in v and not (_whole(v[name]) and 1 <= v[name] <= 512):
             raise ValueError(f"{name}: must be a whole number from 1 to 512, got {v[name]!r}")
-    for name in ("positions", "lateral", "share_features_extractor", "normalize_images", "ortho_init", "full_std", "use_expln",
+    for name in ("positions", "lateral", "balance", "share_features_extractor", "normalize_images", "ortho_init", "full_std", "use_expln",
                  "squash_output"):
         if name in v and not isinstance(v[name], bool):
             raise ValueError(f"{name}: must be true or false, got {v[name]!r}")
