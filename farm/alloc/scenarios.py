@@ -40,7 +40,8 @@ drifting between rows (0.25 to each neighbour a step), with fewer defenders than
 chosen the same way (10 episodes, seeds 1000..1009): the best heuristic, intercept, eliminates
 0.70, 0.76 and 0.71 (10 v 1,600 rather than 12, where intercept eliminated 0.81); mmr 0.65,
 0.75 and 0.86; receding_horizon 0.85, 0.93 (20 episodes) and 0.977 (10 episodes; 3.3 to 7.4 s a
-step on one core, by the machine). Their lattice is the suite's (team sizes up to 16 v 256).
+step on one core, by the machine); the transport planner, made later for such fronts, 0.74,
+0.84 and 0.89 (20 episodes). Their lattice is the suite's (team sizes up to 16 v 256).
 The size-free learner (configs/train/size_free.yaml) trains on the 8 x 8 one and acts on all
 three.
 """
