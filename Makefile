@@ -52,8 +52,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/experiments.py
 
 # The scenario suite (configs/suite.yaml): TD3 trained on each scenario (configs/train/suite_*.yaml,
-# into results/runs/suite_<scenario>), then the baselines, the planners and TD3 on one leaderboard.
-SUITE_RUNS := $(patsubst configs/train/%.yaml,%,$(wildcard configs/train/suite_*.yaml))
+# into results/runs/suite_<scenario>) and the theatres' size-free learner (size_free_transport.yaml),
+# then the baselines, the planners and the learned runs on one leaderboard.
+SUITE_RUNS := $(patsubst configs/train/%.yaml,%,$(wildcard configs/train/suite_*.yaml)) size_free_transport
 suite: $(STAMP)
 	for e in $(SUITE_RUNS); do \
 	  test -f results/runs/$$e/model.zip || $(VENV)/bin/farm train configs/train/$$e.yaml --out results/runs/$$e || exit 1; \

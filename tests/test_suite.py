@@ -126,7 +126,7 @@ def test_the_shipped_suites_name_every_scenario_and_default_to_every_policy():
     assert suite.scenario_names() == list(SCENARIOS) and suite.policies is None
     references = policy_names(("baseline", "planner"), references=True)
     assert suite.policy_names() == references and set(references) < set(available_policies())  # subregions: listed, not by default
-    assert suite.runs == {name: "results/runs/size_free" if name in THEATRES else f"results/runs/suite_{name}"
+    assert suite.runs == {name: "results/runs/size_free_transport" if name in THEATRES else f"results/runs/suite_{name}"
                           for name in SCENARIOS} and suite.skip_missing_runs
     assert (suite.episodes, suite.seed, suite.store) == (10, 1000, "results/capture_times.sqlite")
     demo = load_suite_config(ROOT / "configs" / "suite_demo.yaml")
