@@ -90,6 +90,59 @@ def test_an_on_policy_run_restores_without_a_replay_buffer(tmp_path):
     assert not any("replay_buffer" in k for k in files(run))
 
 
+def pretrained_run(path: Path, iterations: int, steps: list[int] = ()) -> Path:
+    """fake_run with pretraining iterations 0 .. iterations-1 saved (pretrain/iteration_<i>.pkl)."""
+    fake_run(path, list(steps), replay_buffer=False)
+    (path / "pretrain").mkdir()
+    for i in range(iterations):
+        (path / "pretrain" / f"iteration_{i}.pkl").write_text(f"iteration {i} of {path.name}")
+    return path
+
+
+def pretrain_checkpoint_of(run: Path, iteration: int, to: Path):
+    from ray import tune
+
+    to.mkdir()
+    (to / "progress.json").write_text(json.dumps({"timesteps": 0, "pretrain_iteration": iteration}))
+    checkpoint_run(run, None, to)
+    return tune.Checkpoint.from_directory(str(to))
+
+
+def test_a_pretraining_checkpoint_holds_the_run_folder_with_its_newest_iteration_only(tmp_path):
+    pretrain_checkpoint_of(pretrained_run(tmp_path / "run", 3), 2, tmp_path / "ck")
+    held = files(tmp_path / "ck" / "run")
+    assert held == {"best/best_model.zip": "best/best_model.zip", "config.yaml": "config.yaml",
+                    "evaluations.npz": "evaluations.npz", "pretrain/iteration_2.pkl": "iteration 2 of run"}
+    later = pretrained_run(tmp_path / "later", 3, steps=[64])  # training's checkpoints keep the newest iteration too
+    checkpoint_of(later, 64, tmp_path / "ck64")
+    assert sorted(k for k in files(tmp_path / "ck64" / "run") if k.startswith("pretrain/")) == ["pretrain/iteration_2.pkl"]
+
+
+@pytest.mark.parametrize("local, expected_steps, from_checkpoint", [
+    (None, 0, True),            # no local folder: written from the pretraining checkpoint of iteration 1
+    ((1, []), 0, True),         # only iteration 0 here: replaced
+    ((2, []), 0, False),        # iteration 1 here: as far, kept
+    ((3, []), 0, False),        # iteration 2 here: further, kept
+    ((3, [64]), 64, False),     # training's checkpoint here: further than any pretraining, kept
+])
+def test_a_trial_restores_its_pretraining_from_its_checkpoint_unless_its_folder_is_as_far(
+        tmp_path, local, expected_steps, from_checkpoint):
+    checkpoint = pretrain_checkpoint_of(pretrained_run(tmp_path / "source", 2), 1, tmp_path / "ck")
+    run = tmp_path / "trial" / "run"
+    if local is not None:
+        pretrained_run(run, *local)
+    before = files(run) if run.exists() else None
+    assert restore_run(checkpoint, run, replay_buffer=False) == expected_steps
+    assert files(run) == (files(tmp_path / "ck" / "run") if from_checkpoint else before)
+
+
+def test_a_training_checkpoint_replaces_a_folder_still_in_its_pretraining(tmp_path):
+    source = pretrained_run(tmp_path / "source", 3, steps=[64])
+    run = pretrained_run(tmp_path / "trial" / "run", 3)
+    assert restore_run(checkpoint_of(source, 64, tmp_path / "ck"), run, replay_buffer=False) == 64
+    assert files(run) == files(tmp_path / "ck" / "run")
+
+
 @pytest.fixture(scope="module")
 def s3():
     with s3_bucket("farm") as client:

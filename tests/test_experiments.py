@@ -86,6 +86,31 @@ def test_the_smoke_plan_is_2_points_by_2_seeds(tmp_path):
     assert all(t.config["threads"] == 1 and t.config["service"]["mode"] == "ray" for t in p.trials)
 
 
+def test_the_display_shows_a_pretraining_trial_by_its_share_of_episodes_then_by_its_steps(tmp_path):
+    """What Tune's reports (farm.studies.experiments.tune: report_pretraining, TuneReport) make of
+    the bar's text: a trial in its pretraining shows its share of episodes labelled, until its
+    first training report or its end."""
+    from farm.studies.experiments import load_experiment_config, plan
+    from farm.studies.experiments.display import Display
+
+    display = Display(plan(load_experiment_config(smoke_config(tmp_path / "s.yaml", tmp_path / "store.sqlite"))),
+                      enabled=False, finished=["p1_s1"])
+    display.started("p0_s0")
+    display.started("p0_s1")
+    display.result("p0_s0", {"phase": "pretrain", "pretrain_episodes": 64, "pretrain_episodes_total": 448,
+                             "timesteps_total": 0})
+    display.result("p0_s1", {"phase": "pretrain", "pretrain_episodes": 448, "pretrain_episodes_total": 448,
+                             "timesteps_total": 0})
+    assert display.description() == ("trials: 1/4 done, 2 running, 1 waiting; "
+                                     "p0_s0 pretraining 14%, p0_s1 pretraining 100%")
+    display.result("p0_s1", {"timesteps": 150, "timesteps_total": 150, "phase": "train"})
+    assert display.description() == "trials: 1/4 done, 2 running, 1 waiting; p0_s0 pretraining 14%"
+    assert display.steps["p0_s1"] == 150 and display.steps["p0_s0"] == 0
+    display.ended("p0_s0", False)
+    assert display.description() == "trials: 1/4 done, 1 running, 1 waiting, 1 failed"
+    display.close()
+
+
 def test_a_scenario_is_a_base_and_the_grid_overrides_its_env(tmp_path):
     from farm.alloc.scenarios import SCENARIOS
     from farm.studies.experiments import load_experiment_config, plan
@@ -251,12 +276,14 @@ def s3(ray_s3):
     return ray_s3
 
 
-def kill_config(tmp: Path, store: Path, **changes) -> Path:
+def kill_config(tmp: Path, store: Path, pretrain: dict | None = None, **changes) -> Path:
     """The cold run's experiment (point 0 of the smoke grid) checkpointing every 50 steps and,
     as the cold run, without the lattice warm-up (the cold run has stored every case these
-    trials meet): its base is tiny.yaml with `service.warm_lattice: false`."""
+    trials meet): its base is tiny.yaml with `service.warm_lattice: false` (and `pretrain`)."""
     base = yaml.safe_load((ROOT / "configs" / "train" / "tiny.yaml").read_text())
     base["service"]["warm_lattice"] = False
+    if pretrain is not None:
+        base["pretrain"] = pretrain
     (tmp / "tiny.yaml").write_text(yaml.safe_dump(base, sort_keys=False))
     return smoke_config(tmp / "kill.yaml", store, grid={"env.c_capture": [0.0]}, base=str(tmp / "tiny.yaml"),
                         overrides={"env.team_sizes": "lattice", "checkpoint_freq": 50}, **changes)
@@ -415,6 +442,71 @@ def test_a_trial_in_object_storage_killed_with_its_local_folder_goes_on_from_the
     assert not any(k.startswith("kill/trials/p0_s0/run/checkpoints/") for k in keys)  # the state is Tune's checkpoints'
     assert info["written"][0] == "s3://farm/kill/trials.csv"
     assert sorted(tmp_path.iterdir()) == local_files and not run.exists()
+
+
+def test_a_trial_in_object_storage_killed_in_its_pretraining_goes_on_after_the_bucket_s_iteration(s3, cold, tmp_path):
+    """The kill test above, in the pretraining (DAgger from intercept, 3 iterations): the trial's
+    worker SIGKILLed, its local folder deleted first, once the bucket holds the Tune checkpoint
+    of a pretraining iteration (farm.studies.experiments.tune.PretrainReport). The restarted trial
+    writes its run folder again from it and goes on after that iteration (metrics.json's
+    pretrain_resumed_after), not from the start; its pretraining and training equal the same
+    config's uninterrupted run in process, number for number."""
+    from farm.alloc.training import TrainConfig, train
+    from farm.studies.experiments import load_experiment_config, plan, run_experiment
+    from farm.studies.experiments.storage import ExperimentStorage
+
+    _, _, _, store, _, _ = cold
+    pretraining = {"expert": "intercept", "iterations": 3, "episodes": 8, "expert_share": 0.5, "epochs": 5,
+                   "batch_size": 16, "episodes_per_task": 2}
+    config = load_experiment_config(kill_config(tmp_path, store, seeds=[0], pretrain=pretraining))
+    out = "s3://farm/kill-pretrain"
+    run = ExperimentStorage(out).run_dir("p0_s0")
+    killed = []  # (the iteration in the bucket, the local folder's newest iteration), or why not killed
+
+    def bucket_iteration():
+        keys = bucket_keys(s3, prefix="kill-pretrain/tune/p0_s0/")
+        found = [int(k.rsplit("iteration_", 1)[1].split(".")[0]) for k in keys if "/run/pretrain/iteration_" in k]
+        return max(found) if found else None
+
+    def kill_in_the_pretraining():
+        stopped: list[int] = []
+
+        def stop():
+            stopped[:] = ray_workers()
+            signal_all(stopped, signal.SIGSTOP)
+
+        try:
+            try:
+                iteration = stopped_when("a pretraining checkpoint in the bucket", lambda: bucket_iteration() is not None,
+                                         stop, lambda: signal_all(stopped, signal.SIGCONT), run_for=0.05)
+                trainers = [pid for pid in stopped if cmdline(pid).startswith(b"ray::ImplicitFunc")]
+                assert len(trainers) == 1, trainers
+                iteration = bucket_iteration()
+                local = sorted((run / "pretrain").glob("iteration_*.pkl"))
+                shutil.rmtree(run)
+                os.kill(trainers[0], signal.SIGKILL)
+                killed.append((iteration, [f.name for f in local]))
+            finally:
+                signal_all(stopped, signal.SIGCONT)
+        except (AssertionError, ProcessLookupError, OSError) as e:
+            killed.append(repr(e))
+
+    killer = threading.Thread(target=kill_in_the_pretraining, daemon=True)
+    killer.start()
+    trials, _, _ = run_experiment(config, out, show_progress=False)
+    killer.join(timeout=DEADLINE)
+    assert killed and isinstance(killed[0], tuple), f"the worker was not killed: {killed}"
+    iteration = killed[0][0]
+    assert iteration < pretraining["iterations"] - 1  # killed with an iteration still to label
+    metrics = json.loads(s3.get_object(Bucket="farm", Key="kill-pretrain/trials/p0_s0/run/metrics.json")["Body"].read())
+    assert metrics["pretrain_resumed_after"] == iteration
+    trial = plan(config).trials[0].config
+    whole = train(TrainConfig(**{**trial, "service": {**trial["service"], "mode": "local"}}), tmp_path / "whole",
+                  show_progress=False)
+    for name in ("pretrain_states", "pretrain_loss", "pretrained_eval_mean_return", "final_eval_mean_return",
+                 "best_eval_mean_return", "timesteps"):
+        assert metrics[name] == whole[name], name
+    assert trials["trial"].tolist() == ["p0_s0"] and not run.exists()
 
 
 def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, tmp_path):

@@ -213,11 +213,16 @@ def test_a_pretrain_resumed_after_a_stop_is_bit_identical(store, tmp_path, monke
     assert_same(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", algo)
     assert resumed["pretrain_states"] == whole["pretrain_states"]
     assert resumed["pretrained_eval_mean_return"] == whole["pretrained_eval_mean_return"]
+    assert (whole["pretrain_resumed_after"], resumed["pretrain_resumed_after"]) == (None, 0)
 
 
 def test_the_pretrained_model_is_evaluated_first_and_kept_when_best(store, tmp_path):
     cfg = config(store, "ppo", pretrain=PRETRAIN, keep="best")
-    metrics = train(cfg, tmp_path / "run", show_progress=False)
+    told = []
+    metrics = train(cfg, tmp_path / "run", show_progress=False, on_pretrain=lambda *a: told.append(a))
+    total = PRETRAIN["iterations"] * PRETRAIN["episodes"]  # one map: a report labelled, a report fitted
+    assert told == [(k * PRETRAIN["episodes"], total, saved) for k in range(1, PRETRAIN["iterations"] + 1)
+                    for saved in (None, k - 1)]
     with np.load(tmp_path / "run" / "evaluations.npz") as e:
         assert e["timesteps"][0] == 0
         means = e["results"].mean(axis=1)

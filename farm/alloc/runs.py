@@ -75,6 +75,7 @@ class RunMetrics(BaseModel):
     pretrain_seconds: float | None = None
     pretrain_loss: float | None = None
     pretrained_eval_mean_return: float | None = None
+    pretrain_resumed_after: int | None = None  # the saved iteration a resumed pretraining went on after
 
 
 def checkpoint_files(run_dir: Path, steps: int) -> tuple[Path, Path, Path]:

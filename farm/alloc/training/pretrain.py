@@ -316,16 +316,23 @@ def _resume_iteration(run_dir) -> tuple[int, dict] | None:
 
 class Pretrained:
     """What pretraining did: states (labelled), seconds (wall), loss (the last fit's mean action
-    error), data (the aggregated data set, play_labelled's arrays)."""
+    error), data (the aggregated data set, play_labelled's arrays), resumed_after (the saved
+    iteration it went on after, None: it began at the first)."""
 
-    def __init__(self, states: int, seconds: float, loss: float, data: dict):
+    def __init__(self, states: int, seconds: float, loss: float, data: dict, resumed_after: int | None = None):
         self.states, self.seconds, self.loss, self.data = states, seconds, loss, data
+        self.resumed_after = resumed_after
 
 
-def pretrain(model, config, client, run_dir, *, show_progress: bool = True) -> Pretrained:
+def pretrain(model, config, client, run_dir, *, show_progress: bool = True, on_progress=None) -> Pretrained:
     """DAgger (the module doc) on a new model of config (a TrainConfig with `pretrain:`), its
     episodes answered by client, resuming from run_dir's last saved iteration when there is one;
-    then the replay buffer of an off-policy model is filled with the visited transitions."""
+    then the replay buffer of an off-policy model is filled with the visited transitions.
+    on_progress(episodes, total, saved): called with the episodes labelled so far (a resumed
+    run's saved iterations counted) once a map's episodes of an iteration are labelled (saved
+    None), and once an iteration is fitted and saved in run_dir (saved: the iteration); farm
+    experiments reports a trial's pretraining to Tune so, with a Tune checkpoint of each saved
+    iteration (farm.studies.experiments.tune.PretrainReport)."""
     import torch
 
     from farm.core.output import atomic_write_bytes
@@ -349,6 +356,7 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True) -> P
     total = params.iterations * params.episodes * len(maps)
     bar = GameProgress(total, first * params.episodes * len(maps), enabled=show_progress, desc="pretrain episodes",
                        unit="episode")
+    tell = on_progress or (lambda episodes, total, saved: None)
     try:
         for iteration in range(first, params.iterations):
             t0 = time.perf_counter()
@@ -357,6 +365,7 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True) -> P
                 parts[j] = [concat(parts[j] + [label_all(env, params, learner, schedule[iteration], iteration,
                                                          config.seed, env_client, gamma,
                                                          progress=lambda episodes, states: bar.update(episodes))])]
+                tell((iteration * len(maps) + j + 1) * params.episodes, total, None)
             if len(maps) == 1:
                 loss = fit_actor(model, algo, parts[0][0], params.epochs, params.batch_size, params.learning_rate,
                                  rng, params.loss, config.env)
@@ -370,6 +379,7 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True) -> P
             path = iteration_file(run_dir, iteration)
             path.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_bytes(path, pickle.dumps(state))
+            tell((iteration + 1) * len(maps) * params.episodes, total, iteration)
     finally:
         bar.close()
     states = sum(len(p[0]["obs"]) for p in parts)  # labelled on every map
@@ -380,7 +390,7 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True) -> P
             model.actor_target.load_state_dict(model.actor.state_dict())
     if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
         _fill_replay_buffer(model, data)
-    return Pretrained(states, seconds, loss, data)
+    return Pretrained(states, seconds, loss, data, None if saved is None else saved[0])
 
 
 def _learner_on(policy, env, j: int):

@@ -45,14 +45,15 @@ _CHECKPOINT_DAMAGE = (OSError, EOFError, zipfile.BadZipFile, zlib.error, pickle.
 
 
 def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True,
-          callbacks: list | None = None) -> dict:
+          callbacks: list | None = None, on_pretrain=None) -> dict:
     """Train (or resume) into run_dir, with the capture-time client of config.service
     (farm.service.lookup.open_client: a local Ray or the cluster named, or in process);
     returns the metrics written to metrics.json.
 
     callbacks: more SB3 callbacks, called after the run's own (so in on_step after the
     step's evaluation, and at a rollout's start or the training's end after the checkpoint of
-    the steps so far): farm.studies.experiments reports a trial's progress to Ray Tune so."""
+    the steps so far): farm.studies.experiments reports a trial's progress to Ray Tune so.
+    on_pretrain(episodes, total, saved): the pretraining's progress (pretrain's on_progress)."""
     import torch
 
     run_dir = check_writable_folder(run_dir, "out")  # before the service, the lattice and the steps
@@ -79,7 +80,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     if config.threads is not None:
         torch.set_num_threads(config.threads)
     try:
-        metrics = _train(config, run_dir, resume, show_progress, callbacks or [], tracker)
+        metrics = _train(config, run_dir, resume, show_progress, callbacks or [], tracker, on_pretrain)
     except BaseException as e:
         if tracker is not None:
             tracker.end("KILLED" if isinstance(e, KeyboardInterrupt) else "FAILED")
@@ -91,12 +92,13 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     return metrics
 
 
-def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, extra: list, tracker=None) -> dict:
+def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, extra: list, tracker=None,
+           on_pretrain=None) -> dict:
     from farm.service.client import open_client
 
     with open_client(config.env.service_settings(), mode=config.service.mode, store=store_of(config),
                      address=config.service.address) as client:
-        return _learn(config, run_dir, resume, show_progress, client, extra, tracker)
+        return _learn(config, run_dir, resume, show_progress, client, extra, tracker, on_pretrain)
 
 
 _ACTIVATIONS = {"relu": "ReLU", "tanh": "Tanh", "elu": "ELU", "leaky_relu": "LeakyReLU", "gelu": "GELU"}
@@ -169,7 +171,7 @@ def _eval_envs(config: TrainConfig, client):
 
 
 def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list,
-           tracker=None) -> dict:
+           tracker=None, on_pretrain=None) -> dict:
     if config.service.warm_lattice:
         warm_lattices(client, lattice_groups(config.envs()), show_progress)
     env, train_env, monitor = training_envs(config, client)
@@ -193,7 +195,7 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
     else:
         model = make_model(config, env, run_dir)
         if config.pretrain is not None:
-            pretrained = pretrain(model, config, client, run_dir, show_progress=show_progress)
+            pretrained = pretrain(model, config, client, run_dir, show_progress=show_progress, on_progress=on_pretrain)
             _evaluate_pretrained(model, evaluation, eval_vec, config, run_dir)
     remaining = max(0, p.n_timesteps - done_steps)
     callbacks = CallbackList([
@@ -338,8 +340,9 @@ def _pretrain_metrics(pretrained, previous, evals) -> dict:
     if pretrained is not None:
         return {"pretrain_states": pretrained.states, "pretrain_seconds": pretrained.seconds,
                 "pretrain_loss": pretrained.loss,
-                "pretrained_eval_mean_return": float(evals[1][0].mean()) if evals is not None else None}
+                "pretrained_eval_mean_return": float(evals[1][0].mean()) if evals is not None else None,
+                "pretrain_resumed_after": pretrained.resumed_after}
     if previous is not None:
         return {k: getattr(previous, k) for k in ("pretrain_states", "pretrain_seconds", "pretrain_loss",
-                                                  "pretrained_eval_mean_return")}
+                                                  "pretrained_eval_mean_return", "pretrain_resumed_after")}
     return {}

@@ -8,8 +8,9 @@ system). With a URI the experiment needs no shared file system:
 
 - a trial trains in a run folder in its node's temporary space (ExperimentStorage.run_dir);
   everything its resume needs travels in its Tune checkpoints, which Tune uploads
-  to the storage (farm.studies.experiments.tune.TuneReport), and a restarted trial, on
-  whatever node, writes its run folder again from its last one (restore_run);
+  to the storage (farm.studies.experiments.tune.TuneReport, and PretrainReport for each saved
+  pretraining iteration), and a restarted trial, on whatever node, writes its run folder again
+  from its last one (restore_run);
 - a finished trial uploads its run folder (without checkpoints/ and pretrain/: the state
   lives in Tune's checkpoints) and then its result.json to trials/<key>/, and removes its
   local folder;
@@ -219,40 +220,67 @@ class ExperimentStorage:
             f.write(data)
 
 
-def checkpoint_run(run: Path, steps: int, to: Path) -> None:
+def checkpoint_run(run: Path, steps: int | None, to: Path) -> None:
     """Copy a run folder into to/RUN_IN_CHECKPOINT as a Tune checkpoint holds it: every file but
-    the checkpoints other than the one of `steps` (its model, replay buffer and RunState)."""
+    the checkpoints other than the one of `steps` (its model, replay buffer and RunState; steps
+    None: a pretraining iteration's checkpoint, none of them) and the pretraining iterations
+    other than the newest (each holds the labels of every iteration before it)."""
     from farm.alloc.runs import checkpoint_files
+    from farm.alloc.training.pretrain import iteration_file, saved_iterations
 
-    keep = {p.name for p in checkpoint_files(run, steps)}
+    keep = set() if steps is None else {p.name for p in checkpoint_files(run, steps)}
+    newest = {iteration_file(run, i).name for i in saved_iterations(run)[:1]}
 
     def ignore(folder, names):
         if Path(folder) == run / "checkpoints":
             return [n for n in names if n not in keep]
+        if Path(folder) == run / "pretrain":
+            return [n for n in names if n.startswith("iteration_") and n not in newest]
         return []
 
     shutil.copytree(run, to / RUN_IN_CHECKPOINT, ignore=ignore)
 
 
+def _progress_here(run: Path, replay_buffer: bool) -> tuple[int, int] | None:
+    """How far a run folder is: (1, steps) of its latest whole checkpoint, else (0, i) of its
+    newest saved pretraining iteration i, else None; ordered as training goes."""
+    from farm.alloc.runs import latest_checkpoint
+    from farm.alloc.training.pretrain import saved_iterations
+
+    if not run.exists():
+        return None
+    last = latest_checkpoint(run, replay_buffer=replay_buffer)
+    if last is not None:
+        return 1, last[1]
+    iterations = saved_iterations(run)
+    return (0, iterations[0]) if iterations else None
+
+
+def _steps(progress: tuple[int, int] | None) -> int | None:
+    return None if progress is None else (progress[1] if progress[0] == 1 else 0)
+
+
 def restore_run(checkpoint, run: Path, replay_buffer: bool) -> int | None:
     """Before a trial trains: write its run folder again from its Tune checkpoint when the
     folder lacks it (a trial restarted on another node, or whose local folder was lost), or
-    holds only an older one. A folder with a whole checkpoint as recent is kept (the same
-    state: resume is exact from either). Returns the steps the run goes on from (None: from
-    the start). checkpoint: tune.get_checkpoint()'s (None: the trial's first start); one of
-    before 0.6 (a marker, progress.json alone) leaves the run folder as it is."""
-    from farm.alloc.runs import latest_checkpoint
-
-    here = latest_checkpoint(run, replay_buffer=replay_buffer) if run.exists() else None
+    holds only an older one. A folder as far as the checkpoint or further is kept (the same
+    state: resume is exact from either). A checkpoint is a training checkpoint's (progress.json:
+    {"timesteps": n}) or a pretraining iteration's ({"timesteps": 0, "pretrain_iteration": i},
+    before any of training's). Returns the steps the run goes on from (0 within the
+    pretraining, None: from the start). checkpoint: tune.get_checkpoint()'s (None: the trial's
+    first start); one of before 0.6 (a marker, progress.json alone) leaves the run folder as it
+    is."""
+    here = _progress_here(run, replay_buffer)
     if checkpoint is None:
-        return None if here is None else here[1]
+        return _steps(here)
     with checkpoint.as_directory() as folder:
         saved = Path(folder) / RUN_IN_CHECKPOINT
-        steps = json.loads((Path(folder) / "progress.json").read_text())["timesteps"]
-        if not saved.is_dir() or (here is not None and here[1] >= steps):
-            return None if here is None else here[1]
+        progress = json.loads((Path(folder) / "progress.json").read_text())
+        there = (0, progress["pretrain_iteration"]) if "pretrain_iteration" in progress else (1, progress["timesteps"])
+        if not saved.is_dir() or (here is not None and here >= there):
+            return _steps(here)
         if run.exists():
             shutil.rmtree(run)
         run.parent.mkdir(parents=True, exist_ok=True)
         shutil.copytree(saved, run)
-    return steps
+    return _steps(there)

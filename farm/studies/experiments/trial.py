@@ -38,7 +38,7 @@ def run_trial(params: dict) -> None:
 
     from farm.alloc.training import TrainConfig, train
     from farm.studies.experiments.storage import ExperimentStorage, restore_run
-    from farm.studies.experiments.tune import TuneReport
+    from farm.studies.experiments.tune import PretrainReport, TuneReport
 
     spec = params["spec"]
     trial = Trial(**spec["trial"])
@@ -52,7 +52,7 @@ def run_trial(params: dict) -> None:
     every = max(1, min(config.checkpoint_freq, config.learner.n_timesteps // 10 or 1))
     t0 = time.perf_counter()
     metrics = train(config, run.path, resume=run.is_run(), show_progress=False,
-                    callbacks=[TuneReport(run.path, every)])
+                    callbacks=[TuneReport(run.path, every)], on_pretrain=PretrainReport(run.path))
     t1 = time.perf_counter()
     specs = spec.get("policies")
     table = _evaluate(config, run, spec["episodes"], spec["eval_seed"], reference_specs() if specs is None else specs)

@@ -20,6 +20,32 @@ from farm.alloc.training import AfterUpdates
 __all__ = ["TuneReport", "Progress"]
 
 
+class PretrainReport:
+    """A trial's pretraining progress to Ray Tune (train's on_pretrain): {"phase": "pretrain",
+    "pretrain_episodes", "pretrain_episodes_total"} at step 0, the experiment's display showing
+    it; once an iteration is saved, with a Tune checkpoint of the run folder holding that
+    iteration (progress.json: {"timesteps": 0, "pretrain_iteration": i}; storage.checkpoint_run),
+    so a trial restarted on another node, or whose local folder was lost, goes on pretraining
+    after that iteration (storage.restore_run) rather than from the start. run_dir: the trial's
+    run folder."""
+
+    def __init__(self, run_dir):
+        self.run_dir = Path(run_dir)
+
+    def __call__(self, episodes: int, total: int, saved: int | None) -> None:
+        from farm.studies.experiments.storage import checkpoint_run
+
+        metrics = {"phase": "pretrain", "pretrain_episodes": episodes, "pretrain_episodes_total": total,
+                   "timesteps_total": 0}
+        if saved is None:
+            tune.report(metrics)
+            return
+        with tempfile.TemporaryDirectory(prefix="farm-trial-") as folder:  # Tune copies it before report returns
+            (Path(folder) / "progress.json").write_text(json.dumps({"timesteps": 0, "pretrain_iteration": saved}))
+            checkpoint_run(self.run_dir, None, Path(folder))
+            tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(folder))
+
+
 class TuneReport(AfterUpdates):
     """An SB3 callback reporting a trial's steps to Ray Tune each time they pass a multiple
     of `every` ({"timesteps": n, "phase": "train"}), after the step's update (AfterUpdates),
