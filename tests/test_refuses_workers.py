@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
@@ -105,6 +105,18 @@ def test_game_counts_and_seeds_refuse_bools():
     refused(lambda: run_games(case, (1, True), 0, 1), "seed:")
     refused(lambda: sample_initial_positions(case, 0, 2, 1), "stop: must be a whole number >= 2, got 1")
     refused(lambda: sample_initial_positions(case, 0, -1, 1), "start: must be a whole number >= 0, got -1")
+
+
+def test_game_counts_too_large_to_hold_are_refused_before_any_array():
+    """run_games(case, 0, 0, 10**400) raised numpy's ValueError ("Maximum allowed dimension
+    exceeded") from np.empty (found by the property test below on CI); run_case(case, 10**400)
+    would have played batches for ever."""
+    case = Case(2, 1, t_max=0.05, tau=0.05)
+    refused(lambda: run_games(case, 0, 0, 10**400), "stop: games 0..")
+    refused(lambda: sample_initial_positions(case, 0, 5, 10**9), "GiB of starting positions in one batch, more than 4 GiB")
+    refused(lambda: run_case(case, 10**400, 0), "n_games: must be at most 1,000,000,000")
+    refused(lambda: run_case(case, 10**9 + 1, 0, batch_size=10**400), "n_games: must be at most")
+    assert run_case(case, 3, 0, batch_size=10**400)[0].shape[0] == 3  # a batch larger than the games is the games
 
 
 # ---------------------------------------------------------------- 2. finite numbers only
@@ -385,6 +397,7 @@ def test_property_simulate_games_plays_or_refuses(teams, args):
                  st.just({"n_pursuers": 2, "n_evaders": 1}), st.builds(Case, JUNK, JUNK), JUNK),
        mostly(st.one_of(st.integers(0, 2**64), st.tuples(st.integers(0, 9), st.integers(0, 9)))),
        mostly(st.integers(-1, 3)), mostly(st.integers(-1, 4)), st.sampled_from(["run_games", "sample", "run_case"]))
+@example(Case(2, 1, t_max=0.05, tau=0.05), 0, 0, 10**400, "run_games")  # CI, stop 44's successor: numpy's ValueError
 def test_property_montecarlo_plays_or_refuses(case, seed, start, stop, entry):
     """run_games, sample_initial_positions and run_case (stop as n_games, start as batch_size)
     with any case, seed, start and stop: a result for the games asked, or InputError."""

@@ -71,15 +71,15 @@ DAMAGES = {  # the damage: (which of checkpoint_files, how, the damaged file's e
 }
 
 
-def assert_same_run(a: Path, b: Path, *also_timings: str) -> None:
+def assert_same_run(a: Path, b: Path, *also_left_out: str) -> None:
     """Runs a and b trained the same: model.zip's weights and optimisers, evaluations.npz and
-    metrics.json but the timings, resumed_from and also_timings."""
+    metrics.json but the timings, resumed_from and also_left_out."""
     assert_same_model(a / "model.zip", b / "model.zip")
     ea, eb = np.load(a / "evaluations.npz"), np.load(b / "evaluations.npz")
     assert ea.files == eb.files and all(np.array_equal(ea[k], eb[k]) for k in ea.files)
     assert ea["timesteps"].tolist() == [0, 40, 80, 120]  # the pretrained model's first
     ma, mb = (json.loads((run / "metrics.json").read_text()) for run in (a, b))
-    for name in ("resumed_from", *TIMINGS, *also_timings):
+    for name in ("resumed_from", *TIMINGS, *also_left_out):
         ma.pop(name), mb.pop(name)
     assert ma == mb
 
@@ -142,7 +142,9 @@ def test_a_damaged_pretraining_iteration_goes_on_from_the_one_before(reference, 
         assert f"pretrain/iteration_{i}.pkl is damaged (UnpicklingError); moved to pretrain/damaged/, {then}" in line
     assert sorted(p.name for p in (run / "pretrain" / "damaged").iterdir()) == sorted(
         f"iteration_{i}.pkl" for i in damaged)
-    assert_same_run(reference, run, "pretrain_seconds")
+    resumed_after = json.loads((run / "metrics.json").read_text())["pretrain_resumed_after"]
+    assert resumed_after == (None if 0 in damaged else 0)
+    assert_same_run(reference, run, "pretrain_seconds", "pretrain_resumed_after")
 
 
 def test_whole_checkpoints_are_newest_first_and_latest_checkpoint_is_the_first(tmp_path):

@@ -19,7 +19,11 @@ from workers.engine import GameResults, simulate_games
 from workers.errors import InputError, shown
 from workers.stats import CaptureStats, results_statistics
 
-__all__ = ["sample_initial_positions", "run_games", "simulate_case", "run_case", "SEEDING"]
+__all__ = ["sample_initial_positions", "run_games", "simulate_case", "run_case", "SEEDING", "MAX_GAMES",
+           "MAX_BATCH_BYTES"]
+
+MAX_GAMES = 10**9  # games of one run_case: far above any Monte Carlo case (the farm shards millions)
+MAX_BATCH_BYTES = 2**32  # the starting positions of one batch (run_games, sample_initial_positions): 4 GiB
 
 SEEDING = "default_rng([*seed, game])"  # part of every sweep's id: sweeps seeded otherwise are never mixed in
 
@@ -63,6 +67,12 @@ def _initial_positions(case: Case, seed, start, stop):
     start = _whole("start", start, 0)
     stop = _whole("stop", stop, start)
     n_p, n_e = case.n_pursuers, case.n_evaders
+    needed = (stop - start) * (n_p + n_e) * 2 * 8
+    if needed > MAX_BATCH_BYTES:
+        gib = f"{needed / 2**30:.3g}" if needed < 2**1000 else f"about 1e{len(str(needed // 2**30)) - 1}"
+        raise InputError(f"stop: games {start}..{shown(stop)} of {n_p} v {n_e} need {gib} GiB of "
+                         f"starting positions in one batch, more than {MAX_BATCH_BYTES // 2**30} GiB; play them "
+                         f"in batches (run_case, or a sweep's shards)", field="stop")
     arena = make_arena(case.arena)
     pursuers = np.empty((stop - start, n_p, 2))
     evaders = np.empty((stop - start, n_e, 2))
@@ -129,6 +139,9 @@ def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024,
     """
     case = _checked_case(case).check_window()
     n_games = _whole("n_games", n_games, 1)
+    if n_games > MAX_GAMES:
+        raise InputError(f"n_games: must be at most {MAX_GAMES:,} (one run_case's table holds a row a game), "
+                         f"got {shown(n_games)}", field="n_games")
     batch_size = _whole("batch_size", batch_size, 1)
     _seed_words(seed)
     if progress is not None and not callable(progress):
