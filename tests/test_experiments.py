@@ -395,6 +395,28 @@ def assert_rows_equal_cold(trials: pd.DataFrame, cold_trials: pd.DataFrame) -> N
     pd.testing.assert_frame_equal(trials[keep].reset_index(drop=True), expected[keep])
 
 
+def run_experiment_killing(config, out: str, kill):
+    """run_experiment(config, out) with kill() in a thread beside it (it kills a trial's worker):
+    (trials, info, what kill() returned); asserts kill() returned, not failed (the worker was not
+    killed, and why)."""
+    from farm.studies.experiments import run_experiment
+
+    killed = []
+
+    def killer():
+        try:
+            killed.append(kill())
+        except (AssertionError, ProcessLookupError, OSError) as e:
+            killed.append(e)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    trials, _, info = run_experiment(config, out, show_progress=False)
+    thread.join(timeout=DEADLINE)
+    assert killed and not isinstance(killed[0], Exception), f"the worker was not killed: {killed!r}"
+    return trials, info, killed[0]
+
+
 def test_a_trial_in_object_storage_killed_with_its_local_folder_goes_on_from_the_bucket(s3, cold, tmp_path):
     """The experiment in an S3 bucket (moto's server on localhost), nothing of it on the local
     disk but the trial's scratch folder: the trial's worker SIGKILLed once it has trained past
@@ -405,7 +427,7 @@ def test_a_trial_in_object_storage_killed_with_its_local_folder_goes_on_from_the
     (local) run's, and the scratch folder is gone."""
     import io
 
-    from farm.studies.experiments import load_experiment_config, run_experiment
+    from farm.studies.experiments import load_experiment_config
     from farm.studies.experiments.storage import ExperimentStorage
 
     _, cold_trials, _, store, _, cold_out = cold
@@ -413,24 +435,17 @@ def test_a_trial_in_object_storage_killed_with_its_local_folder_goes_on_from_the
     out = "s3://farm/kill"
     run = ExperimentStorage(out).run_dir("p0_s0")
     local_files = sorted(tmp_path.iterdir())
-    killed = []  # (the worker's pid, the checkpoint the local run held), or why it was not killed
 
-    def kill_past_the_checkpoint():
-        try:
-            pid = held_at_checkpoint(run, 200)
-            local = latest_checkpoint_steps(run)
-            shutil.rmtree(run)
-            os.kill(pid, signal.SIGKILL)
-            killed.append((pid, local))
-        except (AssertionError, ProcessLookupError, OSError) as e:
-            killed.append(repr(e))
+    def kill_past_the_checkpoint() -> int:
+        """The checkpoint the local run held when its worker was killed."""
+        pid = held_at_checkpoint(run, 200)
+        local = latest_checkpoint_steps(run)
+        shutil.rmtree(run)
+        os.kill(pid, signal.SIGKILL)
+        return local
 
-    killer = threading.Thread(target=kill_past_the_checkpoint, daemon=True)
-    killer.start()
-    trials, _, info = run_experiment(config, out, show_progress=False)
-    killer.join(timeout=DEADLINE)
-    assert killed and isinstance(killed[0], tuple), f"the worker was not killed: {killed}"
-    assert 200 <= killed[0][1] < 300
+    trials, info, local = run_experiment_killing(config, out, kill_past_the_checkpoint)
+    assert 200 <= local < 300
     assert trials["resumed_from"].tolist() == [150]
     assert_rows_equal_cold(trials, cold_trials)
     from_bucket = pd.read_csv(io.BytesIO(s3.get_object(Bucket="farm", Key="kill/trials.csv")["Body"].read()))
@@ -452,7 +467,7 @@ def test_a_trial_in_object_storage_killed_in_its_pretraining_goes_on_after_the_b
     pretrain_resumed_after), not from the start; its pretraining and training equal the same
     config's uninterrupted run in process, number for number."""
     from farm.alloc.training import TrainConfig, train
-    from farm.studies.experiments import load_experiment_config, plan, run_experiment
+    from farm.studies.experiments import load_experiment_config, plan
     from farm.studies.experiments.storage import ExperimentStorage
 
     _, _, _, store, _, _ = cold
@@ -461,14 +476,15 @@ def test_a_trial_in_object_storage_killed_in_its_pretraining_goes_on_after_the_b
     config = load_experiment_config(kill_config(tmp_path, store, seeds=[0], pretrain=pretraining))
     out = "s3://farm/kill-pretrain"
     run = ExperimentStorage(out).run_dir("p0_s0")
-    killed = []  # (the iteration in the bucket, the local folder's newest iteration), or why not killed
 
     def bucket_iteration():
         keys = bucket_keys(s3, prefix="kill-pretrain/tune/p0_s0/")
         found = [int(k.rsplit("iteration_", 1)[1].split(".")[0]) for k in keys if "/run/pretrain/iteration_" in k]
         return max(found) if found else None
 
-    def kill_in_the_pretraining():
+    def kill_in_the_pretraining() -> int:
+        """The newest iteration in the bucket when the trial's worker was killed (every Ray worker
+        stopped while we look, as in held_at_checkpoint)."""
         stopped: list[int] = []
 
         def stop():
@@ -476,27 +492,18 @@ def test_a_trial_in_object_storage_killed_in_its_pretraining_goes_on_after_the_b
             signal_all(stopped, signal.SIGSTOP)
 
         try:
-            try:
-                iteration = stopped_when("a pretraining checkpoint in the bucket", lambda: bucket_iteration() is not None,
-                                         stop, lambda: signal_all(stopped, signal.SIGCONT), run_for=0.05)
-                trainers = [pid for pid in stopped if cmdline(pid).startswith(b"ray::ImplicitFunc")]
-                assert len(trainers) == 1, trainers
-                iteration = bucket_iteration()
-                local = sorted((run / "pretrain").glob("iteration_*.pkl"))
-                shutil.rmtree(run)
-                os.kill(trainers[0], signal.SIGKILL)
-                killed.append((iteration, [f.name for f in local]))
-            finally:
-                signal_all(stopped, signal.SIGCONT)
-        except (AssertionError, ProcessLookupError, OSError) as e:
-            killed.append(repr(e))
+            stopped_when("a pretraining checkpoint in the bucket", lambda: bucket_iteration() is not None, stop,
+                         lambda: signal_all(stopped, signal.SIGCONT), run_for=0.05)
+            iteration = bucket_iteration()  # its uploader, the trial's worker, is stopped
+            trainers = [pid for pid in stopped if cmdline(pid).startswith(b"ray::ImplicitFunc")]
+            assert len(trainers) == 1, trainers
+            shutil.rmtree(run)
+            os.kill(trainers[0], signal.SIGKILL)
+            return iteration
+        finally:
+            signal_all(stopped, signal.SIGCONT)
 
-    killer = threading.Thread(target=kill_in_the_pretraining, daemon=True)
-    killer.start()
-    trials, _, _ = run_experiment(config, out, show_progress=False)
-    killer.join(timeout=DEADLINE)
-    assert killed and isinstance(killed[0], tuple), f"the worker was not killed: {killed}"
-    iteration = killed[0][0]
+    trials, _, iteration = run_experiment_killing(config, out, kill_in_the_pretraining)
     assert iteration < pretraining["iterations"] - 1  # killed with an iteration still to label
     metrics = json.loads(s3.get_object(Bucket="farm", Key="kill-pretrain/trials/p0_s0/run/metrics.json")["Body"].read())
     assert metrics["pretrain_resumed_after"] == iteration

@@ -115,6 +115,8 @@ def test_game_counts_too_large_to_hold_are_refused_before_any_array():
     refused(lambda: run_games(case, 0, 0, 10**400), "stop: games 0..")
     refused(lambda: sample_initial_positions(case, 0, 5, 10**9), "GiB of starting positions in one batch, more than 4 GiB")
     refused(lambda: run_case(case, 10**400, 0), "n_games: must be at most 1,000,000,000")
+    refused(lambda: run_case(case, 10**5000, 0), "got an integer of about 5,001 digits")  # past repr's limit
+    refused(lambda: run_games(case, 0, 0, 10**5000), "need about 1e4992 GiB")
     refused(lambda: run_case(case, 10**9 + 1, 0, batch_size=10**400), "n_games: must be at most")
     assert run_case(case, 3, 0, batch_size=10**400)[0].shape[0] == 3  # a batch larger than the games is the games
 
@@ -419,3 +421,5 @@ def test_shown_keeps_messages_on_one_line():
     """An array's repr spans lines and a huge value's is long: shown() makes one short line."""
     assert shown(np.zeros((3, 3))) == "array([[0., 0., 0.], [0., 0., 0.], [0., 0., 0.]])"
     assert len(shown(10**400)) == 80 and shown(10**400).endswith("...")
+    assert shown(-10**5000) == "an integer of about 5,001 digits"  # repr raises past 4,300 digits
+    assert shown([1, 10**5000]) == "a list holding an integer too long to print"

@@ -68,8 +68,14 @@ def all_numbers(value) -> bool:
 
 def shown(value, limit: int = 80) -> str:
     """repr(value) for a one-line message: whitespace runs (an array's line breaks) become
-    one space, and a repr longer than `limit` characters is cut with "..."."""
-    text = " ".join(repr(value).split())
+    one space, and a repr longer than `limit` characters is cut with "..."; an integer (or a
+    container of one) past Python's limit on printing integers (4,300 digits) is named by its size."""
+    try:
+        text = " ".join(repr(value).split())
+    except ValueError:
+        digits = int(abs(value).bit_length() * 0.30103) + 1 if isinstance(value, int) else None
+        text = (f"an integer of about {digits:,} digits" if digits is not None
+                else f"a {type(value).__name__} holding an integer too long to print")
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

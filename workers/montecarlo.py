@@ -10,6 +10,8 @@ cut into batches. Cases with the same seed share their streams (common random nu
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 
@@ -69,7 +71,7 @@ def _initial_positions(case: Case, seed, start, stop):
     n_p, n_e = case.n_pursuers, case.n_evaders
     needed = (stop - start) * (n_p + n_e) * 2 * 8
     if needed > MAX_BATCH_BYTES:
-        gib = f"{needed / 2**30:.3g}" if needed < 2**1000 else f"about 1e{len(str(needed // 2**30)) - 1}"
+        gib = f"{needed / 2**30:.3g}" if needed < 2**1000 else f"about 1e{int(math.log10(needed) - 9.03)}"
         raise InputError(f"stop: games {start}..{shown(stop)} of {n_p} v {n_e} need {gib} GiB of "
                          f"starting positions in one batch, more than {MAX_BATCH_BYTES // 2**30} GiB; play them "
                          f"in batches (run_case, or a sweep's shards)", field="stop")
