@@ -46,7 +46,7 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp) / "s.sqlite"
-        client = CaptureTimeClient(config.service_settings(), local_store=store)
+        client = CaptureTimeClient(config.game_settings(), local_store=store)
         t0 = time.perf_counter()
         client.get_many(lattice_pairs(config))
         t_warm = time.perf_counter() - t0

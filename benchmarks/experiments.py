@@ -83,7 +83,7 @@ def main() -> None:
         store = tmp / "store.sqlite"
         env = AllocConfig(**plan(experiment("timed", store, steps)).trials[0].config["env"])
         # The actor every run_experiment finds, held here: it and its counts outlive each run.
-        client = CaptureTimeClient(env.service_settings(), service=get_service(store))
+        client = CaptureTimeClient(env.game_settings(), service=get_service(store))
 
         t0 = time.perf_counter()
         run_experiment(experiment("cold", store, COLD_STEPS), tmp / "cold", workers=2, show_progress=False, warm=False)

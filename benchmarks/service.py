@@ -19,7 +19,7 @@ from pathlib import Path
 # benchmarks/farm.py would shadow the farm package: drop this folder from the path.
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
-from farm.service import CaptureTimeClient, ServiceSettings, get_service  # noqa: E402
+from farm.service import CaptureTimeClient, GameSettings, get_service  # noqa: E402
 from farm.runtime import ray_cluster  # noqa: E402
 
 
@@ -28,7 +28,7 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=10)
     ap.add_argument("--games", type=int, default=64)
     a = ap.parse_args()
-    settings = ServiceSettings.of(games=a.games)
+    settings = GameSettings.of(games=a.games)
     with tempfile.TemporaryDirectory() as tmp, ray_cluster(num_cpus=2, dashboard=False) as ray:
         service = get_service(Path(tmp) / "bench.sqlite", name="bench-service")
         client = CaptureTimeClient(settings, service=service)

@@ -228,7 +228,7 @@ def subregions(a) -> None:
                 options = dict(options)
                 policy_name = options.pop("name")
                 # the actors open the store themselves: they get a client of the store, not the memo
-                own = CaptureTimeClient(config.service_settings(), local_store=a.store) if options.get("workers") else client
+                own = CaptureTimeClient(config.game_settings(), local_store=a.store) if options.get("workers") else client
                 policy = Timed(make_policy(policy_name, config, own, **options))
                 table = evaluate_policies(config, {label: policy}, client, a.sub_episodes, 1000)[0]
                 if hasattr(policy.policy, "close"):  # subregions: its actors

@@ -107,7 +107,7 @@ def main() -> None:
     env_rows, ppo_rows = [], []
     with tempfile.TemporaryDirectory() as tmp:
         first = next(iter(configs.values()))
-        client = CaptureTimeClient(first.service_settings(), local_store=Path(tmp) / "s.sqlite")
+        client = CaptureTimeClient(first.game_settings(), local_store=Path(tmp) / "s.sqlite")
         t0 = time.perf_counter()
         cases = warm_lattices(client, lattice_groups(configs.values()), show_progress=False)
         t_warm = time.perf_counter() - t0

@@ -60,11 +60,11 @@ def flags(*names: str, **renamed: str):
         raise
 
 
-def _contradictions(a, pairs) -> None:
+def _contradictions(args, pairs) -> None:
     """CliError naming both flags when two flags that contradict each other (or one that the
     other makes ignored) are both given; a flag counts as given when it is not None."""
     for first, second in pairs:
-        if getattr(a, first) is not None and getattr(a, second) is not None:
+        if getattr(args, first) is not None and getattr(args, second) is not None:
             raise CliError(f"--{first.replace('_', '-')} and --{second.replace('_', '-')}: give one or the other "
                            f"(with --{first.replace('_', '-')}, --{second.replace('_', '-')} would be ignored)")
 
@@ -121,11 +121,11 @@ def _add_game_options(p: argparse.ArgumentParser, names=GAME_FLAGS) -> None:
                        help=f"{GAME_FLAG_HELP.get(name, name.replace('_', ' '))} (default: {shown})")
 
 
-def _game_settings(a, names=GAME_FLAGS) -> dict:
+def _game_settings(args, names=GAME_FLAGS) -> dict:
     """The game flags given, as plain values for farm.core.config.case_from."""
     out = {}
     for name in names:
-        text = getattr(a, name)
+        text = getattr(args, name)
         if text is None:
             continue
         flag = "--" + name.replace("_", "-")
@@ -146,52 +146,52 @@ def _case(fields: dict):
         return case_from(fields)
 
 
-def cmd_game(a) -> int:
+def cmd_game(args) -> int:
     """`farm game`: play one pursuit-evasion game, print its capture times, optionally plot it."""
     from farm.core.output import check_writable_file
 
-    if a.plot and Path(a.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
-        raise CliError(f"--plot: {a.plot!r} must end in .png, .pdf or .svg")
-    if a.plot:
+    if args.plot and Path(args.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
+        raise CliError(f"--plot: {args.plot!r} must end in .png, .pdf or .svg")
+    if args.plot:
         with flags("plot"):
-            check_writable_file(a.plot, "plot")  # before the game: a read-only place is found now
-    settings = _game_settings(a)
-    _contradictions(a, [("positions", "pursuers"), ("positions", "evaders"), ("positions", "n_pursuers"),
+            check_writable_file(args.plot, "plot")  # before the game: a read-only place is found now
+    settings = _game_settings(args)
+    _contradictions(args, [("positions", "pursuers"), ("positions", "evaders"), ("positions", "n_pursuers"),
                         ("positions", "n_evaders"), ("positions", "seed"), ("positions", "law"),
                         ("pursuers", "n_pursuers"), ("evaders", "n_evaders"), ("pursuers", "seed"),
                         ("evaders", "seed"), ("pursuers", "law"), ("evaders", "law")])
-    if a.plot_times is not None and not a.plot:
+    if args.plot_times is not None and not args.plot:
         raise CliError("--plot-times: is for the figure of --plot, which is not given")
-    if a.frame_stride is not None and not a.animate:
+    if args.frame_stride is not None and not args.animate:
         raise CliError("--frame-stride: is for the animation of --animate, which is not given")
-    if a.animate:
-        from farm.core.animate import check_animation_path
+    if args.animate:
+        from farm.core.game_animation import check_animation_path
 
         with flags("animate"):
-            check_writable_file(check_animation_path(a.animate), "animate")
-        if a.frame_stride is not None and a.frame_stride < 1:
-            raise CliError(f"--frame-stride: must be a whole number >= 1, got {a.frame_stride}")
-        if a.fps is not None and not 0.1 <= a.fps <= 50:
-            raise CliError(f"--fps: must be between 0.1 and 50 frames a second, got {a.fps:g}")
-    elif a.fps is not None:
+            check_writable_file(check_animation_path(args.animate), "animate")
+        if args.frame_stride is not None and args.frame_stride < 1:
+            raise CliError(f"--frame-stride: must be a whole number >= 1, got {args.frame_stride}")
+        if args.fps is not None and not 0.1 <= args.fps <= 50:
+            raise CliError(f"--fps: must be between 0.1 and 50 frames a second, got {args.fps:g}")
+    elif args.fps is not None:
         raise CliError("--fps: is for the animation of --animate, which is not given")
-    if a.positions:
-        data = _load_json(a.positions, "--positions")
+    if args.positions:
+        data = _load_json(args.positions, "--positions")
         if not isinstance(data, dict) or not {"pursuers", "evaders"} <= set(data):
             raise CliError("--positions: JSON must be an object with 'pursuers' and 'evaders' lists of [x, y]")
         unknown = sorted(set(data) - {"pursuers", "evaders"})
         if unknown:
             raise CliError(f"--positions: unknown key {unknown[0]!r} (the JSON holds 'pursuers' and 'evaders' only)")
         pursuers, evaders = (_xy_pairs(data[side], f"--positions: {side}") for side in ("pursuers", "evaders"))
-    elif a.pursuers or a.evaders:
-        if not (a.pursuers and a.evaders):
+    elif args.pursuers or args.evaders:
+        if not (args.pursuers and args.evaders):
             raise CliError("--pursuers and --evaders go together")
-        pursuers, evaders = _points(a.pursuers, "--pursuers"), _points(a.evaders, "--evaders")
+        pursuers, evaders = _points(args.pursuers, "--pursuers"), _points(args.evaders, "--evaders")
     else:
-        n_p = 3 if a.n_pursuers is None else a.n_pursuers
-        n_e = 1 if a.n_evaders is None else a.n_evaders
+        n_p = 3 if args.n_pursuers is None else args.n_pursuers
+        n_e = 1 if args.n_evaders is None else args.n_evaders
         case = _case({"n_pursuers": n_p, "n_evaders": n_e, **settings})
-        p, e = sample_initial_positions(case, 0 if a.seed is None else a.seed, 0, 1)
+        p, e = sample_initial_positions(case, 0 if args.seed is None else args.seed, 0, 1)
         pursuers, evaders = p[0], e[0]
     try:
         p = np.array(pursuers, dtype=np.float64)[None]
@@ -200,10 +200,10 @@ def cmd_game(a) -> int:
         raise CliError("positions: expected lists of [x, y] pairs") from None
     if p.ndim != 3 or e.ndim != 3 or p.shape[1] == 0 or e.shape[1] == 0:
         raise CliError("positions: expected non-empty lists of [x, y] pairs")
-    if a.positions or a.pursuers:  # the start is given: no initial-position law applies
+    if args.positions or args.pursuers:  # the start is given: no initial-position law applies
         settings = {**settings, "law": {"kind": "uniform"}}
     case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
-    res = simulate_case(case, p, e, record=bool(a.plot or a.animate))
+    res = simulate_case(case, p, e, record=bool(args.plot or args.animate))
     exit_point = case.exit_point
     extras = [f"{name.replace('_', ' ')} {getattr(case, name):g}" for name in ("pursuer_speed", "evader_speed")
               if getattr(case, name) != 1.0]
@@ -219,44 +219,44 @@ def cmd_game(a) -> int:
         else:
             shown = f"not captured by t_max = {case.t_max:g} s" + (", not escaped" if exit_point is not None else "")
         print(f"  evader {i} at ({e[0, i, 0]:.2f}, {e[0, i, 1]:.2f}): {shown}")
-    if a.plot:
+    if args.plot:
         from farm.core.plots import default_frames, plot_game
 
         frames = None
-        if a.plot_times:
-            times = _floats(a.plot_times, "--plot-times")
+        if args.plot_times:
+            times = _floats(args.plot_times, "--plot-times")
             if not all(np.isfinite(t) and t >= 0 for t in times):
                 raise CliError("--plot-times: times must be finite and >= 0")
             frames = [int(round(t / res.dt)) for t in times]
             frames = [min(f, int(res.steps[0])) for f in frames]
         frames = frames or default_frames(res, 0)
-        path = plot_game(res, a.plot, frames=frames)
+        path = plot_game(res, args.plot, frames=frames)
         print(f"figure: {path}")
-    if a.animate:
-        from farm.core.animate import auto_stride, game_frames, write_animation
+    if args.animate:
+        from farm.core.game_animation import auto_stride, game_frames, write_animation
 
-        stride = a.frame_stride or auto_stride(int(res.steps[0]))
+        stride = args.frame_stride or auto_stride(int(res.steps[0]))
         title = f"{p.shape[1]} {case.pursuer_policy} vs {e.shape[1]} {case.evader_policy}"
         with flags("animate"):
-            path, count = write_animation(game_frames(res, 0, stride, title=title), a.animate,
-                                          fps=min(25.0, max(1.0, 1.0 / (stride * res.dt))) if a.fps is None else a.fps)
+            path, count = write_animation(game_frames(res, 0, stride, title=title), args.animate,
+                                          fps=min(25.0, max(1.0, 1.0 / (stride * res.dt))) if args.fps is None else args.fps)
         print(f"animation: {path} ({count} frames, every {stride} step(s) of {int(res.steps[0])})")
     return 0
 
 
-def cmd_pe_table(a) -> int:
+def cmd_pe_table(args) -> int:
     """`farm pe-table`: the paper's Tables 1 and 2 (Monte Carlo), with figures."""
     from farm.games.pe_table import format_tables, speeds_text, write_pe_tables
 
     from farm.games.pe_table import pe_size
     from farm.games.sizes import check_size
 
-    if a.games < 2:
-        raise CliError(f"--games: need at least 2 games per case for a CI, got {a.games}")
-    base = _case({"n_pursuers": 1, "n_evaders": 1, **_game_settings(a, SPEED_FLAGS)})
-    check_size(pe_size(a.games, base), yes=a.yes, cpus=1)
+    if args.games < 2:
+        raise CliError(f"--games: need at least 2 games per case for a CI, got {args.games}")
+    base = _case({"n_pursuers": 1, "n_evaders": 1, **_game_settings(args, SPEED_FLAGS)})
+    check_size(pe_size(args.games, base), yes=args.yes, cpus=1)
     paper_speeds = base.pursuer_speed == base.evader_speed == 1.0
-    out = a.out or ("results/pe-table" if paper_speeds
+    out = args.out or ("results/pe-table" if paper_speeds
                     else f"results/pe-table-speeds-{base.pursuer_speed:g}-{base.evader_speed:g}")
     if Path(out).exists() and not Path(out).is_dir():
         raise CliError(f"--out: {out} exists and is not a folder")
@@ -266,8 +266,8 @@ def cmd_pe_table(a) -> int:
         check_writable_folder(out, "out")  # before the games: a read-only --out is found now, not at the end
     t0 = time.perf_counter()
     written, summary = write_pe_tables(
-        Path(out), a.games, a.seed, a.format, progress=lambda m: print("  " + m, file=sys.stderr),
-        figures=not a.no_figures, base=base,
+        Path(out), args.games, args.seed, args.format, progress=lambda m: print("  " + m, file=sys.stderr),
+        figures=not args.no_figures, base=base,
     )
     print(format_tables(summary))
     print("Our numbers come from the model of docs/model.md; the paper's evader target point and runs are unknown.")
@@ -280,25 +280,25 @@ def cmd_pe_table(a) -> int:
     return 0
 
 
-def cmd_sweep(a) -> int:
+def cmd_sweep(args) -> int:
     """`farm sweep CONFIG`: run or resume a parametric Monte Carlo sweep; prints its summary."""
     from farm.games.sweep import format_summary, load_sweep_config, print_info, run_sweep
 
-    no_ray = True if a.no_ray else None
-    _contradictions(argparse.Namespace(no_ray=no_ray, address=a.address, workers=a.workers,
-                                       metrics_port=a.metrics_port),
+    no_ray = True if args.no_ray else None
+    _contradictions(argparse.Namespace(no_ray=no_ray, address=args.address, workers=args.workers,
+                                       metrics_port=args.metrics_port),
                     [("no_ray", "address"), ("no_ray", "workers"), ("no_ray", "metrics_port"),
                      ("address", "metrics_port")])
-    if a.metrics_port is not None and not 1 <= a.metrics_port <= 65535:
-        raise CliError(f"--metrics-port: must be a TCP port from 1 to 65535, got {a.metrics_port}")
-    if a.metrics_port is not None and os.environ.get("RAY_ADDRESS"):
+    if args.metrics_port is not None and not 1 <= args.metrics_port <= 65535:
+        raise CliError(f"--metrics-port: must be a TCP port from 1 to 65535, got {args.metrics_port}")
+    if args.metrics_port is not None and os.environ.get("RAY_ADDRESS"):
         raise CliError("--metrics-port: is for a local Ray, but RAY_ADDRESS names a cluster to join")
-    config = load_sweep_config(a.config)
-    out = Path(a.out) if a.out else Path("results") / "sweeps" / config.name
+    config = load_sweep_config(args.config)
+    out = Path(args.out) if args.out else Path("results") / "sweeps" / config.name
     with flags("out", "address", "metrics_port", "rebuild", "workers", workers="num_cpus"):
-        summary, info = run_sweep(config, out, address=a.address, workers=a.workers, use_ray=not a.no_ray,
-                                  show_progress=not a.quiet, metrics_port=a.metrics_port, yes=a.yes,
-                                  rebuild=a.rebuild)
+        summary, info = run_sweep(config, out, address=args.address, workers=args.workers, use_ray=not args.no_ray,
+                                  show_progress=not args.quiet, metrics_port=args.metrics_port, yes=args.yes,
+                                  rebuild=args.rebuild)
     print_info(info)
     print(f"{config.name}: {len(summary)} point(s), {int(summary['n_games'].sum())} games")
     print(format_summary(summary, config.vary.names()))
@@ -306,11 +306,11 @@ def cmd_sweep(a) -> int:
     return 0
 
 
-def cmd_table(a) -> int:
+def cmd_table(args) -> int:
     """`farm table [show] CONFIG`: fill the capture-time store over a table's cells, or show it."""
     from farm.service.table import fill_table, load_table_config, plot_heatmaps, table_frames
 
-    args = list(a.args)
+    args = list(args.args)
     show = bool(args) and args[0] == "show"
     if show:
         args = args[1:]
@@ -318,10 +318,10 @@ def cmd_table(a) -> int:
         raise CliError("table: usage: farm table CONFIG | farm table show CONFIG")
     if show:
         for flag in ("address", "workers", "yes"):
-            if getattr(a, flag) not in (None, False):
+            if getattr(args, flag) not in (None, False):
                 raise CliError(f"--{flag}: `farm table show` only reads the store; --{flag} is for `farm table`")
-    _contradictions(a, [("address", "workers")])
-    if a.store is not None and not a.store.strip():
+    _contradictions(args, [("address", "workers")])
+    if args.store is not None and not args.store.strip():
         raise CliError("--store: an empty path; name the SQLite store, or leave --store out for the config's")
     config = load_table_config(args[0])
     if not show:
@@ -329,14 +329,14 @@ def cmd_table(a) -> int:
         from farm.runtime import check_workers
 
         with flags("store", "address", "workers", workers="num_cpus"):
-            check_workers(a.workers)
-            check_size(config.size(), yes=a.yes, cpus=a.workers or 2)
-            info = fill_table(config, store=a.store, address=a.address, workers=a.workers,
-                              show_progress=not a.quiet)
+            check_workers(args.workers)
+            check_size(config.size(), yes=args.yes, cpus=args.workers or 2)
+            info = fill_table(config, store=args.store, address=args.address, workers=args.workers,
+                              show_progress=not args.quiet)
         print(f"{config.name}: {info['cases']} cases, {info['computed']} computed, the rest from the store "
               f"({info['seconds']:.1f} s)")
-    out = Path(a.plot_dir or config.store_path(a.store).parent / "tables")
-    for settings, mean, frac in table_frames(config, store=a.store):
+    out = Path(args.plot_dir or config.store_path(args.store).parent / "tables")
+    for settings, mean, frac in table_frames(config, store=args.store):
         print(f"\n{settings.game.pursuer_policy} vs {settings.game.evader_policy}: mean capture time (s)")
         print(mean.to_string(float_format=lambda x: f"{x:.2f}", na_rep="-"))
         print(f"fraction of evaders captured within tau = {settings.game.tau:g} s")
@@ -346,58 +346,58 @@ def cmd_table(a) -> int:
     return 0
 
 
-def cmd_report(a) -> int:
+def cmd_report(args) -> int:
     """`farm report RESULTS_DIR`: one self-contained HTML page of a results folder."""
     from farm.report import write_report
 
-    path = write_report(a.results_dir, a.output)
+    path = write_report(args.results_dir, args.output)
     print(f"report: {path.resolve()}")
     return 0
 
 
-def cmd_train(a) -> int:
+def cmd_train(args) -> int:
     """`farm train CONFIG`: train the TD3 allocator into a run folder; prints its metrics."""
     from farm.alloc.training import load_train_config, train
 
-    config = load_train_config(a.config, trainable=False)  # checked below, with --timesteps applied
-    if a.timesteps is not None:
-        if a.timesteps < 1:
-            raise CliError(f"--timesteps: must be >= 1, got {a.timesteps}")
+    config = load_train_config(args.config, trainable=False)  # checked below, with --timesteps applied
+    if args.timesteps is not None:
+        if args.timesteps < 1:
+            raise CliError(f"--timesteps: must be >= 1, got {args.timesteps}")
         starts = getattr(config.learner, "learning_starts", None)
-        if starts is not None and a.timesteps <= starts:
-            raise CliError(f"--timesteps: {a.timesteps} steps, but {config.algo}.learning_starts is {starts}: "
+        if starts is not None and args.timesteps <= starts:
+            raise CliError(f"--timesteps: {args.timesteps} steps, but {config.algo}.learning_starts is {starts}: "
                            f"the model would never be updated")
-        config = config.with_timesteps(a.timesteps)
+        config = config.with_timesteps(args.timesteps)
     else:
         from farm.alloc.training.config import check_trainable
 
         try:
             check_trainable(config)
         except SwarmFarmError as e:
-            raise CliError(f"{a.config}: {e}") from None
-    if a.service:
-        config = config.model_copy(update={"service": config.service.model_copy(update={"mode": a.service})})
-    if a.threads is not None:
-        if a.threads < 1:
-            raise CliError(f"--threads: must be >= 1, got {a.threads}")
-        config = config.model_copy(update={"threads": a.threads})
-    out = Path(a.out or Path("results") / "runs" / config.name)
+            raise CliError(f"{args.config}: {e}") from None
+    if args.service:
+        config = config.model_copy(update={"service": config.service.model_copy(update={"mode": args.service})})
+    if args.threads is not None:
+        if args.threads < 1:
+            raise CliError(f"--threads: must be >= 1, got {args.threads}")
+        config = config.model_copy(update={"threads": args.threads})
+    out = Path(args.out or Path("results") / "runs" / config.name)
     with flags("out", "resume"):
-        metrics = train(config, out, resume=a.resume, show_progress=not a.quiet)
+        metrics = train(config, out, resume=args.resume, show_progress=not args.quiet)
     print(json.dumps(metrics, indent=2))
     print(f"run: {out}")
     return 0
 
 
-def cmd_eval(a) -> int:
+def cmd_eval(args) -> int:
     """`farm eval RUN_DIR`: the trained policy, the baselines and the planners on the same seeded episodes."""
     from farm.alloc.evaluation import evaluate_run, fidelity_lines
 
-    run_dir = Path(a.run_dir)
-    references = None if a.references is None else [n for n in a.references.split(",") if n and n != "none"]
+    run_dir = Path(args.run_dir)
+    references = None if args.references is None else [n for n in args.references.split(",") if n and n != "none"]
     with flags("episodes", "seed", "fidelity", "scenario", "references", "repair"):
-        result = evaluate_run(run_dir, episodes=a.episodes, seed=a.seed, fidelity=a.fidelity, scenario=a.scenario,
-                              references=references, animate=a.animate, show_progress=not a.quiet, repair=a.repair)
+        result = evaluate_run(run_dir, episodes=args.episodes, seed=args.seed, fidelity=args.fidelity, scenario=args.scenario,
+                              references=references, animate=args.animate, show_progress=not args.quiet, repair=args.repair)
     run_dir = result.folder
     print(result.table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     if result.games_table is not None:
@@ -415,8 +415,8 @@ def cmd_eval(a) -> int:
 CLAIM_RUNS = ("paper_3x3_c1_0", "paper_3x3_c1_1.5")  # `farm claims`' default --c0 and --c15 run folders
 
 
-def cmd_claims(a) -> int:
-    """`farm claims RUNS_DIR`: the paper's claims (a)-(c), measured on evaluated runs; on an
+def cmd_claims(args) -> int:
+    """`farm claims RUNS_DIR`: the paper's claims (args)-(c), measured on evaluated runs; on an
     experiment folder (its experiment.json), over its seeds."""
     from farm.studies.claims import claims
     from farm.studies.experiments.folder import is_experiment
@@ -424,19 +424,19 @@ def cmd_claims(a) -> int:
 
     from farm.studies.claims import check_claim_runs
 
-    runs = Path(a.runs_dir)
+    runs = Path(args.runs_dir)
     if not runs.is_dir():
         raise CliError(f"{runs}: not a folder of training runs")
     if is_experiment(runs):
-        for flag, value in (("--c0", a.c0), ("--c15", a.c15)):
+        for flag, value in (("--c0", args.c0), ("--c15", args.c15)):
             if value is not None:
                 raise CliError(f"{flag}: names a run of a folder of runs; {runs} is an experiment folder "
                                f"(--points names its points)")
-        return _claims_over_seeds(runs, a.points)
-    if a.points is not None:
+        return _claims_over_seeds(runs, args.points)
+    if args.points is not None:
         raise CliError(f"--points: names points of an experiment folder; {runs} holds no experiment.json")
-    c0, c15 = a.c0 or CLAIM_RUNS[0], a.c15 or CLAIM_RUNS[1]
-    note = check_claim_runs(runs, c0, c15, named=(a.c0 is not None, a.c15 is not None))
+    c0, c15 = args.c0 or CLAIM_RUNS[0], args.c15 or CLAIM_RUNS[1]
+    note = check_claim_runs(runs, c0, c15, named=(args.c0 is not None, args.c15 is not None))
     if note is not None:
         print(note)
     rows = claims(runs, c0, c15)
@@ -463,21 +463,21 @@ def _claims_over_seeds(folder: Path, points) -> int:
     return 0
 
 
-def cmd_suite(a) -> int:
+def cmd_suite(args) -> int:
     """`farm suite CONFIG --out DIR`: every policy on every scenario, on the same seeded episodes; a leaderboard."""
     from farm.studies.suite import format_leaderboard, load_suite_config, run_suite
 
     for flag, least in (("episodes", 1), ("games", 2)):
-        value = getattr(a, flag)
+        value = getattr(args, flag)
         if value is not None and value < least:
             raise CliError(f"--{flag}: must be >= {least}, got {value}")
-    config = load_suite_config(a.config)
-    if a.games is not None:
-        config = config.model_copy(update={"env": {**config.env, "games": a.games}})
-    out = Path(a.out)
+    config = load_suite_config(args.config)
+    if args.games is not None:
+        config = config.model_copy(update={"env": {**config.env, "games": args.games}})
+    out = Path(args.out)
     with flags("out", "address", "episodes", "workers", workers="num_cpus"):
-        board, info = run_suite(config, out, episodes=a.episodes, address=a.address, workers=a.workers,
-                                show_progress=not a.quiet)
+        board, info = run_suite(config, out, episodes=args.episodes, address=args.address, workers=args.workers,
+                                show_progress=not args.quiet)
     print(format_leaderboard(board))
     print(f"{config.name}: {info['tasks']} (scenario, policy) evaluations on {info['workers']} worker(s), "
           f"{info['warmed_cases']} lattice cases warmed in {info['warm_seconds']:.1f} s, evaluations "
@@ -486,17 +486,17 @@ def cmd_suite(a) -> int:
     return 0
 
 
-def cmd_experiments(a) -> int:
+def cmd_experiments(args) -> int:
     """`farm experiments CONFIG --out DIR`: TD3 trainings over a grid and seeds as Ray Tune trials
     on one capture-time service; trials.csv and summary.csv (resumable)."""
     from farm.studies.experiments import format_summary, load_experiment_config, run_experiment
     from farm.studies.experiments.storage import is_uri
 
-    config = load_experiment_config(a.config)
-    out = a.out if is_uri(a.out) else Path(a.out)  # a URI: the experiment in object storage (docs/experiments.md)
+    config = load_experiment_config(args.config)
+    out = args.out if is_uri(args.out) else Path(args.out)  # a URI: the experiment in object storage (docs/experiments.md)
     with flags("out", "address", "workers", workers="num_cpus"):
-        trials, summary, info = run_experiment(config, out, source=str(a.config), address=a.address,
-                                               workers=a.workers, show_progress=not a.quiet)
+        trials, summary, info = run_experiment(config, out, source=str(args.config), address=args.address,
+                                               workers=args.workers, show_progress=not args.quiet)
     print(format_summary(summary))
     print(f"{config.name}: {len(trials)}/{info['trials']} trial(s) finished ({info['finished_before']} before this run), "
           f"{info['workers']} at once at {info['trial_cpus']:g} CPU each on {info['cluster_cpus']:g} CPUs, "

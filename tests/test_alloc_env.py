@@ -121,7 +121,7 @@ def test_reward_by_hand(store):
     p = env.move_probabilities(stay)
     D_next = np.bincount(env.dst, weights=p * env.D[env.src], minlength=9)
     _, r, _, _, info = env.step(stay)
-    client = CaptureTimeClient(env.config.service_settings(), local_store=store)
+    client = CaptureTimeClient(env.config.game_settings(), local_store=store)
     v = client.get(int(round(D_next[4] * 10)), int(round(0.5 * 5)))
     remaining_centre = 0.5 * (1 - v.frac_captured_tau)
     t = v.mean_capture.mean if np.isfinite(v.mean_capture.mean) else env.config.t_max
@@ -160,7 +160,7 @@ def test_estimates_answer_first_visits_and_are_counted(tmp_path):
     and is counted; with estimates off the same step waits for the exact value."""
     store = str(tmp_path / "store.sqlite")
     cfg = AllocConfig(**SMALL)
-    client = CaptureTimeClient(cfg.service_settings(), local_store=store)
+    client = CaptureTimeClient(cfg.game_settings(), local_store=store)
     client.get_many([(3, 1), (3, 2), (5, 1), (5, 2)])  # neighbours of (4, 2)
 
     def one_step(estimates):

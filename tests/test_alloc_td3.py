@@ -103,7 +103,7 @@ def test_saved_config_round_trips_nulls(tmp_path):
     path.write_text(yaml.safe_dump(json.loads(config.model_dump_json()), sort_keys=False))
     again = load_train_config(path)
     assert again == config and again.env.exit_point is None and again.threads is None
-    assert again.env.service_settings().key(2, 2).digest() == config.env.service_settings().key(2, 2).digest()
+    assert again.env.game_settings().key(2, 2).digest() == config.env.game_settings().key(2, 2).digest()
 
 
 def test_the_training_curve_is_the_same_on_every_run(tmp_path):

@@ -24,7 +24,7 @@ def test_v2_is_the_default_and_couples_the_layers():
     assert c.engagement == "v2"
     assert (c.pursuer_policy, c.evader_policy, c.exit_point) == ("pure_pursuit", "target", (0.0, 5.0))
     assert c.step_seconds == 10.0 and c.tau == 10.0 and c.t_max == 10.0 and c.capture_time_norm == 10.0
-    game = c.service_settings().game
+    game = c.game_settings().game
     assert (game.pursuer_policy, game.evader_policy, game.exit_point, game.target) == \
         ("pure_pursuit", "target", (0.0, 5.0), (0.0, 5.0))
     assert (game.tau, game.t_max, game.law) == (10.0, 10.0, InitialLaw())
@@ -35,7 +35,7 @@ def test_tau_follows_from_the_step():
         {"step_seconds": 6.0, "tau": 6.0, "t_max": 6.0, "capture_time_norm": 6.0}
     slow = AllocConfig(evader_speed=0.5)  # crossing a 10 m cell takes 20 s
     assert (slow.step_seconds, slow.tau, slow.t_max) == (20.0, 20.0, 20.0)
-    assert slow.service_settings().game.evader_speed == 0.5
+    assert slow.game_settings().game.evader_speed == 0.5
     assert AllocConfig(t_max=15.0).t_max == 15.0  # longer games are allowed, only the window counts
 
 
@@ -56,12 +56,12 @@ def test_v1_is_reachable_and_plays_the_earlier_games():
     c = AllocConfig(engagement="v1")
     assert (c.pursuer_policy, c.evader_policy, c.exit_point, c.step_seconds) == ("area_min", "centroid", None, None)
     assert (c.tau, c.t_max, c.capture_time_norm) == (5.0, 10.0, 10.0)
-    game = c.service_settings().game
+    game = c.game_settings().game
     # The same case as before engagement v2 existed (only the engine version moved).
     before = Case(1, 1, pursuer_policy="area_min", evader_policy="centroid", tau=5.0, t_max=10.0)
     assert game == before
-    v2 = AllocConfig().service_settings()
-    assert v2.key(3, 2).digest() != c.service_settings().key(3, 2).digest()
+    v2 = AllocConfig().game_settings()
+    assert v2.key(3, 2).digest() != c.game_settings().key(3, 2).digest()
 
 
 def engineered_step(env):
@@ -82,7 +82,7 @@ def test_elimination_is_the_captured_within_window_fraction_and_escapes_are_not(
     D_next, reward, info = engineered_step(env)
     n_p = int(np.rint(D_next[4] * 10))
     assert n_p == 8 and info["engaged_cells"] == 1
-    v = CaptureTimeClient(env.config.service_settings(), local_store=store).get(n_p, 3)
+    v = CaptureTimeClient(env.config.game_settings(), local_store=store).get(n_p, 3)
     captured, escaped = v.frac_captured_tau, v.frac_escaped_tau
     assert 0 < captured < 1 and escaped > 0 and captured + escaped <= 1 + 1e-12  # the rest escape or still run
     assert env.I[4] == pytest.approx(0.6 * (1 - captured), abs=1e-12)
@@ -117,12 +117,12 @@ def test_service_keys_are_those_of_version_0_1_and_old_run_configs_load():
     """The one-game-model rewrite (0.2) kept every service key: stores filled before it are
     read, not recomputed (digests computed with the 0.1 code). A run folder's config.yaml of
     0.1 spelled the intruders' speed `intruder_speed` and the law as a string; both load."""
-    assert AllocConfig().service_settings().key(3, 2).digest() == \
+    assert AllocConfig().game_settings().key(3, 2).digest() == \
         "ab4b3e760670ab5b272f9d81a3182cd616a606c737f40d020bf2b4bf0bbe2a8b"
-    assert AllocConfig(engagement="v1").service_settings().key(3, 2).digest() == \
+    assert AllocConfig(engagement="v1").game_settings().key(3, 2).digest() == \
         "33dd228300ead1832ceb5875f2fbcf6dc8b89b0005ff174f20eb10533e55472f"
     new = AllocConfig(evader_speed=0.5, law={"kind": "uniform"})
-    assert new.service_settings().key(3, 2).digest() == \
+    assert new.game_settings().key(3, 2).digest() == \
         "4afe351b211022ecfd2d2f88599fd5174192e5eae3d0ad9cb559d350db603153"
     assert AllocConfig(intruder_speed=0.5, law="uniform") == new
 
@@ -133,8 +133,8 @@ def test_game_settings_come_from_case():
     from farm.core.config import SETTING_FIELDS
 
     assert set(SETTING_FIELDS) <= set(AllocConfig.model_fields)
-    assert AllocConfig(capture_radius=0.5).service_settings().game.capture_radius == 0.5
-    assert AllocConfig().service_settings().game.capture_radius == Case(1, 1).capture_radius
+    assert AllocConfig(capture_radius=0.5).game_settings().game.capture_radius == 0.5
+    assert AllocConfig().game_settings().game.capture_radius == Case(1, 1).capture_radius
     with pytest.raises(ValidationError, match="capture_radius: must be positive and finite"):
         AllocConfig(capture_radius=-1.0)
     with pytest.raises(ValidationError, match="n_pursuers"):

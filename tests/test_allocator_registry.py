@@ -94,7 +94,7 @@ def test_farm_eval_evaluates_a_registered_allocator(north_wind, tmp_path):
     assert set(pd.read_csv(run / "eval_steps.csv")["policy"]) >= {NAME, "td3"}
     # its row is the loop's, run here on the same episodes
     config = RunFolder(run).read_config()
-    client = CaptureTimeClient(config.env.service_settings(), local_store=tmp_path / "store.sqlite")
+    client = CaptureTimeClient(config.env.game_settings(), local_store=tmp_path / "store.sqlite")
     try:
         alone, _, _ = evaluate_policies(config.env, {NAME: NorthWind(config.env)}, client, 3, 1000)
     finally:
@@ -121,7 +121,7 @@ def test_the_suite_evaluates_a_registered_allocator_on_ray_workers(north_wind, r
     from farm.service.client import CaptureTimeClient
 
     scenario = load_suite_config(path).env_of("paper_3x3_c1_1.5")
-    client = CaptureTimeClient(scenario.service_settings(), local_store=tmp_path / "store.sqlite")
+    client = CaptureTimeClient(scenario.game_settings(), local_store=tmp_path / "store.sqlite")
     try:
         alone, _, _ = evaluate_policies(scenario, {NAME: NorthWind(scenario, strength=0.5)}, client, 2, 1000)
     finally:

@@ -12,7 +12,7 @@ from gymnasium.wrappers import RecordVideo
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
 from conftest import farm_main as farm, train_tiny_run
-from farm.core.animate import game_frame_count, game_frame_steps, read_frame_count
+from farm.core.game_animation import game_frame_count, game_frame_steps, read_frame_count
 from workers import Case, run_games
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)
@@ -81,7 +81,7 @@ def run(tmp_path_factory):
 
 
 def test_farm_eval_animates_an_episode_and_the_report_inlines_it(run):
-    from farm.alloc.animation import episode_frame_count
+    from farm.alloc.episode_animation import episode_frame_count
     from farm.alloc.rollout import Episode
 
     status, out, err = farm("eval", run, "--episodes", 2, "--references", "none", "--animate")
@@ -105,15 +105,15 @@ def test_farm_eval_animates_an_episode_and_the_report_inlines_it(run):
 
 
 def test_the_inset_is_the_first_engagement_played_as_a_fresh_game():
-    from farm.alloc.animation import episode_frame_steps, inset_game
+    from farm.alloc.episode_animation import episode_frame_steps, inset_game
     from farm.alloc.rollout import Episode
-    from farm.service import ServiceSettings
+    from farm.service import GameSettings
 
     empty = np.zeros(0, dtype=np.int64)
     frames = [(np.zeros((3, 3)), np.zeros((3, 3)))] * 4
     engaged = [(empty, empty, empty), (np.array([1, 4]), np.array([3, 2]), np.array([1, 2])), (empty, empty, empty)]
     episode = Episode({}, None, frames, 0.0, None, engaged)
-    settings = ServiceSettings.of(games=3, t_max=15.0)
+    settings = GameSettings.of(games=3, t_max=15.0)
     inset = inset_game(episode, settings)
     assert (inset.step, inset.cell, inset.n_p, inset.n_e) == (2, 4, 2, 2)  # the cell with the most evaders
     key = settings.key(2, 2)

@@ -82,7 +82,7 @@ def test_env_pays_the_rule(rule, per_mass):
     score is 0.4 * 0.25 under the expected rule (0.4 * 0.5 under the earlier one)."""
     cfg = AllocConfig(grid_size=3, n_defenders=10, n_intruders=10, c_distribution=0.0, c_capture=1.0,
                       breach_penalty=0.0, capture_score=rule)
-    env = SwarmAllocationEnv(cfg, client=fixed_client(cfg.service_settings(), halves))
+    env = SwarmAllocationEnv(cfg, client=fixed_client(cfg.game_settings(), halves))
     env.reset(seed=0)
     env.D = np.zeros(9)
     env.D[4] = 1.0
@@ -106,7 +106,7 @@ def test_v1_keeps_the_conditional_rule_and_v2_refuses_another_norm():
 def test_model_rates_use_the_client(tmp_path):
     """The planners' model answers what the env pays: the service's capture_score_tau per unit of mass."""
     cfg = AllocConfig(grid_size=3, n_defenders=10, n_intruders=5, games=3)
-    client = CaptureTimeClient(cfg.service_settings(), local_store=tmp_path / "s.sqlite")
+    client = CaptureTimeClient(cfg.game_settings(), local_store=tmp_path / "s.sqlite")
     removed, score, estimates = EngagementModel(cfg, client).rates(np.array([3, 1]), np.array([1, 2]))
     values = client.get_many([(3, 1), (1, 2)])
     np.testing.assert_array_equal(removed, [v.frac_captured_tau for v in values])
@@ -119,7 +119,7 @@ def test_rows_written_without_the_score_are_recomputed_never_misread(tmp_path):
     """A store row of 0.3's layout (no capture_score_tau) is left out and its key recomputed."""
     cfg = AllocConfig(grid_size=3, n_defenders=10, n_intruders=5, games=3)
     path = tmp_path / "old.sqlite"
-    settings = cfg.service_settings()
+    settings = cfg.game_settings()
     key = settings.key(2, 1)
     client = CaptureTimeClient(settings, local_store=path)
     fresh = client.get(2, 1)
@@ -148,7 +148,7 @@ def test_rows_written_without_the_score_are_recomputed_never_misread(tmp_path):
 def test_score_of_real_games_from_their_times():
     """The service's statistic equals the definition applied to the engine's raw capture times."""
     cfg = AllocConfig(grid_size=3, n_defenders=10, n_intruders=5)
-    case = cfg.service_settings().key(3, 2).case
+    case = cfg.game_settings().key(3, 2).case
     res = run_games(case, 0, 0, 16)
     ct = res.capture_times
     by_hand = np.mean(np.where(np.isfinite(ct) & (ct <= case.tau + 1e-9), np.maximum(0, 1 - ct / case.tau), 0.0))

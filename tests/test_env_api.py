@@ -64,7 +64,7 @@ def test_close_closes_the_store_of_a_client_the_env_made(tmp_path, opened):
 
 
 def test_close_leaves_a_given_client_open(tmp_path, opened):
-    client = CaptureTimeClient(AllocConfig(**SMALL).service_settings(), local_store=tmp_path / "s.sqlite")
+    client = CaptureTimeClient(AllocConfig(**SMALL).game_settings(), local_store=tmp_path / "s.sqlite")
     env = SwarmAllocationEnv(AllocConfig(**SMALL), client=client)
     env.reset(seed=0)
     env.close()

@@ -34,7 +34,7 @@ def flat(values) -> list[str]:
 
 
 def client(path):
-    return CaptureTimeClient(AllocConfig(**CFG).service_settings(), local_store=path)
+    return CaptureTimeClient(AllocConfig(**CFG).game_settings(), local_store=path)
 
 
 def test_lattice_rule_answers_do_not_depend_on_what_the_store_holds(tmp_path):

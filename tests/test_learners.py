@@ -23,9 +23,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 from farm.alloc import AllocConfig
 from farm.alloc.policies import make_policy
 from farm.alloc.training import TrainConfig, train
-from farm.alloc.training import pretrain as pretrain_module
-from farm.alloc.training.labels import play_labelled
-from farm.alloc.training.pretrain import fit_actor, latest_iteration
+from farm.alloc.training.dagger import loop as pretrain_module
+from farm.alloc.training.dagger.labels import play_labelled
+from farm.alloc.training.dagger.loop import fit_actor, latest_iteration
 from farm.service import CaptureTimeClient
 
 from conftest import farm_main
@@ -41,7 +41,7 @@ def store(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def client(store):
-    c = CaptureTimeClient(AllocConfig(**SMALL).service_settings(), local_store=store)
+    c = CaptureTimeClient(AllocConfig(**SMALL).game_settings(), local_store=store)
     yield c
     c.close()
 
@@ -267,7 +267,7 @@ def assert_refused_in_one_line(tmp_path: Path, raw: dict, field: str) -> None:
 @pytest.mark.parametrize("action_map", ["softmax", "shifted"])
 def test_the_flows_loss_reads_actions_as_the_env_does(action_map, tmp_path):
     from farm.alloc import SwarmAllocationEnv
-    from farm.alloc.training.pretrain import MoveMap
+    from farm.alloc.training.dagger.loop import MoveMap
 
     cfg = AllocConfig(grid_size=4, n_defenders=10, n_intruders=5, action_map=action_map)
     env = SwarmAllocationEnv(cfg, store=tmp_path / "s.sqlite")
@@ -279,7 +279,7 @@ def test_the_flows_loss_reads_actions_as_the_env_does(action_map, tmp_path):
 
 
 def test_the_flows_fit_moves_the_defenders_as_the_expert_does(store, client):
-    from farm.alloc.training.pretrain import MoveMap
+    from farm.alloc.training.dagger.loop import MoveMap
     from farm.alloc.training.train import training_envs, make_model
 
     cfg = config(store, "ppo")

@@ -15,7 +15,7 @@ def test_a_theatre_episode_plays_the_same_games_on_ray_as_in_process(ray_local, 
     from workers import run_games
 
     config = SCENARIOS["theatre_16x16"].config(games=2)
-    client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
+    client = CaptureTimeClient(config.game_settings(), local_store=tmp_path / "s.sqlite")
     policies = {name: make_policy(name, config, client) for name in ("intercept", "receding_horizon")}
     ray_table, ray_games, live = evaluate_fidelity(config, policies, client, 1, 1000)
     here_table, here_games, here = evaluate_fidelity(config, policies, client, 1, 1000, in_process=True)
@@ -24,7 +24,7 @@ def test_a_theatre_episode_plays_the_same_games_on_ray_as_in_process(ray_local, 
     assert len(ray_games) == live["games"] == here["games"] > 30 and here["tasks"] == 0
     assert 1 <= live["tasks"] < live["games"] / 5  # coarse: many games a task
     for row in ray_games.iloc[[0, len(ray_games) // 2, -1]].itertuples():  # the engine, game for game
-        key = config.service_settings().key(row.n_pursuers, row.n_evaders)
+        key = config.game_settings().key(row.n_pursuers, row.n_evaders)
         np.testing.assert_array_equal(run_games(key.case, key.seed, row.game, row.game + 1).capture_times[0],
                                       np.array(row.capture_times))
 
@@ -37,7 +37,7 @@ def test_subregions_on_ray_actors_plan_what_they_plan_in_process(ray_local, tmp_
     from farm.service import CaptureTimeClient
 
     config = AllocConfig(grid_size=6, n_defenders=24, n_intruders=40, games=2, team_sizes="lattice")
-    client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
+    client = CaptureTimeClient(config.game_settings(), local_store=tmp_path / "s.sqlite")
     rng = np.random.default_rng(3)
     D = rng.dirichlet(np.ones(36))
     I = np.where(rng.random(36) < 0.5, rng.random(36) * 0.05, 0.0)

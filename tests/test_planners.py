@@ -56,9 +56,9 @@ _CLIENTS: dict = {}
 
 def curve_client(config, f=concave):
     """A client of config whose games catch f(n_p, n_e) of the intruders, one per (settings, f)."""
-    key = (config.service_settings(), f)
+    key = (config.game_settings(), f)
     if key not in _CLIENTS:
-        _CLIENTS[key] = CaptureTimeClient(config.service_settings(), backend=Curve(f))
+        _CLIENTS[key] = CaptureTimeClient(config.game_settings(), backend=Curve(f))
     return _CLIENTS[key]
 
 
@@ -111,7 +111,7 @@ ALL = policy_names("planner", references=True)  # subregions on a small map is r
 @pytest.fixture(scope="module")
 def real_client(tmp_path_factory):
     """A client of cfg_of() over a small real store (3 games per case)."""
-    client = CaptureTimeClient(cfg_of().service_settings(), local_store=tmp_path_factory.mktemp("s") / "s.sqlite")
+    client = CaptureTimeClient(cfg_of().game_settings(), local_store=tmp_path_factory.mktemp("s") / "s.sqlite")
     yield client
     client.close()
 

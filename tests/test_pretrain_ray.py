@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from farm.alloc.training import TrainConfig, train
-from farm.alloc.training.pretrain import iteration_file
+from farm.alloc.training.dagger.loop import iteration_file
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, team_sizes="lattice")
 

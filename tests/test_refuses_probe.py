@@ -13,7 +13,7 @@ import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
 from farm.alloc import AllocConfig, SwarmAllocationEnv
 from conftest import farm_main as farm_cli, train_tiny_run
 from farm.core.errors import ConfigError
-from farm.service import CaptureTimeClient, ServiceSettings
+from farm.service import CaptureTimeClient, GameSettings
 from workers import Case, InputError, run_games
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)
@@ -106,7 +106,7 @@ def test_cells_at_refuses_a_negative_frame_or_a_game_out_of_range():
 
 
 def test_a_client_asked_after_close_says_so_in_one_line(tmp_path):
-    client = CaptureTimeClient(ServiceSettings.of(games=3, t_max=15.0), local_store=tmp_path / "s.sqlite")
+    client = CaptureTimeClient(GameSettings.of(games=3, t_max=15.0), local_store=tmp_path / "s.sqlite")
     client.get(1, 1)
     shared = client.with_settings(client.settings)
     client.close()
@@ -151,7 +151,7 @@ def test_a_window_tau_longer_than_the_games_is_refused_where_statistics_are_made
     with pytest.raises(InputError, match=r"^tau: the statistics window \(50 s\) is longer than the games"):
         run_case(case, 2, 0)
     with pytest.raises(InputError, match="^tau: the statistics window"):
-        ServiceSettings.of(games=4, t_max=10.0, tau=50.0).key(2, 1)
+        GameSettings.of(games=4, t_max=10.0, tau=50.0).key(2, 1)
     assert run_games(case, 0, 0, 1).n_games == 1  # the game itself does not need tau
     table = tmp_path / "t.yaml"
     table.write_text("name: t\nn_pursuers: [1, 2]\nn_evaders: [1]\nsettings: {games: 4, t_max: 10, tau: 50}\n")

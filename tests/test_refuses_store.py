@@ -20,13 +20,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from farm.core.errors import ConfigError, StoreCorruptError
-from farm.service import CaptureTimeClient, ServiceSettings, StatsStore
+from farm.service import CaptureTimeClient, GameSettings, StatsStore
 from farm.service.client import open_client
 from farm.service.lookup import compute_in_process, estimate
 from farm.service.store import _checksum, check_store, check_store_path
 from workers import CaptureStats
 
-SMALL = ServiceSettings.of(games=4, t_max=20.0)
+SMALL = GameSettings.of(games=4, t_max=20.0)
 
 
 def exact(a: CaptureStats, b: CaptureStats) -> bool:

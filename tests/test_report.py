@@ -13,7 +13,7 @@ import pytest
 
 from test_claims import STEPS, make_experiment  # a hand-built experiment folder whose numbers are known
 from workers import ENGINE_VERSION
-from farm.service import CaptureTimeClient, ServiceSettings
+from farm.service import CaptureTimeClient, GameSettings
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run",
@@ -33,7 +33,7 @@ def results(tmp_path_factory):
     sweep = root.parent / "sweep.yaml"
     sweep.write_text("name: tiny\ngames_per_point: 4\nbase: {n_evaders: 1, t_max: 20}\nvary: {grid: {n_pursuers: [1, 2]}}\n")
     assert farm("sweep", sweep, "--out", root / "sweep", "--no-ray", "--quiet").returncode == 0
-    client = CaptureTimeClient(ServiceSettings.of(games=3, t_max=15.0), local_store=root / "capture_times.sqlite")
+    client = CaptureTimeClient(GameSettings.of(games=3, t_max=15.0), local_store=root / "capture_times.sqlite")
     client.get_many([(1, 1), (2, 1), (1, 2), (2, 2)])
     client.backend.store.close()
     return root

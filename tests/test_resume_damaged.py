@@ -128,7 +128,7 @@ def test_every_checkpoint_damaged_is_one_line_through_the_cli(reference, tmp_pat
                                            ((1, 0), "the pretraining starts again")])
 def test_a_damaged_pretraining_iteration_goes_on_from_the_one_before(reference, tmp_path, damaged, then):
     """A run stopped in its pretraining (no checkpoint yet) whose last iteration files are damaged."""
-    from farm.alloc.training.pretrain import iteration_file
+    from farm.alloc.training.dagger.loop import iteration_file
 
     run = copy_of(reference, tmp_path)
     shutil.rmtree(run / "checkpoints")

@@ -48,21 +48,21 @@ def test_a_client_block_stops_the_service_it_made_so_the_next_block_may_name_ano
 
     import ray
 
-    from farm.service import ServiceSettings
+    from farm.service import GameSettings
     from farm.service.actor import SERVICE_NAME, _running, get_service
     from farm.service.client import open_client
 
     gc.disable()
     try:
-        with open_client(ServiceSettings(), store=tmp_path / "a.sqlite") as client:
+        with open_client(GameSettings(), store=tmp_path / "a.sqlite") as client:
             cycle = [client]
             cycle.append(cycle)
         assert not _running(SERVICE_NAME)
-        with open_client(ServiceSettings(), store=tmp_path / "b.sqlite") as client:
+        with open_client(GameSettings(), store=tmp_path / "b.sqlite") as client:
             assert ray.get(client.backend.actor.store_path.remote()) == str((tmp_path / "b.sqlite").resolve())
         # a service running before the block (an outer one's) is left running
         outer = get_service(tmp_path / "c.sqlite")
-        with open_client(ServiceSettings(), store=tmp_path / "c.sqlite"):
+        with open_client(GameSettings(), store=tmp_path / "c.sqlite"):
             pass
         assert _running(SERVICE_NAME)
         ray.kill(outer, no_restart=True)

@@ -12,11 +12,11 @@ from dataclasses import replace
 
 import pytest
 
-from farm.service import CaptureTimeClient, ServiceSettings, StatsStore, StoreCorruptError
+from farm.service import CaptureTimeClient, GameSettings, StatsStore, StoreCorruptError
 from farm.service.lookup import LocalBackend, compute_in_process
 from workers import CaptureStats, Case, InitialLaw, InputError, run_case
 
-FAST = ServiceSettings.of(games=6, t_max=20.0)
+FAST = GameSettings.of(games=6, t_max=20.0)
 
 
 def same(a: CaptureStats, b: CaptureStats) -> bool:
@@ -109,28 +109,28 @@ def test_bad_settings(tmp_path):
     with pytest.raises(InputError, match="pursuer_speed: must be positive and finite"):
         FAST.with_(pursuer_speed=0.0).key(1, 1)
     with pytest.raises(InputError, match="evader_speed: must be positive and finite"):
-        ServiceSettings.of(evader_speed=-1).key(1, 1)
+        GameSettings.of(evader_speed=-1).key(1, 1)
 
 
 def test_exit_point_and_speeds_are_settings(tmp_path):
-    s = ServiceSettings.of(exit_point=(0.0, 5.0), pursuer_speed=2.0)
+    s = GameSettings.of(exit_point=(0.0, 5.0), pursuer_speed=2.0)
     key = s.key(3, 2)
     assert key.case.exit_point == (0.0, 5.0) and key.case.pursuer_speed == 2.0 and key.case.evader_speed == 1.0
-    assert key.digest() != ServiceSettings.of().key(3, 2).digest()
-    assert key.settings_digest() != ServiceSettings.of().key(3, 2).settings_digest()
-    assert ServiceSettings.of(exit_point=[0, 5], pursuer_speed=2).key(3, 2).digest() == key.digest()
+    assert key.digest() != GameSettings.of().key(3, 2).digest()
+    assert key.settings_digest() != GameSettings.of().key(3, 2).settings_digest()
+    assert GameSettings.of(exit_point=[0, 5], pursuer_speed=2).key(3, 2).digest() == key.digest()
     assert key.to_dict()["case"]["exit_point"] == [0.0, 5.0]
     from farm.service.table import load_table_config
 
     config = tmp_path / "t.yaml"
     config.write_text("name: t\nsettings: {games: 4, exit_point: [0, 5], pursuer_speed: 2}\n"
                       "n_pursuers: [3]\nn_evaders: [2]\n")
-    assert load_table_config(config).keys()[0][3].digest() == ServiceSettings.of(
+    assert load_table_config(config).keys()[0][3].digest() == GameSettings.of(
         games=4, exit_point=(0.0, 5.0), pursuer_speed=2.0).key(3, 2).digest()
 
 
 def test_escape_statistics_reach_the_service(tmp_path):
-    settings = ServiceSettings.of(games=4, t_max=12.0, tau=10.0, pursuer_policy="pure_pursuit",
+    settings = GameSettings.of(games=4, t_max=12.0, tau=10.0, pursuer_policy="pure_pursuit",
                                   evader_policy="target", exit_point=(0.0, 5.0), pursuer_speed=0.5)
     v = CaptureTimeClient(settings, local_store=tmp_path / "s.sqlite").get(1, 2)
     _, summary = run_case(settings.key(1, 2).case, 4, seed=0)

@@ -133,7 +133,7 @@ def test_games_are_packed_into_tasks_of_about_the_target(costs, target):
 def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_path, monkeypatch):
     import pickle
 
-    from farm.alloc.training import pretrain as pretrain_module
+    from farm.alloc.training.dagger import loop as pretrain_module
     from test_learners import Stop, assert_same
 
     raw = yaml.safe_load((REPO / "configs" / "train" / "tiny_size_free.yaml").read_text())
@@ -195,12 +195,12 @@ def test_under_the_games_fidelity_every_engagement_is_a_game_of_its_own(tmp_path
     from workers import run_games
 
     config = SCENARIOS["outnumbered_3x3"].config(games=2)
-    service = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
+    service = CaptureTimeClient(config.game_settings(), local_store=tmp_path / "s.sqlite")
     games = FreshGames(service, in_process=True)
-    model = EngagementModel(config, CaptureTimeClient(config.service_settings(), backend=games))
+    model = EngagementModel(config, CaptureTimeClient(config.game_settings(), backend=games))
     removed, _, _ = model.lookup(np.full(70, 2), np.full(70, 3))
     assert games.games == 70 and [d["game"] for d in games.differences] == list(range(2, 72))
-    key = config.service_settings().key(2, 3)
+    key = config.game_settings().key(2, 3)
     captured = run_games(key.case, key.seed, 2, 72).capture_times <= config.tau  # (70, 3): each game's evaders
     np.testing.assert_allclose(removed, captured.mean(axis=1))
     assert len(np.unique(removed)) > 1  # 70 games, not one answer repeated
@@ -216,7 +216,7 @@ def test_the_games_fidelity_shows_its_steps_and_games_per_second(tmp_path, capsy
     from farm.service import CaptureTimeClient
 
     config = SCENARIOS["outnumbered_3x3"].config(games=2, max_steps=4)
-    client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
+    client = CaptureTimeClient(config.game_settings(), local_store=tmp_path / "s.sqlite")
     policies = {p: make_policy(p, config, client) for p in ("intercept", "spread_evenly")}
     _, differences, live = evaluate_fidelity(config, policies, client, 2, 1000, in_process=True)
     last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]

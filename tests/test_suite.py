@@ -19,7 +19,7 @@ import yaml
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
 from farm.alloc.scenarios import PAPER_SCENARIOS, SCENARIOS, THEATRES
 from farm.alloc.policies import policy_names
-from farm.studies.suite import (MEASURES, SuiteConfig, available_policies, evaluate_cell, load_suite_config,
+from farm.studies.suite import (MEASURES, SuiteConfig, available_policies, evaluate_matchup, load_suite_config,
                               run_suite)
 from farm.alloc.training import TrainConfig, load_train_config
 from farm.core.config import ConfigError
@@ -162,20 +162,20 @@ def test_a_missing_run_folder_is_one_line_before_ray(tmp_path):
 
 # ----------------------------------------------------------------------------- runs on Ray
 def test_a_cell_is_cut_into_tasks_by_its_episodes_cost():
-    """cell_tasks: small maps' cells stay one task, a 32 x 32 map's episodes are a task each,
+    """matchup_tasks: small maps' cells stay one task, a 32 x 32 map's episodes are a task each,
     an 8 x 8 map's shared evenly; every episode of every cell in exactly one task, in order."""
-    from farm.studies.suite.run import TASK_COST, _cost, cell_tasks
+    from farm.studies.suite.run import TASK_COST, _cost, matchup_tasks
 
     costs = [_cost(SCENARIOS[name].config()) for name in ("paper_3x3_c1_1.5", "theatre_8x8", "theatre_32x32")]
     assert costs[0] * 20 <= TASK_COST < costs[2]
-    tasks = cell_tasks(costs, 20)
+    tasks = matchup_tasks(costs, 20)
     assert tasks[0] == (0, 0, 20)
     assert [t for t in tasks if t[0] == 1] == [(1, 0, 6), (1, 6, 7), (1, 13, 7)]  # 8 x 8 cells x 8 steps: 8 a task at most
     assert [t for t in tasks if t[0] == 2] == [(2, k, 1) for k in range(20)]
     for cell in range(3):
         covered = [e for c, first, count in tasks if c == cell for e in range(first, first + count)]
         assert covered == list(range(20))
-    assert cell_tasks([1.0], 1) == [(0, 0, 1)] and cell_tasks([1e9], 3) == [(0, 0, 1), (0, 1, 1), (0, 2, 1)]
+    assert matchup_tasks([1.0], 1) == [(0, 0, 1)] and matchup_tasks([1e9], 3) == [(0, 0, 1), (0, 1, 1), (0, 2, 1)]
 
 
 @pytest.fixture(scope="module")
@@ -306,7 +306,7 @@ def test_a_cold_store_without_warming_cannot_deadlock_on_two_cpus(ray_local, dem
                          policies=[p for p in available_policies() if p in ("spread_evenly", "intercept")],
                          env={"games": 3}, runs={"outnumbered_3x3": str(run), "paper_3x3_c1_0": str(tmp_path / "no")},
                          skip_missing_runs=True)
-    settings = SCENARIOS["outnumbered_3x3"].config(games=3).service_settings().key(1, 1).settings_digest()
+    settings = SCENARIOS["outnumbered_3x3"].config(games=3).game_settings().key(1, 1).settings_digest()
 
     def stored() -> int:  # cases of the suite's (games: 3) settings in the store
         s = StatsStore(store, read_only=True)
@@ -336,14 +336,14 @@ def test_a_cold_store_without_warming_cannot_deadlock_on_two_cpus(ray_local, dem
         run_suite(wrong, tmp_path / "wrong", show_progress=False)
 
 
-def test_evaluate_cell_in_process_times_predict_and_records_the_start(tmp_path):
+def test_evaluate_matchup_in_process_times_predict_and_records_the_start(tmp_path):
     from farm.alloc.policies import PolicySpec, policy_entry
     from farm.service.client import CaptureTimeClient
 
     config = SCENARIOS["paper_3x3_c1_0"].config(games=2)
-    client = CaptureTimeClient(config.service_settings(), local_store=tmp_path / "s.sqlite")
+    client = CaptureTimeClient(config.game_settings(), local_store=tmp_path / "s.sqlite")
     try:
-        rows = evaluate_cell(config, PolicySpec(policy_entry("stay_at_base")), client, 2, 5)
+        rows = evaluate_matchup(config, PolicySpec(policy_entry("stay_at_base")), client, 2, 5)
     finally:
         client.close()
     assert [r["seed"] for r in rows] == [5, 6]

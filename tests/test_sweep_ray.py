@@ -126,11 +126,11 @@ def test_one_seeding_every_path_plays_the_same_games(ray_local, tmp_path):
     import ray
 
     from farm.alloc.fidelity import FreshGames
-    from farm.service import CaptureTimeClient, ServiceSettings, get_service
+    from farm.service import CaptureTimeClient, GameSettings, get_service
     from farm.games.tasks import _remote_shard
     from workers import CaptureStats, run_case, run_games
 
-    settings = ServiceSettings.of(games=8, seed=5, t_max=20.0, tau=8.0, pursuer_policy="pure_pursuit",
+    settings = GameSettings.of(games=8, seed=5, t_max=20.0, tau=8.0, pursuer_policy="pure_pursuit",
                                   evader_policy="target", exit_point=(0.0, 5.0), pursuer_speed=0.8)
     case = settings.key(2, 3).case
     games = run_games(case, 5, 0, 8)

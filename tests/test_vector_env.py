@@ -32,7 +32,7 @@ def client(tmp_path_factory):
     """One in-process client for every config here (their games' settings are the same), its
     lattice computed once."""
     cfg = AllocConfig(**C8)
-    c = CaptureTimeClient(cfg.service_settings(), local_store=tmp_path_factory.mktemp("vec") / "s.sqlite")
+    c = CaptureTimeClient(cfg.game_settings(), local_store=tmp_path_factory.mktemp("vec") / "s.sqlite")
     c.get_many(sorted(set(lattice_pairs(cfg)) | set(lattice_pairs(AllocConfig(**C5)))))
     yield c
     c.close()

@@ -31,7 +31,7 @@ from workers import Case
 from workers.engine import case_defaults
 
 from farm.core.config import CASE_TYPES, SETTING_FIELDS, Strict, case_from
-from farm.service.keys import ServiceSettings
+from farm.service.keys import GameSettings
 
 CELL_SIDE = 10.0  # each cell is one PE arena, the square [0, 10]^2
 EXIT = (0.0, 5.0)  # the intruders' exit: the middle of the cell's left (defenders') side
@@ -42,7 +42,7 @@ ENGAGEMENT_DEFAULTS = {
     "v2": {"pursuer_policy": "pure_pursuit", "evader_policy": "target", "exit_point": EXIT,
            "capture_score": "expected"},
 }
-_SERVICE = ServiceSettings()
+_SERVICE = GameSettings()
 
 
 def _positive(x) -> bool:
@@ -144,9 +144,9 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
         given = {name: getattr(self, name) for name in SETTING_FIELDS if getattr(self, name) is not None}
         return case_from({"n_pursuers": 1, "n_evaders": 1, **given})
 
-    def service_settings(self) -> ServiceSettings:
+    def game_settings(self) -> GameSettings:
         """The capture-time service's settings of the engagements."""
-        return ServiceSettings(self.game(), self.games, self.seed)
+        return GameSettings(self.game(), self.games, self.seed)
 
     def window_defaults(self) -> dict:
         """The engagement-dependent settings as resolved: step_seconds, tau, t_max, capture_time_norm."""

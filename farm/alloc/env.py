@@ -62,7 +62,7 @@ def env_client(config: AllocConfig, store):
     if store is None:
         store = default_store_path()
         log.info("capture-time store: %s", store)
-    return CaptureTimeClient(config.service_settings(), local_store=store)
+    return CaptureTimeClient(config.game_settings(), local_store=store)
 
 
 class SwarmAllocationEnv(gym.Env):

@@ -84,7 +84,7 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     >= 1 (>= 0), an unknown fidelity, scenario or reference, a model that cannot act on the
     scenario's map, a run folder the tables cannot be written into, an animate path that is not
     a .gif or .mp4. animate: also write an animation of the trained allocator's first episode
-    there (farm.alloc.animation; under fidelity "games" with one engaged cell's game inset),
+    there (farm.alloc.episode_animation; under fidelity "games" with one engaged cell's game inset),
     a path relative to the folder the tables go into. show_progress: fidelity "games" shows
     its steps, games and games/s on stderr (evaluate_fidelity). repair: the trained allocator's
     output, `none` (its network alone) or `levels` (farm.alloc.policies.repair); None: the run's
@@ -131,7 +131,7 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     # where the tables go, checked before any episode: a read-only run folder is found now, not at the end
     check_writable_folder(folder, "run_dir")
     if animate is not None:
-        from farm.core.animate import check_animation_path
+        from farm.core.game_animation import check_animation_path
         from farm.core.output import check_writable_file
 
         animate = folder / check_animation_path(animate)
@@ -139,7 +139,7 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     if folder != run.path:
         run = RunFolder(folder)  # where this evaluation's files go
         run.path.mkdir(parents=True, exist_ok=True)
-    settings = config.env.service_settings()
+    settings = config.env.game_settings()
     mode = config.service.mode  # local: the service and the games of fidelity "games" in this process, no Ray
     with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
         policies = allocators(run, config, client, specs, learned=learned)
@@ -151,7 +151,7 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
                                                                        show_progress=show_progress)
             run.write_fidelity(result.games_table, result.differences)
         if animate is not None:
-            from farm.alloc.animation import write_episode_animation
+            from farm.alloc.episode_animation import write_episode_animation
             from farm.alloc.rollout import play
 
             episode = play(config.env, policies[config.algo], client, 1, seed, record_first=True)[0]

@@ -26,7 +26,7 @@ def lattice_groups(envs: Iterable[AllocConfig]) -> list[tuple[AllocConfig, list[
     for env in envs:
         if env.team_sizes != "lattice":
             continue
-        digest = env.service_settings().key(1, 1).settings_digest()
+        digest = env.game_settings().key(1, 1).settings_digest()
         _, pairs = groups.setdefault(digest, (env, set()))
         pairs.update(lattice_pairs(env))
     return [(env, sorted(pairs)) for env, pairs in groups.values()]
@@ -46,7 +46,7 @@ def warm_lattices(client, groups: list[tuple[AllocConfig, list[tuple[int, int]]]
     bar = GameProgress(total, enabled=show_progress, desc="capture-time lattice", unit="case")
     try:
         for env, pairs in groups:
-            settings = env.service_settings()
+            settings = env.game_settings()
             (client if client.settings == settings else client.with_settings(settings)).warm(pairs, progress=bar.update)
     finally:
         bar.close()
@@ -65,8 +65,8 @@ def memo_client(envs: Iterable[AllocConfig], mode: str, store) -> tuple:
     from farm.service.client import open_client
 
     envs = list(envs)
-    settings = envs[0].service_settings()
-    if any(env.service_settings() != settings for env in envs):
+    settings = envs[0].game_settings()
+    if any(env.game_settings() != settings for env in envs):
         raise ValueError("memo_client: the configs' service settings differ")
     pairs = sorted({p for env in envs for p in lattice_pairs(env)})
     t0 = time.perf_counter()

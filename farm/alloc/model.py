@@ -188,7 +188,7 @@ _DISTINCT_FROM = 64  # fewer pairs are asked as they come: a memo hit costs less
 class EngagementModel:
     """A config's engagements answered by a capture-time client: the env's and the planners' model.
 
-    config: AllocConfig; client: a CaptureTimeClient of config.service_settings();
+    config: AllocConfig; client: a CaptureTimeClient of config.game_settings();
     estimates: False, True or "lattice": how a first visit may be interpolated
     (CaptureTimeClient.get_many's `estimate`; see SwarmAllocationEnv).
     """

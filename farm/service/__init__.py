@@ -6,11 +6,11 @@ process or as a named Ray actor (farm/service/actor.py) over a persistent SQLite
 """
 
 from farm.core.errors import StoreCorruptError
-from farm.service.keys import ServiceSettings, StatsKey
+from farm.service.keys import GameSettings, StatsKey
 from farm.service.client import CaptureTimeClient, open_client
 from farm.service.store import StatsStore
 
-__all__ = ["CaptureTimeClient", "open_client", "ServiceSettings", "StatsKey", "StatsStore", "StoreCorruptError",
+__all__ = ["CaptureTimeClient", "open_client", "GameSettings", "StatsKey", "StatsStore", "StoreCorruptError",
            "get_service"]
 
 

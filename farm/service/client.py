@@ -12,7 +12,7 @@ from typing import Callable, Iterable, Iterator
 from workers import CaptureStats, InputError
 
 from farm.core.errors import ConfigError
-from farm.service.keys import ServiceSettings, StatsKey, lattice_anchors
+from farm.service.keys import GameSettings, StatsKey, lattice_anchors
 from farm.service.lookup import LocalBackend, StatsBackend, estimate
 
 __all__ = ["CaptureTimeClient", "RayBackend", "open_client"]
@@ -58,16 +58,16 @@ class RayBackend:
 class CaptureTimeClient:
     """Statistics of (n_pursuers, n_evaders) games under fixed settings: the only thing callers touch.
 
-    settings: the ServiceSettings (default ServiceSettings()); give exactly one of
+    settings: the GameSettings (default GameSettings()); give exactly one of
     backend (a StatsBackend), service (a CaptureTimeService actor handle) or local_store (a
     path, for an in-process LocalBackend, which the client then owns and closes).
     """
 
-    def __init__(self, settings: ServiceSettings | None = None, *, backend: StatsBackend | None = None,
+    def __init__(self, settings: GameSettings | None = None, *, backend: StatsBackend | None = None,
                  service=None, local_store=None):
         if sum(x is not None for x in (backend, service, local_store)) != 1:
             raise ValueError("CaptureTimeClient: give exactly one of backend=, service= or local_store=")
-        self.settings = settings or ServiceSettings()
+        self.settings = settings or GameSettings()
         self.owns_backend = local_store is not None
         if service is not None:
             backend = RayBackend(service)
@@ -77,7 +77,7 @@ class CaptureTimeClient:
         self._memo: dict[tuple[int, int], CaptureStats] = {}
         self._estimates: dict[tuple[int, int], CaptureStats] = {}  # estimate="lattice": fixed per client
 
-    def with_settings(self, settings: ServiceSettings) -> "CaptureTimeClient":
+    def with_settings(self, settings: GameSettings) -> "CaptureTimeClient":
         """A client of other settings on the same backend (which this client keeps owning)."""
         return CaptureTimeClient(settings, backend=self.backend)
 
@@ -183,7 +183,7 @@ class CaptureTimeClient:
 
 
 @contextmanager
-def open_client(settings: ServiceSettings, *, mode: str = "ray", store, address: str | None = None,
+def open_client(settings: GameSettings, *, mode: str = "ray", store, address: str | None = None,
                 num_cpus: int | None = None) -> Iterator[CaptureTimeClient]:
     """A client for the duration of the block; the one place that decides "Ray or local".
 

@@ -18,7 +18,7 @@ from workers import Case, InputError
 
 from farm.core.config import SETTING_FIELDS
 
-__all__ = ["ServiceSettings", "StatsKey", "SERVICE_FIELDS", "LATTICE", "lattice_anchors"]
+__all__ = ["GameSettings", "StatsKey", "SERVICE_FIELDS", "LATTICE", "lattice_anchors"]
 
 SERVICE_FIELDS = ("games", "seed")  # a key's settings beyond its game's
 # The lattice of team sizes, about a factor 1.5 apart: the allocation env's `team_sizes:
@@ -42,7 +42,7 @@ def lattice_anchors(n_pursuers: int, n_evaders: int) -> list[tuple[int, int]]:
 
 
 @dataclass(frozen=True)
-class ServiceSettings:
+class GameSettings:
     """Everything of a key but the team sizes: the game (a workers.Case whose team
     sizes are replaced by each key's), games and seed."""
 
@@ -51,8 +51,8 @@ class ServiceSettings:
     seed: int = 0
 
     @classmethod
-    def of(cls, **fields) -> "ServiceSettings":
-        """ServiceSettings.of(games=16, t_max=10.0, evader_policy="centroid"): games, seed and
+    def of(cls, **fields) -> "GameSettings":
+        """GameSettings.of(games=16, t_max=10.0, evader_policy="centroid"): games, seed and
         Case fields by name; the rest at their defaults."""
         return cls().with_(**fields)
 
@@ -66,7 +66,7 @@ class ServiceSettings:
         case = replace(self.game, n_pursuers=n_pursuers, n_evaders=n_evaders).validate().check_window()
         return StatsKey(case, self.games, self.seed)
 
-    def with_(self, **changes) -> "ServiceSettings":
+    def with_(self, **changes) -> "GameSettings":
         """A copy with games, seed or any Case field changed."""
         own = {k: changes.pop(k) for k in SERVICE_FIELDS if k in changes}
         _known(changes)
@@ -77,7 +77,7 @@ def _known(game: dict) -> None:
     """Case fields other than the team sizes (which each key sets) are settings."""
     unknown = sorted(set(game) - set(SETTING_FIELDS))
     if unknown:
-        raise InputError(f"ServiceSettings: not a game setting: {', '.join(unknown)}")
+        raise InputError(f"GameSettings: not a game setting: {', '.join(unknown)}")
 
 
 @dataclass(frozen=True)

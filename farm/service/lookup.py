@@ -2,7 +2,7 @@
 
 A caller (the allocation env, training's warm-up, `farm table`, the evaluators) holds a
 CaptureTimeClient and asks it for the statistics of (n_pursuers, n_evaders) games under the
-client's ServiceSettings. The lookup then goes, in order:
+client's GameSettings. The lookup then goes, in order:
 
 1. CaptureTimeClient: its memo of exact answers, keyed by team sizes (a dict lookup, no Ray
    round trip). What it misses goes, as one batch of StatsKeys, to its backend.

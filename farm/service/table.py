@@ -21,7 +21,7 @@ import pandas as pd
 from pydantic import Field, field_validator
 
 from farm.core.config import SETTING_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
-from farm.service.keys import SERVICE_FIELDS, ServiceSettings
+from farm.service.keys import SERVICE_FIELDS, GameSettings
 from farm.service.store import default_store_path
 
 
@@ -50,19 +50,19 @@ class TableConfig(Strict):
         check_game_names(v, SETTING_FIELDS + SERVICE_FIELDS)
         return v
 
-    def service_settings(self) -> ServiceSettings:
+    def game_settings(self) -> GameSettings:
         """The table's settings with the policies named in `settings` (or Case's defaults)."""
         game = {k: v for k, v in self.settings.items() if k not in SERVICE_FIELDS}
         own = {k: v for k, v in self.settings.items() if k in SERVICE_FIELDS}
-        return ServiceSettings(case_from({"n_pursuers": 1, "n_evaders": 1, **game}), **own)
+        return GameSettings(case_from({"n_pursuers": 1, "n_evaders": 1, **game}), **own)
 
     def store_path(self, store=None) -> Path:
         """The store: `store` if given (the CLI's --store), else the config's, else the default."""
         return Path(store or self.store or default_store_path())
 
-    def settings_list(self) -> list[ServiceSettings]:
-        """One ServiceSettings per policy pair (the settings alone without pairs)."""
-        base = self.service_settings()
+    def settings_list(self) -> list[GameSettings]:
+        """One GameSettings per policy pair (the settings alone without pairs)."""
+        base = self.game_settings()
         if not self.policies:
             return [base]
         return [base.with_(pursuer_policy=p.pursuer_policy, evader_policy=p.evader_policy) for p in self.policies]
@@ -128,7 +128,7 @@ def fill_table(config: TableConfig, *, store=None, address=None, workers=None, s
     return {"cases": len(settings) * len(pairs), "computed": computed, "seconds": time.perf_counter() - t0}
 
 
-def table_frames(config: TableConfig, store=None) -> list[tuple[ServiceSettings, pd.DataFrame, pd.DataFrame]]:
+def table_frames(config: TableConfig, store=None) -> list[tuple[GameSettings, pd.DataFrame, pd.DataFrame]]:
     """Per policy pair: mean capture time and fraction within tau, n_p rows x n_e columns."""
     from farm.service.store import StatsStore
 
@@ -154,7 +154,7 @@ def table_frames(config: TableConfig, store=None) -> list[tuple[ServiceSettings,
     return out
 
 
-def plot_heatmaps(settings: ServiceSettings, mean: pd.DataFrame, frac: pd.DataFrame, path: Path) -> Path:
+def plot_heatmaps(settings: GameSettings, mean: pd.DataFrame, frac: pd.DataFrame, path: Path) -> Path:
     """The two tables of a policy pair (table_frames) as heatmaps side by side, written to path."""
     from farm.core.plots import draw_heatmap, new_figure, save_figure
 

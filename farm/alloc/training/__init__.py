@@ -1,6 +1,6 @@
 """Training an allocator with stable-baselines3 (`farm train`): the config (config.py), the
-callbacks (callbacks.py), the exact-resume state (state.py), planner-guided pretraining
-(pretrain.py, its Ray task label_tasks.py) and the training itself (train.py); the run folder it writes is farm.alloc.runs. docs/training.md tells the design."""
+callbacks (callbacks.py), the exact-resume state (state.py), DAgger from a planner
+(dagger/) and the training itself (train.py); the run folder it writes is farm.alloc.runs. docs/training.md tells the design."""
 
 from farm.alloc.training.callbacks import AfterUpdates, Checkpointer, DivergenceGuard, StepProgress, UpdateTimer
 from farm.alloc.training.config import (ALGOS, POLICY_KWARGS, EvalParams, PPOParams, PretrainParams, SACParams,

@@ -219,7 +219,7 @@ class MapParams(Strict):
 
 
 class PretrainParams(Strict):
-    """Planner-guided pretraining (DAgger; farm.alloc.training.pretrain): before RL, the learner's
+    """Planner-guided pretraining (DAgger; farm.alloc.training.dagger.loop): before RL, the learner's
     actor is fitted to an expert's actions on the states visited by a mixture of the expert and
     the learner, then RL fine-tunes from there.
 

@@ -26,7 +26,7 @@ from farm.alloc.policies.repair import RepairedActions
 from farm.alloc.runs import DAMAGED, RunFolder, RunMetrics, checkpoint_files, move_damaged, whole_checkpoints
 from farm.alloc.training.callbacks import Checkpointer, DivergenceGuard, StepProgress, UpdateTimer
 from farm.alloc.training.config import TrainConfig, store_of
-from farm.alloc.training.pretrain import pretrain
+from farm.alloc.training.dagger.loop import pretrain
 from farm.alloc.training.state import RunState
 from farm.core.config import ConfigError
 from farm.core.errors import ActionError, SwarmFarmError, TrainingDiverged
@@ -96,7 +96,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
            on_pretrain=None) -> dict:
     from farm.service.client import open_client
 
-    with open_client(config.env.service_settings(), mode=config.service.mode, store=store_of(config),
+    with open_client(config.env.game_settings(), mode=config.service.mode, store=store_of(config),
                      address=config.service.address) as client:
         return _learn(config, run_dir, resume, show_progress, client, extra, tracker, on_pretrain)
 

@@ -73,7 +73,7 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
     first = the_plan.trials[0].config["env"]
     info: dict = {"trials": len(the_plan.trials), "finished_before": len(before), "warmed_cases": 0}
     t0 = time.perf_counter()
-    with open_client(AllocConfig(**first).service_settings(), mode="ray", store=the_plan.store, address=address,
+    with open_client(AllocConfig(**first).game_settings(), mode="ray", store=the_plan.store, address=address,
                      num_cpus=max(2, workers or 2) if starts_ray else None) as client:
         import ray
 
@@ -152,14 +152,24 @@ def _mlflow_callback(config: ExperimentConfig, name: str, storage: ExperimentSto
 def _fit(plan: Plan, storage: ExperimentStorage, workers: int, share: float, callbacks: list):
     """Run (or restore and go on with) the Tune experiment in the storage; returns its
     ResultGrid. callbacks: Tune callbacks beside the progress display (the MLflow logger); a
-    restored experiment keeps the callbacks it was started with (Tune saves them in its state)."""
+    restored experiment keeps the callbacks it was started with (Tune saves them in its state; an
+    older folder's by old module paths, farm.studies.experiments.legacy)."""
     from ray import tune
 
-    from farm.studies.experiments.tune import Progress
+    from farm.studies.experiments.legacy import old_names
 
     trainable = tune.with_resources(run_trial, {"cpu": share})
     root, filesystem = storage.tune_storage()
     path = f"{root}/{TUNE_DIR}"
+    with old_names(), _quiet_tune():
+        return _tuner(tune, trainable, plan, storage, path, root, filesystem, workers, callbacks).fit()
+
+
+def _tuner(tune, trainable, plan: Plan, storage: ExperimentStorage, path: str, root: str, filesystem, workers: int,
+           callbacks: list):
+    """The Tune experiment at path restored to go on, or a new one of the plan's trials."""
+    from farm.studies.experiments.tune import Progress
+
     if tune.Tuner.can_restore(path, storage_filesystem=filesystem):
         tuner = tune.Tuner.restore(path, trainable=trainable, resume_unfinished=True, resume_errored=True,
                                    storage_filesystem=filesystem)
@@ -177,8 +187,7 @@ def _fit(plan: Plan, storage: ExperimentStorage, workers: int, share: float, cal
                                       checkpoint_config=tune.CheckpointConfig(num_to_keep=2),
                                       verbose=0, callbacks=[Progress(), *callbacks]),
         )
-    with _quiet_tune():
-        return tuner.fit()
+    return tuner
 
 
 # Ray Tune's own output, off while an experiment runs (its progress is farm's bar): the new

@@ -226,7 +226,7 @@ def checkpoint_run(run: Path, steps: int | None, to: Path) -> None:
     None: a pretraining iteration's checkpoint, none of them) and the pretraining iterations
     other than the newest (each holds the labels of every iteration before it)."""
     from farm.alloc.runs import checkpoint_files
-    from farm.alloc.training.pretrain import iteration_file, saved_iterations
+    from farm.alloc.training.dagger.loop import iteration_file, saved_iterations
 
     keep = set() if steps is None else {p.name for p in checkpoint_files(run, steps)}
     newest = {iteration_file(run, i).name for i in saved_iterations(run)[:1]}
@@ -245,7 +245,7 @@ def _progress_here(run: Path, replay_buffer: bool) -> tuple[int, int] | None:
     """How far a run folder is: (1, steps) of its latest whole checkpoint, else (0, i) of its
     newest saved pretraining iteration i, else None; ordered as training goes."""
     from farm.alloc.runs import latest_checkpoint
-    from farm.alloc.training.pretrain import saved_iterations
+    from farm.alloc.training.dagger.loop import saved_iterations
 
     if not run.exists():
         return None

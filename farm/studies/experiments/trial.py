@@ -22,7 +22,7 @@ def _evaluate(config, run: RunFolder, episodes: int, seed: int, specs):
     claims reads them); returns the table."""
     from farm.service.client import open_client
 
-    with open_client(config.env.service_settings(), mode="ray", store=config.service.store) as client:
+    with open_client(config.env.game_settings(), mode="ray", store=config.service.store) as client:
         policies = allocators(run, config, client, specs)
         return evaluate_trained(run, config, policies, client, episodes, seed, figures=False)[0]
 

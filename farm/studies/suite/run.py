@@ -107,14 +107,14 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
     store = Path(config.store or default_store_path())
     first = next(iter(envs.values()))
     starts_ray = starts_local_ray(address)
-    tasks = cell_tasks([_cost(envs[scenario]) for scenario, _ in jobs], config.episodes)
+    tasks = matchup_tasks([_cost(envs[scenario]) for scenario, _ in jobs], config.episodes)
     info: dict = {"tasks": len(tasks), "cells": len(jobs), "skipped_runs": skipped, "warmed_cases": 0}
     t0 = time.perf_counter()
-    with open_client(first.service_settings(), mode="ray", store=store, address=address,
+    with open_client(first.game_settings(), mode="ray", store=store, address=address,
                      num_cpus=workers if starts_ray else None) as client:
         import ray
 
-        from farm.studies.suite.tasks import remote_suite_cell
+        from farm.studies.suite.tasks import remote_suite_matchup
 
         actor = client.backend.actor
         if warm:
@@ -132,7 +132,7 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
             def submit(task):
                 j, first, count = task
                 scenario, spec = jobs[j]
-                return remote_suite_cell.remote(envs[scenario], spec, actor, count, config.seed + first)
+                return remote_suite_matchup.remote(envs[scenario], spec, actor, count, config.seed + first)
 
             for (j, first, count), ref in bounded(submit, order, n):
                 results[j, first] = [{**row, "episode": first + row["episode"]}
@@ -176,7 +176,7 @@ def _check_planners(jobs: list, envs: dict) -> None:
     for scenario, spec in jobs:
         if not spec.entry.options():
             continue
-        client = CaptureTimeClient(envs[scenario].service_settings(), backend=_Unasked())
+        client = CaptureTimeClient(envs[scenario].game_settings(), backend=_Unasked())
         try:
             spec.make(envs[scenario], client)
         except (SwarmFarmError, TypeError, ValueError) as e:
@@ -210,21 +210,21 @@ def _cost(env: AllocConfig) -> float:
 TASK_COST = 16 ** 2 * 16  # a task holds at least a 16 x 16 episode's cells x steps
 
 
-def cell_tasks(costs: list[float], episodes: int) -> list[tuple[int, int, int]]:
-    """Each (scenario, policy) cell's episodes cut into Ray tasks: (cell, first episode,
-    episodes) of each, in cell order. costs: each cell's cost of one episode (_cost). A task
+def matchup_tasks(costs: list[float], episodes: int) -> list[tuple[int, int, int]]:
+    """Each (scenario, allocator) matchup's episodes cut into Ray tasks: (matchup, first episode,
+    episodes) of each, in matchup order. costs: each matchup's cost of one episode (_cost). A task
     holds as few episodes as make up TASK_COST (an episode costing more is a task of its
-    own), the cell's episodes shared evenly between its tasks: small maps stay one task a
-    cell (a 3 x 3 episode takes milliseconds), and a 32 x 32 cell, whose receding_horizon
+    own), the matchup's episodes shared evenly between its tasks: small maps stay one task a
+    matchup (a 3 x 3 episode takes milliseconds), and a 32 x 32 matchup, whose receding_horizon
     episodes take minutes each, runs on every worker and moves the progress bar an episode
-    at a time. Episode k of a cell is seeded seed + k whatever the cut, and is the same
+    at a time. Episode k of a matchup is seeded seed + k whatever the cut, and is the same
     episode (farm.alloc.rollout.play), so the cut changes no number."""
     tasks = []
-    for cell, cost in enumerate(costs):
+    for matchup, cost in enumerate(costs):
         per_task = min(episodes, max(1, int(TASK_COST // max(cost, 1))))
         pieces = -(-episodes // per_task)
         bounds = [episodes * i // pieces for i in range(pieces + 1)]
-        tasks += [(cell, bounds[i], bounds[i + 1] - bounds[i]) for i in range(pieces)]
+        tasks += [(matchup, bounds[i], bounds[i + 1] - bounds[i]) for i in range(pieces)]
     return tasks
 
 

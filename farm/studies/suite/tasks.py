@@ -1,5 +1,5 @@
-"""The suite's Ray task: episodes of one (scenario, allocator) cell (evaluate_cell on a
-worker; farm.studies.suite.run.cell_tasks cuts a cell's episodes into tasks). Imports Ray:
+"""The suite's Ray task: episodes of one (scenario, allocator) matchup (evaluate_matchup on a
+worker; farm.studies.suite.run.matchup_tasks cuts a matchup's episodes into tasks). Imports Ray:
 imported only by farm.studies.suite.run.run_suite, once Ray is up
 (farm.runtime.ray_cluster sets Ray's loopback switch before Ray's import)."""
 
@@ -8,19 +8,19 @@ from __future__ import annotations
 import ray
 
 from farm.games.tasks import MAX_RETRIES
-from farm.studies.suite.cell import evaluate_cell
+from farm.studies.suite.matchup import evaluate_matchup
 
-__all__ = ["remote_suite_cell"]
+__all__ = ["remote_suite_matchup"]
 
 
 @ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)
-def remote_suite_cell(config, spec, service, episodes: int, seed: int) -> list[dict]:
-    """evaluate_cell on a worker, its client built on the shared capture-time service actor
+def remote_suite_matchup(config, spec, service, episodes: int, seed: int) -> list[dict]:
+    """evaluate_matchup on a worker, its client built on the shared capture-time service actor
     `service` (a handle): config: the scenario's AllocConfig; spec: the allocator (a
     farm.alloc.policies.PolicySpec); the episodes seeded seed .. seed + episodes - 1; returns
     one dict per episode, numbered from 0. While the client waits for the actor (ray.get), Ray
     lends this task's CPU to the service's game tasks."""
     from farm.service.client import CaptureTimeClient
 
-    client = CaptureTimeClient(config.service_settings(), service=service)
-    return evaluate_cell(config, spec, client, episodes, seed)
+    client = CaptureTimeClient(config.game_settings(), service=service)
+    return evaluate_matchup(config, spec, client, episodes, seed)

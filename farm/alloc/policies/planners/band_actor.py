@@ -14,7 +14,7 @@ class BandPlanner:
     with them). A restarted actor builds them again: the planners are deterministic."""
 
     def __init__(self, config, planner: str, options: dict, settings, service=None, store: str | None = None):
-        """config: AllocConfig; planner, options: the inner planner; settings: ServiceSettings;
+        """config: AllocConfig; planner, options: the inner planner; settings: GameSettings;
         service: the capture-time service actor, or store: a local store's path."""
         from farm.alloc.policies.registry import make_policy
         from farm.service import CaptureTimeClient

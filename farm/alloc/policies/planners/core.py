@@ -139,7 +139,7 @@ def _flag(owner: str, name: str, value) -> bool:
 class _Planner:
     """The shared part of the planners: the grid, predict(), Intercept's rule, option checks.
 
-    config: AllocConfig; client: a CaptureTimeClient of config.service_settings(), or None
+    config: AllocConfig; client: a CaptureTimeClient of config.game_settings(), or None
     for a planner that asks no statistics; unknown: the options no keyword took. Each
     planner names its options as keywords of its __init__; an unknown one is a
     ConfigError naming it. The class's signature leaves the catch-all out, so that

@@ -30,7 +30,7 @@ class MaxMarginalReturn(_Planner):
     with no return moves as Intercept would, towards the coming intruders, landing on a
     target only where that does not lower the target's expected eliminated mass.
 
-    config: AllocConfig; client: a CaptureTimeClient of config.service_settings();
+    config: AllocConfig; client: a CaptureTimeClient of config.game_settings();
     chunk: the unit of assigned mass in defenders (default 1; a finer unit such as 0.1
     lets a count that rounds up to a game be used, e.g. 4.6 defenders playing the
     6-defender game under the lattice); ties: Intercept's, for the mass with no return;

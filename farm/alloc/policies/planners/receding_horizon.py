@@ -48,7 +48,7 @@ class RecedingHorizon(_Planner):
     outside it (never a target). Mass the plan does not use moves as Intercept would,
     landing on a first step's target only where that leaves its game as planned.
 
-    config: AllocConfig; client: a CaptureTimeClient of config.service_settings();
+    config: AllocConfig; client: a CaptureTimeClient of config.game_settings();
     horizon: int >= 1 or None (default): the steps planned; None plans until the
     intruders now on the grid have breached (the right-most column holding intruders,
     plus one); no plan goes past max_steps (the steps taken are read from that column:

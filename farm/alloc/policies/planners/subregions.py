@@ -28,7 +28,7 @@ it does not: every band holds a share of every cell's defenders, so its program 
 every node they can reach. Measured against receding_horizon on the whole map by
 benchmarks/theatre.py --subregions (docs/model.md section 7): worse and slower.
 
-config: AllocConfig; client: a CaptureTimeClient of config.service_settings() (the inner
+config: AllocConfig; client: a CaptureTimeClient of config.game_settings() (the inner
 planner's); regions: int >= 1 bands, at most grid_size (default None: bands of at most
 BAND_ROWS rows, so one band, the inner planner itself, up to 8 x 8); planner: the inner
 planner, a registry planner other than subregions (default receding_horizon); options:

@@ -7,10 +7,10 @@ from farm.alloc.config import AllocConfig
 from farm.alloc.policies import PolicySpec
 from farm.alloc.rollout import play
 
-__all__ = ["evaluate_cell"]
+__all__ = ["evaluate_matchup"]
 
 
-def evaluate_cell(config: AllocConfig, spec: PolicySpec, client, episodes: int, seed: int) -> list[dict]:
+def evaluate_matchup(config: AllocConfig, spec: PolicySpec, client, episodes: int, seed: int) -> list[dict]:
     """The allocator of spec on episodes seeded seed .. seed + episodes - 1 of the scenario's env
     settings config, its engagements answered by client (a CaptureTimeClient); one dict per
     episode: episode, seed, the episode's measures (farm.alloc.rollout.Episode.summary), steps

@@ -6,7 +6,7 @@ their games' team sizes n_p:n_e written in. Under `--fidelity games` a second pa
 engaged cell's real game: the first step that engages any cell, its cell with the most
 evaders, played as `--fidelity games` plays a case's first fresh game (game number
 `settings.games` of the case, farm.alloc.fidelity); the episode holds at that step while the
-game plays out frame by frame (farm.core.animate.game_frames' steps), and the game's end
+game plays out frame by frame (farm.core.game_animation.game_frames' steps), and the game's end
 stays shown after. An episode of T steps has T + 1 frames, plus the inset game's frames but
 one (episode_frame_count).
 """
@@ -23,7 +23,7 @@ from workers import GameResults, run_games
 
 from farm.alloc.plots import _rgb
 from farm.alloc.rollout import Episode
-from farm.core.animate import auto_stride, figure_frames, game_frame_steps, write_animation
+from farm.core.game_animation import auto_stride, figure_frames, game_frame_steps, write_animation
 
 __all__ = ["InsetGame", "inset_game", "episode_frame_steps", "episode_frame_count", "episode_frames",
            "write_episode_animation"]
@@ -49,7 +49,7 @@ def inset_game(episode: Episode, settings) -> InsetGame | None:
     """The game of the episode's first engagement (its cell with the most evaders), played
     as `--fidelity games` plays a case's first fresh game; None for an episode that engaged
     nothing. episode: recorded (play(..., record_first=True)); settings: the run's
-    ServiceSettings (its games and seed, and the game settings of every cell)."""
+    GameSettings (its games and seed, and the game settings of every cell)."""
     for t, (cells, n_p, n_e) in enumerate(episode.engagements, start=1):
         if len(cells):
             k = int(np.argmax(n_e))
@@ -129,7 +129,7 @@ def episode_frames(episode: Episode, title: str = "", inset: InsetGame | None = 
 def write_episode_animation(episode: Episode, path: str | Path, title: str = "", settings=None,
                             fps: float = 2.0) -> tuple[Path, int]:
     """Write a recorded episode's animation to path (.gif or .mp4); settings (the run's
-    ServiceSettings) adds the inset game of its first engagement (`--fidelity games`).
+    GameSettings) adds the inset game of its first engagement (`--fidelity games`).
     Returns (path, frames written). fps: the episode's steps a second; the inset game's
     frames play five times faster."""
     inset = inset_game(episode, settings) if settings is not None else None

@@ -4,7 +4,7 @@ public API, before RL fine-tunes the learner (a config's `pretrain:` section, Pr
 The algorithm, and why it is right:
 
 - Iteration i plays `episodes` episodes with a mixture policy: at each step the expert drives
-  with probability beta_i (the schedule, beta_0 = 1: the first iteration is the expert's
+  with probability s_i (`expert_share`'s schedule, s_0 = 1: the first iteration is the expert's
   alone), else the learner (its deterministic action). Every visited state is labelled with
   the expert's action, whoever drove: the learner is taught what to do in the states its own
   mistakes lead to, which is what plain behaviour cloning misses (its errors compound over the
@@ -27,7 +27,7 @@ The algorithm, and why it is right:
   learner's replay buffer, so that its critics start from the expert's kind of play.
 - Labels cost the expert's time a step (10 to 70 ms for a planner), so episodes are played in
   tasks of `episodes_per_task` each: on the farm (service.mode ray) each task is one Ray task
-  (farm.alloc.training.label_tasks) and at most one per CPU of the cluster runs at once;
+  (farm.alloc.training.dagger.tasks) and at most one per CPU of the cluster runs at once;
   locally, and in an experiment's trial (a Ray actor that holds its CPU, so that tasks of its
   own could wait for CPUs the trials hold), they run one after another in this process. An episode and its coin flips are seeded by the run's
   seed, the iteration and the episode's index alone, and results are put together in task
@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from farm.alloc.policies import PolicySpec, policy_entry
-from farm.alloc.training.labels import concat, play_labelled
+from farm.alloc.training.dagger.labels import concat, play_labelled
 
 __all__ = ["PRETRAIN_SEED_OFFSET", "FLOW_FLOOR", "MoveMap", "imitation_loss", "label_all", "fit_actor", "fit_maps",
            "actor_action", "pretrain",
@@ -96,7 +96,7 @@ def label_all(config, params, learner, share: float, iteration: int, seed: int, 
     else:
         import ray
 
-        from farm.alloc.training.label_tasks import remote_label
+        from farm.alloc.training.dagger.tasks import remote_label
         from farm.runtime import bounded
 
         learner_ref = ray.put(learner)  # once, not once per task
@@ -145,7 +145,7 @@ class MoveMap:
         self.src = torch.as_tensor(src)
         self.cells = config.grid_size ** 2
         self.softmax = config.action_map == "softmax"
-        self.beta = float(config.softmax_beta)
+        self.softmax_beta = float(config.softmax_beta)
 
     def log_probabilities(self, action):
         """action: (S, A) tensor (clipped to [-1, 1], as the env does) -> (S, A) the log of each
@@ -155,7 +155,7 @@ class MoveMap:
         a = action.clamp(-1.0, 1.0)
         index = self.src.expand(a.shape[0], -1)
         if self.softmax:
-            z = self.beta * a
+            z = self.softmax_beta * a
             top = torch.full((a.shape[0], self.cells), -torch.inf, dtype=a.dtype).scatter_reduce(1, index, z, reduce="amax")
             z = z - top.gather(1, index)
             total = torch.zeros(a.shape[0], self.cells, dtype=a.dtype).scatter_add(1, index, torch.exp(z))
@@ -265,7 +265,7 @@ def _maps(config, client) -> list[tuple]:
     scenarios (the run's service games and seed), each with a client of its service settings."""
     maps = [(config.env, client)]
     for env in config.envs()[1:]:
-        settings = env.service_settings()
+        settings = env.game_settings()
         maps.append((env, client if settings == client.settings else client.with_settings(settings)))
     return maps
 

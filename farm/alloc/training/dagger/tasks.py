@@ -1,5 +1,5 @@
 """Pretraining's Ray task: a batch of labelled episodes (play_labelled on a worker). Imports Ray:
-imported only by farm.alloc.training.pretrain.label_all once Ray is up."""
+imported only by farm.alloc.training.dagger.loop.label_all once Ray is up."""
 
 from __future__ import annotations
 
@@ -17,9 +17,9 @@ def remote_label(config, spec, learner, share: float, seeds: list[int], coin_key
     policy or None. One torch thread: the task is one CPU's."""
     import torch
 
-    from farm.alloc.training.labels import play_labelled
+    from farm.alloc.training.dagger.labels import play_labelled
     from farm.service.client import CaptureTimeClient
 
     torch.set_num_threads(1)
-    client = CaptureTimeClient(config.service_settings(), service=service)
+    client = CaptureTimeClient(config.game_settings(), service=service)
     return play_labelled(config, spec.make(config, client), learner, share, seeds, coin_key, client, gamma)

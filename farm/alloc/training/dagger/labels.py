@@ -1,4 +1,4 @@
-"""Labelled episodes, pretraining's data (farm.alloc.training.pretrain): episodes played by a
+"""Labelled episodes, pretraining's data (farm.alloc.training.dagger.loop): episodes played by a
 mixture of an expert and a learner, every state labelled with the expert's action."""
 
 from __future__ import annotations
