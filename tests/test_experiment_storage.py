@@ -204,3 +204,23 @@ def test_a_relative_local_folder_is_kept_by_its_absolute_path(tmp_path, monkeypa
     (tmp_path / "elsewhere").mkdir()
     monkeypatch.chdir(tmp_path / "elsewhere")
     assert ExperimentStorage(storage.uri).run_dir("p0_s0") == tmp_path / "results" / "exp" / "trials" / "p0_s0" / "run"
+
+
+def test_an_older_folders_pickled_names_load_inside_old_names_only():
+    """Tune state of experiments written by 0.5 pickles farm.experiments._trial_dirname and
+    farm.experiments_tune.Progress: they load to today's objects while run_experiment restores."""
+    import pickle
+    import sys
+
+    from farm.studies.experiments.legacy import old_names
+    from farm.studies.experiments.trial import trial_dirname
+    from farm.studies.experiments.tune import Progress
+
+    namer, callback = b"cfarm.experiments\n_trial_dirname\n.", b"cfarm.experiments_tune\nProgress\n."
+    with pytest.raises(ModuleNotFoundError):
+        pickle.loads(namer)
+    with old_names():
+        assert pickle.loads(namer) is trial_dirname and pickle.loads(callback) is Progress
+    assert "farm.experiments" not in sys.modules and "farm.experiments_tune" not in sys.modules
+    with pytest.raises(ModuleNotFoundError):
+        pickle.loads(callback)
