@@ -96,7 +96,7 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
         if not isinstance(data, dict):
             return data
         data = dict(data)
-        if "intruder_speed" in data:  # the spellings of run folders written before version 0.2
+        if "intruder_speed" in data:  # a run folder's old field name intruder_speed
             data.setdefault("evader_speed", data.pop("intruder_speed"))
         if isinstance(data.get("law"), str):
             data["law"] = {"kind": data["law"]}

@@ -6,7 +6,7 @@ atomically (a crash mid-write leaves the last committed state), readers never
 block the writer in WAL mode, and it is one file in the standard library.
 
 Every row carries a SHA-256 of every column a reader uses: "v2:" + the hash of the key
-digest, settings digest, team sizes, key and value (rows written before issue 17 carry
+digest, settings digest, team sizes, key and value (v1 rows, without the prefix, carry
 the hash of the key digest, key and value only; they are served when their other columns
 agree with their key, see _columns_of). A row damaged on disk is reported and never
 served (it is recomputed); a file that is not a sound SQLite database stops the store with
@@ -53,7 +53,7 @@ def _lenient_text(data: bytes) -> str:
 
 
 def _checksum(key: str, key_json: str, value_json: str) -> str:
-    """A row's checksum as written before issue 17 (v1): key digest, key and value only."""
+    """A v1 row's checksum: key digest, key and value only."""
     return hashlib.sha256(f"{key}\n{key_json}\n{value_json}".encode()).hexdigest()
 
 

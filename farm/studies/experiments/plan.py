@@ -63,7 +63,7 @@ def _set(raw: dict, path: str, value) -> None:
 
 
 def _added_defaults() -> dict:
-    """The training config's fields added since 0.5 (the learners, tracking), at their defaults, as
+    """The training config's fields older trial configs lack (the learners, tracking), at their defaults, as
     plain values: a trial's config holding one at its default decides what it did before."""
     from farm.alloc.training import TrainConfig
 

@@ -268,8 +268,8 @@ def restore_run(checkpoint, run: Path, replay_buffer: bool) -> int | None:
     {"timesteps": n}) or a pretraining iteration's ({"timesteps": 0, "pretrain_iteration": i},
     before any of training's). Returns the steps the run goes on from (0 within the
     pretraining, None: from the start). checkpoint: tune.get_checkpoint()'s (None: the trial's
-    first start); one of before 0.6 (a marker, progress.json alone) leaves the run folder as it
-    is."""
+    first start); a marker checkpoint (progress.json alone, no run folder) leaves the run folder
+    as it is."""
     here = _progress_here(run, replay_buffer)
     if checkpoint is None:
         return _steps(here)
