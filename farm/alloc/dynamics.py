@@ -8,13 +8,9 @@ elementwise, or a sum over one episode's entries that does not depend on the oth
 row_sums and segment_sums, which sum as numpy sums one episode's 1-D array), and the
 engagements of all B episodes are answered by one lookup (EngagementModel.engage_many).
 
-- moves, n_actions, Layout: the action layout of an N x N grid;
-- check_actions: the action refusal rule (ActionError);
-- move_probabilities, move_defenders: the defenders' move (the `action_map` and D' = T D);
-- start_densities: an episode's start; observe: the observation; episode_end: termination
-  and truncation;
-- step: a whole step (StepResult).
-
+Its parts: moves, n_actions, Layout (the action layout of an N x N grid); check_actions (the
+refusal rule, ActionError); move_probabilities, move_defenders (the `action_map`, D' = T D);
+start_densities, observe, episode_end (termination, truncation); step (StepResult).
 Densities are (B, N^2) float64, one episode a row, cells in cell order c = row * N + col.
 """
 
