@@ -147,7 +147,7 @@ def default_store_path() -> Path:
 
 class StatsStore:
     """key digest -> CaptureStats, on disk. A row's value is CaptureStats.flat() as JSON
-    (rows written before CaptureStats, with a few more keys, read the same).
+    (older rows, with a few more keys, read the same).
 
     Opening refuses at once, in one line: a path that is a folder (ConfigError), a store
     that cannot be written unless read_only (ConfigError: the file or its folder is not
@@ -216,8 +216,8 @@ class StatsStore:
         """A row's value when every column a reader uses is verified, else None (a damaged
         row is reported in corrupt_rows, a row of an older engine's layout in older_rows).
 
-        v2 rows: the checksum covers every column. Rows written before (v1: the checksum
-        covers the key digest, key and value) also need their settings digest and team
+        v2 rows: the checksum covers every column. v1 rows (the checksum covers the key
+        digest, key and value) also need their settings digest and team
         sizes (and key digest) to be those of their key_json."""
         if isinstance(checksum, str) and checksum.startswith(CHECKSUM_V2):
             if _checksum_v2(key, settings, n_p, n_e, key_json, value_json) != checksum:

@@ -123,7 +123,7 @@ def plan(config: ExperimentConfig, source: str = "experiments") -> Plan:
                "eval_seed": config.eval_seed}
     for t in decided["trials"]:  # the store's place does not change a result
         t["config"]["service"] = {k: v for k, v in t["config"]["service"].items() if k != "store"}
-        for name, default in _added_defaults().items():  # an experiment from before them keeps its digest
+        for name, default in _added_defaults().items():  # at its default: as an older config without it
             if t["config"].get(name) == default:
                 del t["config"][name]
     digest = hashlib.sha256(json.dumps(decided, sort_keys=True).encode()).hexdigest()[:16]
