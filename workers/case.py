@@ -102,7 +102,7 @@ class Case:
             object.__setattr__(self, "law", InitialLaw(self.law.kind, nums(self.law.pursuer_box),
                                                        nums(self.law.evader_box)))
 
-    def validate(self) -> "Case":
+    def validate(self) -> Case:
         """The Case itself when every setting is valid, else an InputError naming the first bad one.
 
         Checks the team sizes (whole numbers, not bools, at most MAX_TEAM), the policies'
@@ -141,7 +141,7 @@ class Case:
                 raise InputError(f"law.{name}: {shown(box)} is not inside the arena", field=f"law.{name}")
         return self
 
-    def check_window(self) -> "Case":
+    def check_window(self) -> Case:
         """The Case itself when its statistics window fits its games (tau <= t_max), else an
         InputError naming tau: the "by tau" statistics (frac_captured_tau, capture_score_tau)
         of games shorter than tau would count captures the games never reach. The game itself

@@ -23,7 +23,7 @@ import types
 import warnings
 from collections import namedtuple
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 from numba import njit
@@ -328,7 +328,7 @@ def _uncached_copy(kernel, **names):
     return njit(**{k: v for k, v in kernel.targetoptions.items() if k != "nopython"})(copy)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _kernels_with(pursuer_dispatch, evader_dispatch):
     """(_play, _step_velocities) compiled with these dispatches inlined, not cached on disk.
 

@@ -124,7 +124,7 @@ class TimeSummary:
     n_censored: int
 
     @classmethod
-    def of(cls, times: np.ndarray) -> "TimeSummary":
+    def of(cls, times: np.ndarray) -> TimeSummary:
         """The summary of times: (B,) float64 per game, NaN = censored."""
         x = times[np.isfinite(times)]
         n = len(x)
@@ -192,7 +192,7 @@ class CaptureStats:
     estimate: str | None = None
 
     @classmethod
-    def from_games(cls, per_game: pd.DataFrame) -> "CaptureStats":
+    def from_games(cls, per_game: pd.DataFrame) -> CaptureStats:
         """The statistics of game_statistics rows (one per game)."""
         fractions = {name: float(per_game[column].mean()) for name, (column, _) in _FRACTIONS.items()}
         times = {m: TimeSummary.of(per_game[m].to_numpy(dtype=np.float64)) for m in TIME_METRICS}
@@ -211,7 +211,7 @@ class CaptureStats:
         return out
 
     @classmethod
-    def from_flat(cls, row: dict, estimate: str | None = None) -> "CaptureStats":
+    def from_flat(cls, row: dict, estimate: str | None = None) -> CaptureStats:
         """The inverse of flat(); also reads the store's rows written before CaptureStats.
 
         A row without a field of flat() (written before that field existed, e.g. the

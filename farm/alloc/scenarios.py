@@ -48,9 +48,10 @@ three.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
 
 from farm.alloc.config import AllocConfig
 

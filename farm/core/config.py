@@ -12,8 +12,9 @@ import dataclasses
 import functools
 import math
 import typing
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 import yaml
@@ -76,7 +77,7 @@ def _at(where: str) -> str:
     return f" (at {where.lstrip('.')})" if where else ""
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _checked_elsewhere(annotation) -> bool:
     """Whether a field's type is or holds a pydantic model (a config section, checked by its
     own validators) or Any (values checked where they are used: case_from for game
@@ -86,7 +87,7 @@ def _checked_elsewhere(annotation) -> bool:
     return any(_checked_elsewhere(arg) for arg in typing.get_args(annotation) if arg is not Ellipsis)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _takes_bool(annotation) -> bool:
     """Whether a field's type may hold a boolean, at any depth; a dataclass's field types
     are looked into."""

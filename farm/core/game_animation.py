@@ -14,8 +14,8 @@ steps at frame stride K has `game_frame_count(steps, K)` = ceil(steps / K) + 1 f
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Iterable, Iterator
 
 import numpy as np
 

@@ -34,8 +34,9 @@ import socket
 import sys
 import threading
 from collections import deque
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 from urllib.parse import urlsplit
 
 from farm.core.errors import ClusterError, ConfigError

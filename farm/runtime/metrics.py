@@ -7,7 +7,7 @@ dashboards/ queries exactly these).
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 TAGS = ("sweep",)
 
@@ -33,7 +33,7 @@ def _ray_ready() -> bool:
     return ray.is_initialized()
 
 
-@lru_cache(maxsize=None)
+@cache
 def _worker_metrics():
     from ray.util.metrics import Counter, Gauge
 

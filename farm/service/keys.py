@@ -51,12 +51,12 @@ class GameSettings:
     seed: int = 0
 
     @classmethod
-    def of(cls, **fields) -> "GameSettings":
+    def of(cls, **fields) -> GameSettings:
         """GameSettings.of(games=16, t_max=10.0, evader_policy="centroid"): games, seed and
         Case fields by name; the rest at their defaults."""
         return cls().with_(**fields)
 
-    def key(self, n_pursuers: int, n_evaders: int) -> "StatsKey":
+    def key(self, n_pursuers: int, n_evaders: int) -> StatsKey:
         """The StatsKey of one team-size pair under these settings; InputError (one line) for bad
         games, seed or sizes, or a window tau longer than the games (Case.check_window)."""
         if isinstance(self.games, bool) or not isinstance(self.games, int) or self.games < 2:
@@ -66,7 +66,7 @@ class GameSettings:
         case = replace(self.game, n_pursuers=n_pursuers, n_evaders=n_evaders).validate().check_window()
         return StatsKey(case, self.games, self.seed)
 
-    def with_(self, **changes) -> "GameSettings":
+    def with_(self, **changes) -> GameSettings:
         """A copy with games, seed or any Case field changed."""
         own = {k: changes.pop(k) for k in SERVICE_FIELDS if k in changes}
         _known(changes)

@@ -378,7 +378,7 @@ class TrainConfig(Strict):
         maps = self.pretrain.maps if self.pretrain is not None else []
         return [self.env, *(m.config(games=self.env.games, seed=self.env.seed) for m in maps)]
 
-    def with_timesteps(self, n: int) -> "TrainConfig":
+    def with_timesteps(self, n: int) -> TrainConfig:
         """This config with the learner's n_timesteps set to n."""
         return self.model_copy(update={self.algo: self.learner.model_copy(update={"n_timesteps": n})})
 

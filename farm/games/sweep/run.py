@@ -41,6 +41,7 @@ from farm.games.sweep.config import FULL_CHECK_POINTS, Point, SweepConfig
 @dataclass(frozen=True)
 class Shard:
     """One shard of a sweep: games start..stop-1 of point `point`, its `number`-th."""
+
     point: int
     number: int
     start: int

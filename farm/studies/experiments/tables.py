@@ -60,7 +60,6 @@ def summary_view(summary: pd.DataFrame) -> pd.DataFrame:
     """summary.csv as shown (format_summary, farm report): point, the point's fields, seeds,
     the learner's return and eliminated as `mean ± CI` strings, and the baseline or planner eliminating
     the most (`name value`); an empty frame for an empty summary."""
-
     if summary.empty:
         return pd.DataFrame()
     fields = list(summary.columns[1: list(summary.columns).index("seeds") + 1])
