@@ -310,11 +310,11 @@ def cmd_table(args) -> int:
     """`farm table [show] CONFIG`: fill the capture-time store over a table's cells, or show it."""
     from farm.service.table import fill_table, load_table_config, plot_heatmaps, table_frames
 
-    args = list(args.args)
-    show = bool(args) and args[0] == "show"
+    words = list(args.args)
+    show = bool(words) and words[0] == "show"
     if show:
-        args = args[1:]
-    if len(args) != 1:
+        words = words[1:]
+    if len(words) != 1:
         raise CliError("table: usage: farm table CONFIG | farm table show CONFIG")
     if show:
         for flag in ("address", "workers", "yes"):
@@ -323,7 +323,7 @@ def cmd_table(args) -> int:
     _contradictions(args, [("address", "workers")])
     if args.store is not None and not args.store.strip():
         raise CliError("--store: an empty path; name the SQLite store, or leave --store out for the config's")
-    config = load_table_config(args[0])
+    config = load_table_config(words[0])
     if not show:
         from farm.games.sizes import check_size
         from farm.runtime import check_workers
