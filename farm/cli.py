@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import re
 import sys
@@ -19,6 +18,7 @@ import pandas as pd
 from workers import GAME_FIELDS, SwarmFarmError, sample_initial_positions, simulate_case
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
+from farm.core.checks import is_finite_number
 from farm.core.config import case_from
 from farm.core.errors import CliError
 
@@ -87,7 +87,7 @@ def _xy_pairs(value, field: str) -> list:
     if not isinstance(value, list) or not all(isinstance(p, list) and len(p) == 2 for p in value):
         raise CliError(f"{field}: expected a list of [x, y] pairs, got {json.dumps(value)[:60]}")
     for p in value:
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in p):
+        if not all(is_finite_number(v) for v in p):
             raise CliError(f"{field}: {json.dumps(p)[:60]} is not a pair of finite numbers")
     return value
 

@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 
 from workers.arena import make_arena
-from workers.errors import InputError, all_numbers, exact, is_number, not_a_number_hint, point, positive, shown
+from workers.errors import InputError, all_numbers, exact, is_number, not_a_number_hint, point, positive, shown, whole
 from workers.policies import get_evader_policy, get_pursuer_policy
 from workers.version import ENGINE_VERSION
 
@@ -113,8 +113,7 @@ class Case:
         calls it first, so no game is built from a Case it refuses."""
         for name in ("n_pursuers", "n_evaders"):
             v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise InputError(f"{name}: must be a whole number >= 1, got {shown(v)}", field=name)
+            whole(name, v, 1)
             if v > MAX_TEAM:
                 raise InputError(f"{name}: {shown(v)} agents is more than the engine's limit of {MAX_TEAM}", field=name)
         get_pursuer_policy(self.pursuer_policy)

@@ -30,8 +30,9 @@ from numba import njit
 
 from workers.arena import Arena, make_arena
 from workers.case import case_defaults, check_exit_point
-from workers.errors import CoarseStepWarning, InputError, all_numbers, exact, not_a_number_hint, point, positive
-from workers.geometry import NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity, voronoi_cells
+from workers.errors import CoarseStepWarning, InputError, all_numbers, exact, is_whole, not_a_number_hint, point, positive
+from workers.geometry import (NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity,
+                              voronoi_cells)
 from workers.policies import Policy, Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
 from workers.policies.registry import dispatch, is_builtin
 from workers.version import ENGINE_VERSION
@@ -94,11 +95,11 @@ class GameResults:
         """
         if self.pursuer_paths is None:
             raise InputError("cells_at: the games were simulated without record=True", field="cells_at")
-        if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or frame < 0:
+        if not is_whole(frame) or frame < 0:
             raise InputError(f"cells_at: frame must be a whole number >= 0 (a step index), got {frame!r}",
                              field="cells_at")
         games = self.pursuer_paths.shape[1]
-        if isinstance(game, bool) or not isinstance(game, (int, np.integer)) or not 0 <= game < games:
+        if not is_whole(game) or not 0 <= game < games:
             raise InputError(f"cells_at: game must be a whole number from 0 to {games - 1}, got {game!r}",
                              field="cells_at")
         frame = min(frame, len(self.pursuer_paths) - 1)

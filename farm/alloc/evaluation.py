@@ -15,6 +15,7 @@ from farm.alloc.plots import plot_behaviour_steps
 from farm.alloc.policies import PolicySpec, make_policy, policy_entry, policy_names
 from farm.alloc.rollout import behaviour_pair, evaluate_policies, steps_table
 from farm.alloc.runs import RunFolder
+from farm.core.checks import whole
 from farm.core.errors import ConfigError
 
 __all__ = ["fidelity_lines", "RunEvaluation", "reference_specs", "allocators", "evaluate_trained", "evaluate_run", "FIDELITIES"]
@@ -102,10 +103,8 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
                               field="scenario")
         own = config.env  # the run's service games and seed stay, as farm suite keeps them
         config = config.model_copy(update={"env": SCENARIOS[scenario].config(games=own.games, seed=own.seed)})
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise ConfigError(f"episodes: must be a whole number >= 1, got {episodes!r}", field="episodes")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"seed: must be a whole number >= 0, got {seed!r}", field="seed")
+    whole("episodes", episodes, 1)
+    whole("seed", seed, 0)
     if fidelity not in FIDELITIES:
         raise ConfigError(f"fidelity: must be one of {', '.join(FIDELITIES)}, got {fidelity!r}", field="fidelity")
     choices = policy_names(("baseline", "planner"))

@@ -39,6 +39,7 @@ from contextlib import contextmanager
 from typing import Any
 from urllib.parse import urlsplit
 
+from farm.core.checks import is_whole, whole
 from farm.core.errors import ClusterError, ConfigError
 
 __all__ = ["NAMESPACE", "DEFAULT_LOCAL_CPUS", "LOOPBACK_ENV", "ray_cluster", "connected", "check_reachable", "bounded",
@@ -133,8 +134,8 @@ def tasks_in_flight(workers: int | None, cpus: int, address: str | None) -> int:
 
 def check_workers(workers, field: str = "workers") -> None:
     """ConfigError (one line naming field) unless workers is None or a whole number >= 1."""
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise ConfigError(f"{field}: must be a whole number >= 1, got {workers!r}", field=field)
+    if workers is not None:
+        whole(field, workers, 1)
 
 
 @contextmanager
@@ -150,8 +151,7 @@ def ray_cluster(address: str | None = None, *, num_cpus: int | None = None, metr
     port it does not have is a ClusterError; a metrics port outside 1-65535 is a ConfigError,
     before Ray starts. Yields the `ray` module.
     """
-    if metrics_port is not None and (isinstance(metrics_port, bool) or not isinstance(metrics_port, int)
-                                     or not 1 <= metrics_port <= 65535):
+    if metrics_port is not None and not (is_whole(metrics_port, numpy=False) and 1 <= metrics_port <= 65535):
         raise ConfigError(f"metrics_port: must be a TCP port from 1 to 65535, got {metrics_port!r}",
                           field="metrics_port")
     address = address or os.environ.get("RAY_ADDRESS") or None

@@ -16,6 +16,7 @@ from functools import cached_property
 
 from workers import Case, InputError
 
+from farm.core.checks import whole
 from farm.core.config import SETTING_FIELDS
 
 __all__ = ["GameSettings", "StatsKey", "SERVICE_FIELDS", "LATTICE", "lattice_anchors"]
@@ -59,10 +60,8 @@ class GameSettings:
     def key(self, n_pursuers: int, n_evaders: int) -> StatsKey:
         """The StatsKey of one team-size pair under these settings; InputError (one line) for bad
         games, seed or sizes, or a window tau longer than the games (Case.check_window)."""
-        if isinstance(self.games, bool) or not isinstance(self.games, int) or self.games < 2:
-            raise InputError(f"games: must be a whole number >= 2, got {self.games!r}", field="games")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise InputError(f"seed: must be a whole number >= 0, got {self.seed!r}", field="seed")
+        whole("games", self.games, 2, error=InputError)
+        whole("seed", self.seed, 0, error=InputError)
         case = replace(self.game, n_pursuers=n_pursuers, n_evaders=n_evaders).validate().check_window()
         return StatsKey(case, self.games, self.seed)
 

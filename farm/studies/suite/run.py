@@ -16,6 +16,7 @@ from farm.alloc.lattice import lattice_groups, warm_lattices
 from farm.alloc.policies import PolicySpec, make_policy, policy_entry
 from farm.alloc.runs import RunFolder
 from farm.alloc.scenarios import SCENARIOS
+from farm.core.checks import whole
 from farm.core.errors import ConfigError
 from farm.core.output import check_writable_folder
 from farm.studies.suite.config import SuiteConfig
@@ -92,8 +93,7 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
     from farm.service.store import default_store_path
 
     if episodes is not None:
-        if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-            raise ConfigError(f"episodes: must be a whole number >= 1, got {episodes!r}", field="episodes")
+        whole("episodes", episodes, 1)
         config = config.model_copy(update={"episodes": episodes})
     check_workers(workers)
     out = Path(out)

@@ -20,6 +20,7 @@ import numpy as np
 from farm.alloc.config import AllocConfig
 from farm.alloc.env import moves
 from farm.alloc.model import LATTICE, EngagementModel, advance_intruders, snap_many
+from farm.core.checks import is_positive, is_whole
 from farm.core.errors import ConfigError, InputError
 
 __all__ = ["Levels", "levels", "action_from_probabilities", "advance_matrix"]
@@ -116,15 +117,14 @@ def levels(config: AllocConfig) -> Levels:
 
 def _positive_number(owner: str, name: str, value) -> float:
     """value as a float if it is a positive finite number (not a bool), else ConfigError naming owner.name."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(value) or value <= 0:
+    if not is_positive(value):
         raise ConfigError(f"{owner}: {name} must be a positive number, got {value!r}")
     return float(value)
 
 
 def _count(owner: str, name: str, value) -> int:
     """value if it is an integer >= 1 (not a bool), else ConfigError naming owner.name."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+    if not is_whole(value) or value < 1:
         raise ConfigError(f"{owner}: {name} must be an integer >= 1, got {value!r}")
     return int(value)
 
