@@ -148,6 +148,24 @@ def _case(fields: dict):
 
 def cmd_game(args) -> int:
     """`farm game`: play one pursuit-evasion game, print its capture times, optionally plot it."""
+    settings = _checked_settings(args)
+    p, e = _game_start(args, settings)
+    if args.positions or args.pursuers:  # the start is given: no initial-position law applies
+        settings = {**settings, "law": {"kind": "uniform"}}
+    case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
+    res = simulate_case(case, p, e, record=bool(args.plot or args.animate))
+    _print_game(case, res, e)
+    if args.plot:
+        _plot_game(args, res)
+    if args.animate:
+        _animate_game(args, case, res)
+    return 0
+
+
+def _checked_settings(args) -> dict:
+    """The game settings of `farm game`'s flags (_game_settings), once the flags are checked:
+    CliError for a figure or animation path that cannot be written, flags that contradict each
+    other, and flags that need one not given; all before the game is played."""
     from farm.core.output import check_writable_file
 
     if args.plot and Path(args.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
@@ -175,6 +193,13 @@ def cmd_game(args) -> int:
             raise CliError(f"--fps: must be between 0.1 and 50 frames a second, got {args.fps:g}")
     elif args.fps is not None:
         raise CliError("--fps: is for the animation of --animate, which is not given")
+    return settings
+
+
+def _game_start(args, settings: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The game's start, pursuers (1, n_p, 2) and evaders (1, n_e, 2) float64: from the
+    --positions JSON file, from --pursuers and --evaders, or drawn by the case's initial-position
+    law with --seed (team sizes --n-pursuers and --n-evaders, default 3 and 1)."""
     if args.positions:
         data = _load_json(args.positions, "--positions")
         if not isinstance(data, dict) or not {"pursuers", "evaders"} <= set(data):
@@ -200,16 +225,18 @@ def cmd_game(args) -> int:
         raise CliError("positions: expected lists of [x, y] pairs") from None
     if p.ndim != 3 or e.ndim != 3 or p.shape[1] == 0 or e.shape[1] == 0:
         raise CliError("positions: expected non-empty lists of [x, y] pairs")
-    if args.positions or args.pursuers:  # the start is given: no initial-position law applies
-        settings = {**settings, "law": {"kind": "uniform"}}
-    case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
-    res = simulate_case(case, p, e, record=bool(args.plot or args.animate))
+    return p, e
+
+
+def _print_game(case, res, e: np.ndarray) -> None:
+    """The game's teams and settings in one line, then each evader's start and its fate: its
+    capture time, its escape, or neither by t_max. e: the evaders' start, (1, n_e, 2)."""
     exit_point = case.exit_point
     extras = [f"{name.replace('_', ' ')} {getattr(case, name):g}" for name in ("pursuer_speed", "evader_speed")
               if getattr(case, name) != 1.0]
     if exit_point is not None:
         extras.append(f"exit at ({exit_point[0]:g}, {exit_point[1]:g})")
-    print(f"{p.shape[1]} pursuer(s) {case.pursuer_policy} vs {e.shape[1]} evader(s) {case.evader_policy}"
+    print(f"{case.n_pursuers} pursuer(s) {case.pursuer_policy} vs {case.n_evaders} evader(s) {case.evader_policy}"
           + (f" ({', '.join(extras)})" if extras else ""))
     for i, (t, t_escape) in enumerate(zip(res.capture_times[0], res.escape_times[0])):
         if np.isfinite(t):
@@ -219,29 +246,35 @@ def cmd_game(args) -> int:
         else:
             shown = f"not captured by t_max = {case.t_max:g} s" + (", not escaped" if exit_point is not None else "")
         print(f"  evader {i} at ({e[0, i, 0]:.2f}, {e[0, i, 1]:.2f}): {shown}")
-    if args.plot:
-        from farm.core.plots import default_frames, plot_game
 
-        frames = None
-        if args.plot_times:
-            times = _floats(args.plot_times, "--plot-times")
-            if not all(np.isfinite(t) and t >= 0 for t in times):
-                raise CliError("--plot-times: times must be finite and >= 0")
-            frames = [int(round(t / res.dt)) for t in times]
-            frames = [min(f, int(res.steps[0])) for f in frames]
-        frames = frames or default_frames(res, 0)
-        path = plot_game(res, args.plot, frames=frames)
-        print(f"figure: {path}")
-    if args.animate:
-        from farm.core.game_animation import auto_stride, game_frames, write_animation
 
-        stride = args.frame_stride or auto_stride(int(res.steps[0]))
-        title = f"{p.shape[1]} {case.pursuer_policy} vs {e.shape[1]} {case.evader_policy}"
-        with flags("animate"):
-            path, count = write_animation(game_frames(res, 0, stride, title=title), args.animate,
-                                          fps=min(25.0, max(1.0, 1.0 / (stride * res.dt))) if args.fps is None else args.fps)
-        print(f"animation: {path} ({count} frames, every {stride} step(s) of {int(res.steps[0])})")
-    return 0
+def _plot_game(args, res) -> None:
+    """The figure of --plot: the game at the --plot-times given (seconds), else at default_frames."""
+    from farm.core.plots import default_frames, plot_game
+
+    frames = None
+    if args.plot_times:
+        times = _floats(args.plot_times, "--plot-times")
+        if not all(np.isfinite(t) and t >= 0 for t in times):
+            raise CliError("--plot-times: times must be finite and >= 0")
+        frames = [int(round(t / res.dt)) for t in times]
+        frames = [min(f, int(res.steps[0])) for f in frames]
+    frames = frames or default_frames(res, 0)
+    path = plot_game(res, args.plot, frames=frames)
+    print(f"figure: {path}")
+
+
+def _animate_game(args, case, res) -> None:
+    """The animation of --animate: every --frame-stride-th step (default auto_stride), at --fps
+    frames a second (default: the game's pace, from 1 to 25)."""
+    from farm.core.game_animation import auto_stride, game_frames, write_animation
+
+    stride = args.frame_stride or auto_stride(int(res.steps[0]))
+    title = f"{case.n_pursuers} {case.pursuer_policy} vs {case.n_evaders} {case.evader_policy}"
+    fps = min(25.0, max(1.0, 1.0 / (stride * res.dt))) if args.fps is None else args.fps
+    with flags("animate"):
+        path, count = write_animation(game_frames(res, 0, stride, title=title), args.animate, fps=fps)
+    print(f"animation: {path} ({count} frames, every {stride} step(s) of {int(res.steps[0])})")
 
 
 def cmd_pe_table(args) -> int:

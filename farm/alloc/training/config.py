@@ -31,8 +31,36 @@ POLICY_KWARGS = {
             "log_std_init", "ortho_init", "full_std", "use_expln", "squash_output"),
 }
 # CellPolicy's (farm.alloc.training.cell_policy, PPO only): its sizes and ActorCriticPolicy's plain values
-CELL_POLICY_KWARGS = ("channels", "layers", "positions", "lateral", "balance", "log_std_init", "ortho_init", "optimizer_kwargs")
+CELL_POLICY_KWARGS = ("channels", "layers", "positions", "lateral", "balance", "log_std_init", "ortho_init",
+                      "optimizer_kwargs")
 ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu")  # torch.nn's ReLU, Tanh, ELU, LeakyReLU, GELU
+
+
+def _check_net_arch(sizes) -> None:
+    """ValueError unless sizes, policy_kwargs' net_arch, is None, a list of layer sizes (whole
+    numbers >= 1), or a mapping of pi, qf and vf to such lists."""
+    layers = ([] if sizes is None else sizes.values() if isinstance(sizes, dict) and set(sizes) <= {"pi", "qf", "vf"}
+              else [sizes])
+    for layer in layers:
+        if not isinstance(layer, list) or not all(is_whole(x, numpy=False) and x >= 1 for x in layer):
+            raise ValueError(f"net_arch: must be a list of layer sizes >= 1 (or {{pi: [...], qf: [...]}}, vf for ppo), "
+                             f"got {sizes!r}")
+
+
+def _check_adam(adam) -> None:
+    """ValueError unless adam, policy_kwargs' optimizer_kwargs, is a mapping of Adam's betas (two
+    numbers in [0, 1)), eps and weight_decay (numbers >= 0) and amsgrad (true or false)."""
+    if not isinstance(adam, dict) or not set(adam) <= {"betas", "eps", "weight_decay", "amsgrad"}:
+        raise ValueError(f"optimizer_kwargs: must be a mapping of Adam's betas, eps, weight_decay or amsgrad, "
+                         f"got {adam!r}")
+    betas = adam.get("betas", (0.9, 0.999))
+    if not (isinstance(betas, (list, tuple)) and len(betas) == 2
+            and all(is_finite_number(b) and 0 <= b < 1 for b in betas)):
+        raise ValueError(f"optimizer_kwargs.betas: must be two numbers in [0, 1), got {betas!r}")
+    for name in ("eps", "weight_decay"):
+        if name in adam and not (is_finite_number(adam[name]) and adam[name] >= 0):
+            raise ValueError(f"optimizer_kwargs.{name}: must be a number >= 0, got {adam[name]!r}")
+    flag("optimizer_kwargs.amsgrad", adam.get("amsgrad", False), error=ValueError)
 
 
 def _check_policy_kwargs(v: dict, algo: str, policy: str = "MlpPolicy") -> dict:
@@ -46,30 +74,14 @@ def _check_policy_kwargs(v: dict, algo: str, policy: str = "MlpPolicy") -> dict:
     for name in ("channels", "layers"):
         if name in v and not (is_whole(v[name], numpy=False) and 1 <= v[name] <= 512):
             raise ValueError(f"{name}: must be a whole number from 1 to 512, got {v[name]!r}")
-    for name in ("positions", "lateral", "balance", "share_features_extractor", "normalize_images", "ortho_init", "full_std", "use_expln",
-                 "squash_output"):
+    for name in ("positions", "lateral", "balance", "share_features_extractor", "normalize_images", "ortho_init",
+                 "full_std", "use_expln", "squash_output"):
         if name in v:
             flag(name, v[name], error=ValueError)
-    sizes = v.get("net_arch")
-    layers = ([] if sizes is None else sizes.values() if isinstance(sizes, dict) and set(sizes) <= {"pi", "qf", "vf"}
-              else [sizes])
-    for layer in layers:
-        if not isinstance(layer, list) or not all(is_whole(x, numpy=False) and x >= 1 for x in layer):
-            raise ValueError(f"net_arch: must be a list of layer sizes >= 1 (or {{pi: [...], qf: [...]}}, vf for ppo), "
-                             f"got {sizes!r}")
+    _check_net_arch(v.get("net_arch"))
     if "n_critics" in v:
         whole("n_critics", v["n_critics"], 1, error=ValueError)
-    adam = v.get("optimizer_kwargs") or {}
-    if not isinstance(adam, dict) or not set(adam) <= {"betas", "eps", "weight_decay", "amsgrad"}:
-        raise ValueError(f"optimizer_kwargs: must be a mapping of Adam's betas, eps, weight_decay or amsgrad, "
-                         f"got {adam!r}")
-    betas = adam.get("betas", (0.9, 0.999))
-    if not (isinstance(betas, (list, tuple)) and len(betas) == 2 and all(is_finite_number(b) and 0 <= b < 1 for b in betas)):
-        raise ValueError(f"optimizer_kwargs.betas: must be two numbers in [0, 1), got {betas!r}")
-    for name in ("eps", "weight_decay"):
-        if name in adam and not (is_finite_number(adam[name]) and adam[name] >= 0):
-            raise ValueError(f"optimizer_kwargs.{name}: must be a number >= 0, got {adam[name]!r}")
-    flag("optimizer_kwargs.amsgrad", adam.get("amsgrad", False), error=ValueError)
+    _check_adam(v.get("optimizer_kwargs") or {})
     if "activation_fn" in v and v["activation_fn"] not in ACTIVATIONS:
         raise ValueError(f"activation_fn: must be one of {', '.join(ACTIVATIONS)}, got {v['activation_fn']!r}")
     for name in ("log_std_init", "clip_mean"):
