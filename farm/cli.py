@@ -429,8 +429,9 @@ def cmd_eval(args) -> int:
     run_dir = Path(args.run_dir)
     references = None if args.references is None else [n for n in args.references.split(",") if n and n != "none"]
     with flags("episodes", "seed", "fidelity", "scenario", "references", "repair"):
-        result = evaluate_run(run_dir, episodes=args.episodes, seed=args.seed, fidelity=args.fidelity, scenario=args.scenario,
-                              references=references, animate=args.animate, show_progress=not args.quiet, repair=args.repair)
+        result = evaluate_run(run_dir, episodes=args.episodes, seed=args.seed, fidelity=args.fidelity,
+                              scenario=args.scenario, references=references, animate=args.animate,
+                              show_progress=not args.quiet, repair=args.repair)
     run_dir = result.folder
     print(result.table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     if result.games_table is not None:
@@ -438,8 +439,8 @@ def cmd_eval(args) -> int:
         print(result.games_table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
         for line in fidelity_lines(result):
             print(line)
-    print(f"wrote {run_dir / 'eval_table.csv'}, eval_episodes.csv, eval_steps.csv, behaviour_steps.png and density maps "
-          f"density_<policy>.png")
+    print(f"wrote {run_dir / 'eval_table.csv'}, eval_episodes.csv, eval_steps.csv, behaviour_steps.png and "
+          "density maps density_<policy>.png")
     if result.animation is not None:
         print(f"animation: {result.animation[0]} ({result.animation[1]} frames)")
     return 0
@@ -526,15 +527,17 @@ def cmd_experiments(args) -> int:
     from farm.studies.experiments.storage import is_uri
 
     config = load_experiment_config(args.config)
-    out = args.out if is_uri(args.out) else Path(args.out)  # a URI: the experiment in object storage (docs/experiments.md)
+    # a URI: the experiment in object storage (docs/experiments.md)
+    out = args.out if is_uri(args.out) else Path(args.out)
     with flags("out", "address", "workers", workers="num_cpus"):
         trials, summary, info = run_experiment(config, out, source=str(args.config), address=args.address,
                                                workers=args.workers, show_progress=not args.quiet)
     print(format_summary(summary))
-    print(f"{config.name}: {len(trials)}/{info['trials']} trial(s) finished ({info['finished_before']} before this run), "
+    print(f"{config.name}: {len(trials)}/{info['trials']} trial(s) finished "
+          f"({info['finished_before']} before this run), "
           f"{info['workers']} at once at {info['trial_cpus']:g} CPU each on {info['cluster_cpus']:g} CPUs, "
-          f"{info['warmed_cases']} lattice cases warmed in {info['warm_seconds']:.1f} s, {info['seconds']:.1f} s in all",
-          file=sys.stderr)
+          f"{info['warmed_cases']} lattice cases warmed in {info['warm_seconds']:.1f} s, "
+          f"{info['seconds']:.1f} s in all", file=sys.stderr)
     print(f"wrote {', '.join(str(p) for p in info['written'])}, trials/<trial>/run")
     return 0
 
@@ -565,7 +568,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--plot", help="write a PNG of the trajectories and Voronoi cells here")
     g.add_argument("--plot-times", help="times in s of the panels, e.g. '0,1,2' (default: start, middle, end)")
     g.add_argument("--animate", metavar="PATH", help="write an animation of the game here (.gif or .mp4)")
-    g.add_argument("--frame-stride", type=int, metavar="K", help="animate every K-th step (default: at most 120 frames)")
+    g.add_argument("--frame-stride", type=int, metavar="K",
+                   help="animate every K-th step (default: at most 120 frames)")
     g.add_argument("--fps", type=float, help="frames per second of --animate (default: real time, at least 1)")
     g.set_defaults(func=cmd_game)
 
@@ -593,7 +597,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write a damaged or missing OUT/sweep.json again from CONFIG (its shards' sweep id is checked)")
     s.set_defaults(func=cmd_sweep)
 
-    tb = sub.add_parser("table", help="fill the capture-time store (farm table CONFIG) or show it (farm table show CONFIG)")
+    tb = sub.add_parser("table", help="fill the capture-time store (farm table CONFIG) or show it "
+                                      "(farm table show CONFIG)")
     tb.add_argument("args", nargs="+", metavar="[show] CONFIG")
     tb.add_argument("--store", help="SQLite store (default: the config's `store`)")
     tb.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
@@ -612,13 +617,15 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("config", help="training YAML, e.g. configs/train/paper_3x3_c1_0.yaml")
     tr.add_argument("--out", help="run folder (default results/runs/<name>)")
     tr.add_argument("--resume", action="store_true", help="go on from the run folder's last checkpoint")
-    tr.add_argument("--timesteps", type=int, help="override the learner's n_timesteps (td3.n_timesteps, ppo.n_timesteps or sac.n_timesteps)")
+    tr.add_argument("--timesteps", type=int, help="override the learner's n_timesteps (td3.n_timesteps, "
+                                                  "ppo.n_timesteps or sac.n_timesteps)")
     tr.add_argument("--service", choices=["ray", "local"], help="override service.mode")
     tr.add_argument("--threads", type=int, help="override threads: torch threads while training (config default 1)")
     tr.add_argument("--quiet", action="store_true")
     tr.set_defaults(func=cmd_train)
 
-    ev = sub.add_parser("eval", help="the trained policy against the baselines and the planners on the same seeded episodes")
+    ev = sub.add_parser("eval", help="the trained policy against the baselines and the planners on the same "
+                                     "seeded episodes")
     ev.add_argument("run_dir")
     ev.add_argument("--episodes", type=int, default=20)
     ev.add_argument("--seed", type=int, default=1000)

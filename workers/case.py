@@ -181,7 +181,8 @@ def check_exit_point(exit_xy: np.ndarray, arena) -> None:
     """InputError unless the exit point (2,) float64 is in the arena (or on its boundary):
     no evader could reach one outside. The message prints the coordinates exactly."""
     if not arena.contains(exit_xy):
-        raise InputError(f"exit_point: ({exact(exit_xy[0])}, {exact(exit_xy[1])}) is outside the arena", field="exit_point")
+        raise InputError(f"exit_point: ({exact(exit_xy[0])}, {exact(exit_xy[1])}) is outside the arena",
+                         field="exit_point")
 
 
 # The game settings a config may name (the engine's version is not a setting).

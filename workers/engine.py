@@ -30,7 +30,8 @@ from numba import njit
 
 from workers.arena import Arena, make_arena
 from workers.case import case_defaults, check_exit_point
-from workers.errors import CoarseStepWarning, InputError, all_numbers, exact, is_whole, not_a_number_hint, point, positive
+from workers.errors import (CoarseStepWarning, InputError, all_numbers, exact, is_whole, not_a_number_hint, point,
+                            positive)
 from workers.geometry import (NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity,
                               voronoi_cells)
 from workers.policies import Policy, Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
@@ -371,7 +372,8 @@ def _positions(name: str, value, arena: Arena) -> np.ndarray:
             raise TypeError
         a = np.array(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise InputError(f"{name}: positions must be numbers of shape (B, n, 2){not_a_number_hint(value)}", field=name) from None
+        raise InputError(f"{name}: positions must be numbers of shape (B, n, 2){not_a_number_hint(value)}",
+                         field=name) from None
     if a.ndim != 3 or a.shape[2] != 2:
         raise InputError(f"{name}: positions must have shape (B, n, 2), got {a.shape}", field=name)
     if a.shape[1] == 0:

@@ -121,7 +121,8 @@ def positive(name: str, value) -> float:
     except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float's range
         x = math.nan
     if not math.isfinite(x) or x <= 0:
-        raise InputError(f"{name}: must be positive and finite, got {shown(value)}{not_a_number_hint(value)}", field=name)
+        raise InputError(f"{name}: must be positive and finite, got {shown(value)}{not_a_number_hint(value)}",
+                         field=name)
     return x
 
 

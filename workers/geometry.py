@@ -358,5 +358,6 @@ def voronoi_cells(points, live, site_game, site_agent, arena: Arena) -> Cells:
     site_game = np.ascontiguousarray(site_game, dtype=np.int64)
     site_agent = np.ascontiguousarray(site_agent, dtype=np.int64)
     cap = cell_capacity(points.shape[1], arena.k)
-    x, y, count, labels = _cells_of_sites(points, live, site_game, site_agent, np.ascontiguousarray(arena.vertices), cap)
+    av = np.ascontiguousarray(arena.vertices)
+    x, y, count, labels = _cells_of_sites(points, live, site_game, site_agent, av, cap)
     return Cells(points[site_game, site_agent], x, y, count, labels)

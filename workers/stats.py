@@ -58,7 +58,8 @@ def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0,
     ct = np.asarray(capture_times, dtype=np.float64)
     et = np.full(ct.shape, np.nan) if escape_times is None else np.asarray(escape_times, dtype=np.float64)
     if et.shape != ct.shape:
-        raise InputError(f"escape_times: must have the shape of capture_times {ct.shape}, got {et.shape}", field="escape_times")
+        raise InputError(f"escape_times: must have the shape of capture_times {ct.shape}, got {et.shape}",
+                         field="escape_times")
     n_e = ct.shape[1]
     captured = _event_stats(ct, tau)
     escaped = _event_stats(et, tau)

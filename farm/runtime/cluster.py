@@ -101,7 +101,8 @@ def _check_running(ray, address: str | None, num_cpus: int | None, metrics_port:
         ports = {n.get("MetricsExportPort") for n in ray.nodes() if n.get("Alive")}
         if metrics_port not in ports:
             raise ClusterError(f"metrics_port: {metrics_port} asked for, but the Ray this process is connected to "
-                               f"exports its metrics on {', '.join(str(p) for p in sorted(ports, key=str))}", field="metrics_port")
+                               f"exports its metrics on {', '.join(str(p) for p in sorted(ports, key=str))}",
+                               field="metrics_port")
 
 
 def connected() -> bool:

@@ -105,7 +105,8 @@ class StatsKey:
         return self._digest
 
     def settings_digest(self) -> str:
-        """16 hex digits identifying everything of the key but the team sizes (its neighbours for estimates share it)."""
+        """16 hex digits identifying everything of the key but the team sizes (its neighbours for
+        estimates share it)."""
         d = self.to_dict()
         d["case"] = {k: v for k, v in d["case"].items() if k not in ("n_pursuers", "n_evaders")}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]

@@ -46,8 +46,8 @@ from farm.service.keys import StatsKey
 from farm.service.store import StatsStore
 from farm.games.shards import games_per_shard, play_shard, shard_ranges
 
-__all__ = ["StatsBackend", "Lookup", "LocalBackend", "ServiceLookup", "compute_in_process", "compute_on_ray", "stats_from_games", "NeighbourIndex", "estimate",
-           "ESTIMATE_NEIGHBOURS"]
+__all__ = ["StatsBackend", "Lookup", "LocalBackend", "ServiceLookup", "compute_in_process", "compute_on_ray",
+           "stats_from_games", "NeighbourIndex", "estimate", "ESTIMATE_NEIGHBOURS"]
 
 log = logging.getLogger(__name__)
 

@@ -401,7 +401,8 @@ def check_trainable(config: TrainConfig) -> None:
     if starts is not None and starts >= config.learner.n_timesteps:
         field = f"{config.algo}.learning_starts"
         raise ConfigError(f"{field}: {starts} steps of random actions before the first update, but "
-                          f"{config.algo}.n_timesteps is {config.learner.n_timesteps}: the model would never be updated",
+                          f"{config.algo}.n_timesteps is {config.learner.n_timesteps}: "
+                          "the model would never be updated",
                           field=field)
 
 

@@ -64,7 +64,8 @@ class RandomModel(Strict):
 
 
 class VaryModel(Strict):
-    """`vary`: what changes between points, `grid` (cartesian product), `zip` (lists in step) and `random`; their product."""
+    """`vary`: what changes between points, `grid` (cartesian product), `zip` (lists in step) and
+    `random`; their product."""
 
     grid: dict[str, list[Any]] | None = None  # Case field -> values: one axis per field (cartesian product)
     zip: dict[str, list[Any]] | None = None  # Case field -> values: lists of one length, taken in step

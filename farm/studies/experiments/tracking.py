@@ -16,8 +16,9 @@ report in one `log_batch`. It also finds a trial's run again: a trial that runs 
 the driver was restarted (`farm experiments` run again on the same folder) goes on logging
 into the run it had, found by its tags, whatever that run's status (a trial that had finished
 when the driver was killed, before Tune saved its state, is started again by Tune's restore and
-returns its result at once: it reopens its run, it does not open a second), where Ray's logger, whose trial-to-run map lives only
-in the driver's memory, opened a second one. It changes no process-wide MLflow setting.
+returns its result at once: it reopens its run, it does not open a second), where Ray's
+logger, whose trial-to-run map lives only in the driver's memory, opened a second one. It
+changes no process-wide MLflow setting.
 Tune saves its callbacks with the experiment's state, so TrialRuns pickles without its client.
 """
 
@@ -42,8 +43,8 @@ _MAX_METRICS = 1000  # and most metrics
 def report_metrics(result: dict) -> dict[str, float]:
     """A Tune report's numbers as MLflow metrics: flattened by "/", bools as 0/1, its config
     and what is not a real number (text, None, lists) left out."""
-    return {key: float(value) for key, value in flattened({k: v for k, v in result.items() if k != "config"}, "/").items()
-            if isinstance(value, (numbers.Real, np.bool_))}
+    values = flattened({k: v for k, v in result.items() if k != "config"}, "/")
+    return {key: float(value) for key, value in values.items() if isinstance(value, (numbers.Real, np.bool_))}
 
 
 class TrialRuns(LoggerCallback):
@@ -79,7 +80,8 @@ class TrialRuns(LoggerCallback):
         again). Trial names are the plan's keys (p0_s1) and the instance is hex: safe in a filter;
         the storage is compared here."""
         runs = self.client.search_runs(
-            [self._experiment_id], filter_string=f"tags.`farm.trial` = '{name}' and tags.`farm.instance` = '{self.instance}'",
+            [self._experiment_id],
+            filter_string=f"tags.`farm.trial` = '{name}' and tags.`farm.instance` = '{self.instance}'",
             order_by=["attributes.start_time DESC"])
         mine = [r for r in runs if r.data.tags.get("farm.storage") == self.storage]
         return mine[0] if mine else None

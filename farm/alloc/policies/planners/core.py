@@ -192,7 +192,7 @@ class _Planner:
 
     # ----- the interface -----------------------------------------------------------
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        """The action for an observation, as a trained SB3 model's predict() returns it.
+        """The action for an observation, as a trained SB3 model's predict method returns it.
 
         obs: (2 N^2,) float32 [D, I] -> (action: (A,) float32 in [-1, 1], state). state is
         passed through; episode_start and deterministic are accepted and unused (the
@@ -202,7 +202,8 @@ class _Planner:
         obs = np.asarray(obs, dtype=np.float64)
         k = self.n * self.n
         if obs.shape != (2 * k,) or not np.all(np.isfinite(obs)):
-            raise InputError(f"obs: expected shape ({2 * k},) of finite numbers [D, I], got shape {obs.shape}", field="obs")
+            raise InputError(f"obs: expected shape ({2 * k},) of finite numbers [D, I], got shape {obs.shape}",
+                             field="obs")
         D, I = np.maximum(obs[:k], 0.0), np.maximum(obs[k:], 0.0)
         return action_from_probabilities(self.config, self.probabilities(D, I), self.start, self.src), state
 

@@ -29,9 +29,10 @@ The algorithm, and why it is right:
   tasks of `episodes_per_task` each: on the farm (service.mode ray) each task is one Ray task
   (farm.alloc.training.dagger.tasks) and at most one per CPU of the cluster runs at once;
   locally, and in an experiment's trial (a Ray actor that holds its CPU, so that tasks of its
-  own could wait for CPUs the trials hold), they run one after another in this process. An episode and its coin flips are seeded by the run's
-  seed, the iteration and the episode's index alone, and results are put together in task
-  order, so the data set is the same whatever the number of workers.
+  own could wait for CPUs the trials hold), they run one after another in this process. An
+  episode and its coin flips are seeded by the run's seed, the iteration and the episode's
+  index alone, and results are put together in task order, so the data set is the same
+  whatever the number of workers.
 - A curriculum of maps (`maps`, for CellPolicy, whose weights fit any map): each iteration
   plays its episodes on the run's own map and on each named scenario (the learner driving
   there through its weights moved to that map, cell_policy.resized), and the fit goes over
@@ -156,7 +157,8 @@ class MoveMap:
         index = self.src.expand(a.shape[0], -1)
         if self.softmax:
             z = self.softmax_beta * a
-            top = torch.full((a.shape[0], self.cells), -torch.inf, dtype=a.dtype).scatter_reduce(1, index, z, reduce="amax")
+            top = torch.full((a.shape[0], self.cells), -torch.inf, dtype=a.dtype).scatter_reduce(1, index, z,
+                                                                                                  reduce="amax")
             z = z - top.gather(1, index)
             total = torch.zeros(a.shape[0], self.cells, dtype=a.dtype).scatter_add(1, index, torch.exp(z))
             return z - torch.log(total.gather(1, index))
