@@ -10,7 +10,7 @@ RESULTS ?= results/demo
 # The documentation site (mkdocs.yml): built with --strict into site/, so a broken link or reference fails.
 export NO_MKDOCS_2_WARNING := 1
 
-.PHONY: docs docs-serve demo test bench experiments experiments-learners experiments-learners-hard experiments-learners-near experiments-size-free suite install browser clean
+.PHONY: docs docs-serve demo lint test bench experiments experiments-learners experiments-learners-hard experiments-learners-near experiments-size-free suite install browser clean
 
 $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -38,9 +38,15 @@ browser:
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || \
 	  echo "warning: could not install chromium; the browser test will be skipped outside CI"
 
+# ruff's rules and import-linter's contracts (pyproject.toml): the style, the complexity cap, the
+# docstrings, and farm's layers.
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	PYTHONPATH=$(CURDIR) $(VENV)/bin/lint-imports
+
 # Two xdist workers: the Ray group on one, the `ray start` clusters' module on the other, then the
-# modules without Ray over both (tests/conftest.py).
-test: $(STAMP) browser
+# modules without Ray over both (tests/conftest.py). The lint comes first: it takes seconds.
+test: $(STAMP) browser lint
 	$(PY) -m pytest -q -n 2 --dist loadgroup --no-loadscope-reorder
 
 bench: $(STAMP)

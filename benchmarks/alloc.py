@@ -81,7 +81,7 @@ def main() -> None:
         model.learn(total_timesteps=a.steps, callback=timer)
         total = time.perf_counter() - t0
         rows.append((f"TD3 learn {a.steps} steps, train() timed", total, a.steps, 1 - model.train_seconds / total))
-        rows.append((f"the same, UpdateTimer callback", total, a.steps, 1 - timer.update_seconds / total))
+        rows.append(("the same, UpdateTimer callback", total, a.steps, 1 - timer.update_seconds / total))
 
         run = TrainConfig(name="bench", seed=0, env=config,
                           td3=paper.td3.model_copy(update={"n_timesteps": a.train_steps}),

@@ -102,12 +102,15 @@ def main() -> None:
         if batch == 1:  # a single game per call: the B = 1 cost, over a few games
             n_single = 20
             P, E = sample_initial_positions(case, a.seed, 0, n_single)
-            t = timed(lambda: [simulate_games(P[g:g + 1], E[g:g + 1], **kw) for g in range(n_single)], 3) / n_single
-            t_np = timed(lambda: [numpy_engine.simulate_games(P[g:g + 1], E[g:g + 1], **kw) for g in range(n_single)]) / n_single
+            def singles(simulate, P=P, E=E, kw=kw, n=n_single):
+                return [simulate(P[g:g + 1], E[g:g + 1], **kw) for g in range(n)]
+
+            t = timed(lambda: singles(simulate_games), 3) / n_single
+            t_np = timed(lambda: singles(numpy_engine.simulate_games)) / n_single
             res = simulate_games(P, E, **kw)
         else:
-            t = timed(lambda: simulate_games(P, E, **kw), 3 if batch <= 64 else 1) / batch
-            t_np = timed(lambda: numpy_engine.simulate_games(P, E, **kw)) / batch
+            t = timed(lambda P=P, E=E, kw=kw: simulate_games(P, E, **kw), 3 if batch <= 64 else 1) / batch
+            t_np = timed(lambda P=P, E=E, kw=kw: numpy_engine.simulate_games(P, E, **kw)) / batch
             res = simulate_games(P, E, **kw)
         ours = res.capture_times
         theirs = numpy_engine.simulate_games(P[: max(n_ref, 1)], E[: max(n_ref, 1)], **kw).capture_times

@@ -60,7 +60,8 @@ def main() -> None:
             times[workers] = time.perf_counter() - t0
             assert info["done"] == len(shards)
 
-    print(f"{a.games} games of 5v1 area_min in {len(shards)} shards of {shards[0].games}; Ray start-up {t_start:.1f} s (not counted)")
+    print(f"{a.games} games of 5v1 area_min in {len(shards)} shards of {shards[0].games}; "
+          f"Ray start-up {t_start:.1f} s (not counted)")
     print(f"{'run':<22}{'wall s':>8}{'games/s':>10}{'vs in-process':>15}")
     print(f"{'in-process, 1 core':<22}{t_direct:>8.1f}{a.games / t_direct:>10.0f}{'1.00x':>15}")
     for w in (1, 2):

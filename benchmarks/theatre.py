@@ -89,7 +89,8 @@ def states(config, client, episodes: int, keep: int) -> list[np.ndarray]:
 
 
 def size_free_policy(client, run: str | None):
-    """The size-free learner's policy: a trained run's, or an untrained one built as size_free_transport.yaml builds it."""
+    """The size-free learner's policy: a trained run's, or an untrained one built as
+    size_free_transport.yaml builds it."""
     if run is not None:
         from farm.alloc.policies.learned import load_model
 
@@ -165,7 +166,8 @@ def live(a) -> None:
     from farm.alloc.scenarios import SCENARIOS
     from farm.runtime import ray_cluster
 
-    config = SCENARIOS["theatre_32x32"].config(**({} if a.live_defenders is None else {"n_defenders": a.live_defenders}))
+    defenders = {} if a.live_defenders is None else {"n_defenders": a.live_defenders}
+    config = SCENARIOS["theatre_32x32"].config(**defenders)
     client, _, _ = memo_client([config], "local", a.store)
     policies = {"intercept": make_policy("intercept", config, client)}
     runs = [(f"local Ray, {w} CPU(s)", dict(num_cpus=w)) for w in (1, 2)]
@@ -183,8 +185,9 @@ def live(a) -> None:
               flush=True)
     client.close()
     base = results[0][2]["games_per_second"]
-    print(f"\nlive engagements, theatre_32x32 with {config.n_defenders:,} defenders, intercept, {a.live_episodes} episodes "
-          f"stepped together; tasks of at most {TASK_SECONDS} s by the cost model (fidelity.task_seconds)")
+    print(f"\nlive engagements, theatre_32x32 with {config.n_defenders:,} defenders, intercept, "
+          f"{a.live_episodes} episodes stepped together; tasks of at most {TASK_SECONDS} s by the cost model "
+          "(fidelity.task_seconds)")
     print(f"{'where':<34}{'CPUs':>6}{'games':>8}{'tasks':>7}{'games/task':>12}{'games/s':>10}{'x 1 CPU':>9}")
     for label, cpus, got in results:
         print(f"{label:<34}{cpus:>6}{got['games']:>8}{got['tasks']:>7}{got['games'] / max(1, got['tasks']):>12.1f}"
@@ -228,7 +231,8 @@ def subregions(a) -> None:
                 options = dict(options)
                 policy_name = options.pop("name")
                 # the actors open the store themselves: they get a client of the store, not the memo
-                own = CaptureTimeClient(config.game_settings(), local_store=a.store) if options.get("workers") else client
+                own = (CaptureTimeClient(config.game_settings(), local_store=a.store) if options.get("workers")
+                       else client)
                 policy = Timed(make_policy(policy_name, config, own, **options))
                 table = evaluate_policies(config, {label: policy}, client, a.sub_episodes, 1000)[0]
                 if hasattr(policy.policy, "close"):  # subregions: its actors

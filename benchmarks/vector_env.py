@@ -116,10 +116,10 @@ def main() -> None:
             actions = np.random.default_rng(0).uniform(-1, 1, (512, ENVS) + single.action_space.shape)
             actions = actions.astype(np.float32)
             batched = SwarmAllocationVectorEnv(config, num_envs=ENVS, client=client)
-            sync = gymnasium.vector.SyncVectorEnv([lambda: SwarmAllocationEnv(config, client=client)] * ENVS,
-                                                  autoreset_mode=AutoresetMode.SAME_STEP)
-            best = best_of(a.repeats, {"batched": lambda: env_seconds(batched, actions, a.steps),
-                                       "sync": lambda: env_seconds(sync, actions, a.steps)})
+            sync = gymnasium.vector.SyncVectorEnv([lambda config=config: SwarmAllocationEnv(config, client=client)]
+                                                  * ENVS, autoreset_mode=AutoresetMode.SAME_STEP)
+            best = best_of(a.repeats, {"batched": lambda env=batched, x=actions: env_seconds(env, x, a.steps),
+                                       "sync": lambda env=sync, x=actions: env_seconds(env, x, a.steps)})
             env_rows.append((label, a.steps * ENVS / best["batched"], a.steps * ENVS / best["sync"]))
         label, config = next(iter(configs.items()))
 
@@ -132,8 +132,9 @@ def main() -> None:
         for name, ppo in settings.items():
             steps = a.ppo_steps if ppo["n_steps"] * ENVS <= a.ppo_steps else 4 * ppo["n_steps"] * ENVS
             best = best_of(a.repeats, {
-                "batched": lambda: ppo_seconds(lambda: make_vec_env(config, ENVS, client, seed=0), steps, **ppo),
-                "dummy": lambda: ppo_seconds(dummy, steps, **ppo)})
+                "batched": lambda n=steps, kw=ppo: ppo_seconds(lambda: make_vec_env(config, ENVS, client, seed=0),
+                                                               n, **kw),
+                "dummy": lambda n=steps, kw=ppo: ppo_seconds(dummy, n, **kw)})
             ppo_rows.append((f"{label}, {name}", steps, best["batched"], best["dummy"]))
         client.close()
     print(f"lattice warm-up (in-process, {cases} cases, 4 games each): {t_warm:.1f} s; torch threads 1; "

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import re
 import sys
@@ -19,6 +18,7 @@ import pandas as pd
 from workers import GAME_FIELDS, SwarmFarmError, sample_initial_positions, simulate_case
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
+from farm.core.checks import is_finite_number
 from farm.core.config import case_from
 from farm.core.errors import CliError
 
@@ -87,7 +87,7 @@ def _xy_pairs(value, field: str) -> list:
     if not isinstance(value, list) or not all(isinstance(p, list) and len(p) == 2 for p in value):
         raise CliError(f"{field}: expected a list of [x, y] pairs, got {json.dumps(value)[:60]}")
     for p in value:
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in p):
+        if not all(is_finite_number(v) for v in p):
             raise CliError(f"{field}: {json.dumps(p)[:60]} is not a pair of finite numbers")
     return value
 
@@ -148,6 +148,24 @@ def _case(fields: dict):
 
 def cmd_game(args) -> int:
     """`farm game`: play one pursuit-evasion game, print its capture times, optionally plot it."""
+    settings = _checked_settings(args)
+    p, e = _game_start(args, settings)
+    if args.positions or args.pursuers:  # the start is given: no initial-position law applies
+        settings = {**settings, "law": {"kind": "uniform"}}
+    case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
+    res = simulate_case(case, p, e, record=bool(args.plot or args.animate))
+    _print_game(case, res, e)
+    if args.plot:
+        _plot_game(args, res)
+    if args.animate:
+        _animate_game(args, case, res)
+    return 0
+
+
+def _checked_settings(args) -> dict:
+    """The game settings of `farm game`'s flags (_game_settings), once the flags are checked:
+    CliError for a figure or animation path that cannot be written, flags that contradict each
+    other, and flags that need one not given; all before the game is played."""
     from farm.core.output import check_writable_file
 
     if args.plot and Path(args.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
@@ -175,6 +193,13 @@ def cmd_game(args) -> int:
             raise CliError(f"--fps: must be between 0.1 and 50 frames a second, got {args.fps:g}")
     elif args.fps is not None:
         raise CliError("--fps: is for the animation of --animate, which is not given")
+    return settings
+
+
+def _game_start(args, settings: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The game's start, pursuers (1, n_p, 2) and evaders (1, n_e, 2) float64: from the
+    --positions JSON file, from --pursuers and --evaders, or drawn by the case's initial-position
+    law with --seed (team sizes --n-pursuers and --n-evaders, default 3 and 1)."""
     if args.positions:
         data = _load_json(args.positions, "--positions")
         if not isinstance(data, dict) or not {"pursuers", "evaders"} <= set(data):
@@ -200,16 +225,18 @@ def cmd_game(args) -> int:
         raise CliError("positions: expected lists of [x, y] pairs") from None
     if p.ndim != 3 or e.ndim != 3 or p.shape[1] == 0 or e.shape[1] == 0:
         raise CliError("positions: expected non-empty lists of [x, y] pairs")
-    if args.positions or args.pursuers:  # the start is given: no initial-position law applies
-        settings = {**settings, "law": {"kind": "uniform"}}
-    case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
-    res = simulate_case(case, p, e, record=bool(args.plot or args.animate))
+    return p, e
+
+
+def _print_game(case, res, e: np.ndarray) -> None:
+    """The game's teams and settings in one line, then each evader's start and its fate: its
+    capture time, its escape, or neither by t_max. e: the evaders' start, (1, n_e, 2)."""
     exit_point = case.exit_point
     extras = [f"{name.replace('_', ' ')} {getattr(case, name):g}" for name in ("pursuer_speed", "evader_speed")
               if getattr(case, name) != 1.0]
     if exit_point is not None:
         extras.append(f"exit at ({exit_point[0]:g}, {exit_point[1]:g})")
-    print(f"{p.shape[1]} pursuer(s) {case.pursuer_policy} vs {e.shape[1]} evader(s) {case.evader_policy}"
+    print(f"{case.n_pursuers} pursuer(s) {case.pursuer_policy} vs {case.n_evaders} evader(s) {case.evader_policy}"
           + (f" ({', '.join(extras)})" if extras else ""))
     for i, (t, t_escape) in enumerate(zip(res.capture_times[0], res.escape_times[0])):
         if np.isfinite(t):
@@ -219,29 +246,35 @@ def cmd_game(args) -> int:
         else:
             shown = f"not captured by t_max = {case.t_max:g} s" + (", not escaped" if exit_point is not None else "")
         print(f"  evader {i} at ({e[0, i, 0]:.2f}, {e[0, i, 1]:.2f}): {shown}")
-    if args.plot:
-        from farm.core.plots import default_frames, plot_game
 
-        frames = None
-        if args.plot_times:
-            times = _floats(args.plot_times, "--plot-times")
-            if not all(np.isfinite(t) and t >= 0 for t in times):
-                raise CliError("--plot-times: times must be finite and >= 0")
-            frames = [int(round(t / res.dt)) for t in times]
-            frames = [min(f, int(res.steps[0])) for f in frames]
-        frames = frames or default_frames(res, 0)
-        path = plot_game(res, args.plot, frames=frames)
-        print(f"figure: {path}")
-    if args.animate:
-        from farm.core.game_animation import auto_stride, game_frames, write_animation
 
-        stride = args.frame_stride or auto_stride(int(res.steps[0]))
-        title = f"{p.shape[1]} {case.pursuer_policy} vs {e.shape[1]} {case.evader_policy}"
-        with flags("animate"):
-            path, count = write_animation(game_frames(res, 0, stride, title=title), args.animate,
-                                          fps=min(25.0, max(1.0, 1.0 / (stride * res.dt))) if args.fps is None else args.fps)
-        print(f"animation: {path} ({count} frames, every {stride} step(s) of {int(res.steps[0])})")
-    return 0
+def _plot_game(args, res) -> None:
+    """The figure of --plot: the game at the --plot-times given (seconds), else at default_frames."""
+    from farm.core.plots import default_frames, plot_game
+
+    frames = None
+    if args.plot_times:
+        times = _floats(args.plot_times, "--plot-times")
+        if not all(np.isfinite(t) and t >= 0 for t in times):
+            raise CliError("--plot-times: times must be finite and >= 0")
+        frames = [int(round(t / res.dt)) for t in times]
+        frames = [min(f, int(res.steps[0])) for f in frames]
+    frames = frames or default_frames(res, 0)
+    path = plot_game(res, args.plot, frames=frames)
+    print(f"figure: {path}")
+
+
+def _animate_game(args, case, res) -> None:
+    """The animation of --animate: every --frame-stride-th step (default auto_stride), at --fps
+    frames a second (default: the game's pace, from 1 to 25)."""
+    from farm.core.game_animation import auto_stride, game_frames, write_animation
+
+    stride = args.frame_stride or auto_stride(int(res.steps[0]))
+    title = f"{case.n_pursuers} {case.pursuer_policy} vs {case.n_evaders} {case.evader_policy}"
+    fps = min(25.0, max(1.0, 1.0 / (stride * res.dt))) if args.fps is None else args.fps
+    with flags("animate"):
+        path, count = write_animation(game_frames(res, 0, stride, title=title), args.animate, fps=fps)
+    print(f"animation: {path} ({count} frames, every {stride} step(s) of {int(res.steps[0])})")
 
 
 def cmd_pe_table(args) -> int:
@@ -310,11 +343,11 @@ def cmd_table(args) -> int:
     """`farm table [show] CONFIG`: fill the capture-time store over a table's cells, or show it."""
     from farm.service.table import fill_table, load_table_config, plot_heatmaps, table_frames
 
-    args = list(args.args)
-    show = bool(args) and args[0] == "show"
+    words = list(args.args)
+    show = bool(words) and words[0] == "show"
     if show:
-        args = args[1:]
-    if len(args) != 1:
+        words = words[1:]
+    if len(words) != 1:
         raise CliError("table: usage: farm table CONFIG | farm table show CONFIG")
     if show:
         for flag in ("address", "workers", "yes"):
@@ -323,7 +356,7 @@ def cmd_table(args) -> int:
     _contradictions(args, [("address", "workers")])
     if args.store is not None and not args.store.strip():
         raise CliError("--store: an empty path; name the SQLite store, or leave --store out for the config's")
-    config = load_table_config(args[0])
+    config = load_table_config(words[0])
     if not show:
         from farm.games.sizes import check_size
         from farm.runtime import check_workers
@@ -396,8 +429,9 @@ def cmd_eval(args) -> int:
     run_dir = Path(args.run_dir)
     references = None if args.references is None else [n for n in args.references.split(",") if n and n != "none"]
     with flags("episodes", "seed", "fidelity", "scenario", "references", "repair"):
-        result = evaluate_run(run_dir, episodes=args.episodes, seed=args.seed, fidelity=args.fidelity, scenario=args.scenario,
-                              references=references, animate=args.animate, show_progress=not args.quiet, repair=args.repair)
+        result = evaluate_run(run_dir, episodes=args.episodes, seed=args.seed, fidelity=args.fidelity,
+                              scenario=args.scenario, references=references, animate=args.animate,
+                              show_progress=not args.quiet, repair=args.repair)
     run_dir = result.folder
     print(result.table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     if result.games_table is not None:
@@ -405,8 +439,8 @@ def cmd_eval(args) -> int:
         print(result.games_table.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
         for line in fidelity_lines(result):
             print(line)
-    print(f"wrote {run_dir / 'eval_table.csv'}, eval_episodes.csv, eval_steps.csv, behaviour_steps.png and density maps "
-          f"density_<policy>.png")
+    print(f"wrote {run_dir / 'eval_table.csv'}, eval_episodes.csv, eval_steps.csv, behaviour_steps.png and "
+          "density maps density_<policy>.png")
     if result.animation is not None:
         print(f"animation: {result.animation[0]} ({result.animation[1]} frames)")
     return 0
@@ -493,15 +527,17 @@ def cmd_experiments(args) -> int:
     from farm.studies.experiments.storage import is_uri
 
     config = load_experiment_config(args.config)
-    out = args.out if is_uri(args.out) else Path(args.out)  # a URI: the experiment in object storage (docs/experiments.md)
+    # a URI: the experiment in object storage (docs/experiments.md)
+    out = args.out if is_uri(args.out) else Path(args.out)
     with flags("out", "address", "workers", workers="num_cpus"):
         trials, summary, info = run_experiment(config, out, source=str(args.config), address=args.address,
                                                workers=args.workers, show_progress=not args.quiet)
     print(format_summary(summary))
-    print(f"{config.name}: {len(trials)}/{info['trials']} trial(s) finished ({info['finished_before']} before this run), "
+    print(f"{config.name}: {len(trials)}/{info['trials']} trial(s) finished "
+          f"({info['finished_before']} before this run), "
           f"{info['workers']} at once at {info['trial_cpus']:g} CPU each on {info['cluster_cpus']:g} CPUs, "
-          f"{info['warmed_cases']} lattice cases warmed in {info['warm_seconds']:.1f} s, {info['seconds']:.1f} s in all",
-          file=sys.stderr)
+          f"{info['warmed_cases']} lattice cases warmed in {info['warm_seconds']:.1f} s, "
+          f"{info['seconds']:.1f} s in all", file=sys.stderr)
     print(f"wrote {', '.join(str(p) for p in info['written'])}, trials/<trial>/run")
     return 0
 
@@ -532,7 +568,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--plot", help="write a PNG of the trajectories and Voronoi cells here")
     g.add_argument("--plot-times", help="times in s of the panels, e.g. '0,1,2' (default: start, middle, end)")
     g.add_argument("--animate", metavar="PATH", help="write an animation of the game here (.gif or .mp4)")
-    g.add_argument("--frame-stride", type=int, metavar="K", help="animate every K-th step (default: at most 120 frames)")
+    g.add_argument("--frame-stride", type=int, metavar="K",
+                   help="animate every K-th step (default: at most 120 frames)")
     g.add_argument("--fps", type=float, help="frames per second of --animate (default: real time, at least 1)")
     g.set_defaults(func=cmd_game)
 
@@ -560,7 +597,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write a damaged or missing OUT/sweep.json again from CONFIG (its shards' sweep id is checked)")
     s.set_defaults(func=cmd_sweep)
 
-    tb = sub.add_parser("table", help="fill the capture-time store (farm table CONFIG) or show it (farm table show CONFIG)")
+    tb = sub.add_parser("table", help="fill the capture-time store (farm table CONFIG) or show it "
+                                      "(farm table show CONFIG)")
     tb.add_argument("args", nargs="+", metavar="[show] CONFIG")
     tb.add_argument("--store", help="SQLite store (default: the config's `store`)")
     tb.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
@@ -579,13 +617,15 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("config", help="training YAML, e.g. configs/train/paper_3x3_c1_0.yaml")
     tr.add_argument("--out", help="run folder (default results/runs/<name>)")
     tr.add_argument("--resume", action="store_true", help="go on from the run folder's last checkpoint")
-    tr.add_argument("--timesteps", type=int, help="override the learner's n_timesteps (td3.n_timesteps, ppo.n_timesteps or sac.n_timesteps)")
+    tr.add_argument("--timesteps", type=int, help="override the learner's n_timesteps (td3.n_timesteps, "
+                                                  "ppo.n_timesteps or sac.n_timesteps)")
     tr.add_argument("--service", choices=["ray", "local"], help="override service.mode")
     tr.add_argument("--threads", type=int, help="override threads: torch threads while training (config default 1)")
     tr.add_argument("--quiet", action="store_true")
     tr.set_defaults(func=cmd_train)
 
-    ev = sub.add_parser("eval", help="the trained policy against the baselines and the planners on the same seeded episodes")
+    ev = sub.add_parser("eval", help="the trained policy against the baselines and the planners on the same "
+                                     "seeded episodes")
     ev.add_argument("run_dir")
     ev.add_argument("--episodes", type=int, default=20)
     ev.add_argument("--seed", type=int, default=1000)

@@ -160,11 +160,14 @@ def _sweep_section(root: Path) -> str | None:
         runs = (folder / "runs.jsonl")
         run_lines = runs.read_text().splitlines() if runs.exists() else []
         parts.append(
-            f"<h3>{html.escape(doc['config'].get('name', folder.name))} <small>sweep {html.escape(doc.get('sweep_id', '?'))}, "
+            f"<h3>{html.escape(doc['config'].get('name', folder.name))} "
+            f"<small>sweep {html.escape(doc.get('sweep_id', '?'))}, "
             f"engine {html.escape(str(doc.get('engine_version', '?')))}</small></h3>"
             f"<p class=src>{html.escape(str(folder))}</p>{chart}{_table(view)}"
-            f"<details><summary>configuration</summary><pre>{html.escape(json.dumps(doc['config'], indent=2))}</pre></details>"
-            f"<details><summary>runs ({len(run_lines)})</summary><pre>{html.escape(chr(10).join(run_lines))}</pre></details>"
+            f"<details><summary>configuration</summary>"
+            f"<pre>{html.escape(json.dumps(doc['config'], indent=2))}</pre></details>"
+            f"<details><summary>runs ({len(run_lines)})</summary>"
+            f"<pre>{html.escape(chr(10).join(run_lines))}</pre></details>"
         )
     return "".join(parts)
 
@@ -256,7 +259,8 @@ def _curve_html(path: Path) -> str:
         m = run.read_metrics()
     except ResultsError as e:
         raise ReportError(str(e)) from None
-    out = f"<p class=src>{html.escape(str(path))}</p>{_img(_fig_bytes(training_curve_figure(steps, results)), 'training curve')}"
+    curve = _img(_fig_bytes(training_curve_figure(steps, results)), 'training curve')
+    out = f"<p class=src>{html.escape(str(path))}</p>{curve}"
     diverged = run.diverged()
     if diverged is not None:
         out += f"<p><b>Not a result:</b> {html.escape(diverged)}</p>"
@@ -309,7 +313,8 @@ def _animations_section(root: Path) -> str | None:
             parts.append(f'<figure><img alt="{html.escape(p.name)}" src="{src}">{caption}</figure>')
         else:
             src = f"data:video/mp4;base64,{base64.b64encode(data).decode()}"
-            parts.append(f'<figure><video controls loop muted src="{src}" style="max-width:560px"></video>{caption}</figure>')
+            parts.append(f'<figure><video controls loop muted src="{src}" style="max-width:560px"></video>'
+                         f'{caption}</figure>')
     return _grid(parts)
 
 
@@ -395,32 +400,40 @@ def _experiment_html(folder: Path) -> str:
 SECTIONS = [
     ("pe", "The paper's pursuit-evasion tables", "farm pe-table --out RESULTS_DIR/pe-table"),
     ("sweeps", "Sweeps", "farm sweep configs/smoke.yaml --out RESULTS_DIR/sweep-smoke"),
-    ("service", "Capture-time service table", "farm table configs/table_small.yaml --store RESULTS_DIR/capture_times.sqlite"),
+    ("service", "Capture-time service table",
+     "farm table configs/table_small.yaml --store RESULTS_DIR/capture_times.sqlite"),
     ("training", "Training curves", "farm train CONFIG (the allocation trainer)"),
     ("density", "Density maps of an evaluation episode", "farm eval RUN_DIR"),
     ("eval", "Evaluation against the baselines", "farm eval RUN_DIR"),
     ("leaderboard", "Leaderboard", "farm suite configs/suite_demo.yaml --out RESULTS_DIR/suite"),
-    ("experiments", "Experiments", "farm experiments configs/experiments/smoke.yaml --out RESULTS_DIR/experiments/smoke"),
+    ("experiments", "Experiments",
+     "farm experiments configs/experiments/smoke.yaml --out RESULTS_DIR/experiments/smoke"),
     ("games", "Game figures", "farm game --plot RESULTS_DIR/game.png"),
     ("animations", "Animations", "farm game --animate RESULTS_DIR/game.gif, or farm eval RUN_DIR --animate"),
 ]
 
 MAX_ANIMATION_BYTES = 8 << 20  # a larger animation is linked, not inlined, so that the page stays light
 
+# In CSS and SELF_CHECK, a line ending in a backslash goes on without a line break.
 CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1200px;color:#222;padding:0 1em}
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1200px;color:#222;\
+padding:0 1em}
 h1{margin-bottom:.2em} h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:2em}
 small{color:#777;font-weight:normal} .src{color:#777;font-size:.85em;font-family:monospace}
-table.t{border-collapse:collapse;font-size:.85em;margin:.6em 0} table.t td,table.t th{padding:.25em .6em;border-bottom:1px solid #eee;text-align:right}
+table.t{border-collapse:collapse;font-size:.85em;margin:.6em 0} \
+table.t td,table.t th{padding:.25em .6em;border-bottom:1px solid #eee;text-align:right}
 table.t th{background:#f5f5f5} img{max-width:100%;margin:.3em 0} .grid{display:flex;flex-wrap:wrap;gap:1em}
-.grid img{max-width:560px} .missing{color:#999;font-style:italic} pre{background:#f7f7f7;padding:.6em;overflow:auto;font-size:.8em}
-#selfcheck{font-size:.8em;color:#777} .scroll{overflow-x:auto} .prose table.t td,.prose table.t th{text-align:left;vertical-align:top}
+.grid img{max-width:560px} .missing{color:#999;font-style:italic} \
+pre{background:#f7f7f7;padding:.6em;overflow:auto;font-size:.8em}
+#selfcheck{font-size:.8em;color:#777} .scroll{overflow-x:auto} \
+.prose table.t td,.prose table.t th{text-align:left;vertical-align:top}
 """
 
 SELF_CHECK = """
 <script>
 window.__errors = [];
-window.addEventListener('error', function (e) { window.__errors.push(String(e.message || (e.target && e.target.src) || e)); }, true);
+window.addEventListener('error', function (e) { \
+window.__errors.push(String(e.message || (e.target && e.target.src) || e)); }, true);
 window.addEventListener('load', function () {
   var imgs = Array.prototype.slice.call(document.images);
   var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length;
@@ -482,7 +495,8 @@ def build_report(results_dir: str | Path) -> str:
     stamp = time.strftime("%Y-%m-%d %H:%M:%S")
     return (
         "<!doctype html><html lang=en><head><meta charset=utf-8>"
-        f"<meta name=viewport content='width=device-width,initial-scale=1'><title>swarm-farm report: {html.escape(root.name)}</title>"
+        "<meta name=viewport content='width=device-width,initial-scale=1'>"
+        f"<title>swarm-farm report: {html.escape(root.name)}</title>"
         f"<style>{CSS}</style>{SELF_CHECK}</head><body>"
         f"<h1>swarm-farm report</h1><p class=src>{html.escape(str(root.resolve()))} &middot; generated {stamp} "
         f"&middot; engine {html.escape(ENGINE_VERSION)}</p><p id=selfcheck></p>"

@@ -47,18 +47,22 @@ def points_in(arena_vertices, shape, rng):
 # workers (the Ray group's tests with Rays of their own run last in it, long after
 # OWN_CLUSTERS); and a test that signals or kills Ray workers picks them among its own
 # process's descendants (descendants), never the other worker's.
-WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "test_report", "test_alloc_td3", "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy",
-               "test_claims", "test_cli", "test_compiled", "test_docs", "test_docstrings", "test_engine", "test_env_api",
-               "test_escapes", "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners", "test_montecarlo",
-               "test_planners", "test_policy_registry", "test_reference_selfcheck", "test_refuses_cli", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
-               "test_refuses_training", "test_refuses_workers", "test_repair", "test_resume_damaged", "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
+WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "test_report", "test_alloc_td3",
+               "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy", "test_claims",
+               "test_cli", "test_compiled", "test_docs", "test_engine", "test_env_api", "test_escapes",
+               "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners",
+               "test_lint", "test_montecarlo", "test_planners", "test_policy_registry", "test_reference_selfcheck",
+               "test_refuses_cli", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
+               "test_refuses_training", "test_refuses_workers", "test_repair", "test_resume_damaged",
+               "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
                "test_workers_layout"}
 
 
 # Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests
 # start no Ray, and run beside the Ray group as a group of their own (the Ray group is the
 # suite's critical path).
-MIXED = {"test_refuses_store", "test_service", "test_suite", "test_sweep_ray", "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
+MIXED = {"test_refuses_store", "test_service", "test_suite", "test_sweep_ray", "test_runtime", "test_live_engagements",
+         "test_pretrain_ray", "test_dashboards"}
 
 
 # Modules whose Ray tests start Rays of their own only (`ray start` clusters and `farm`

@@ -203,23 +203,37 @@ def reference_cells(points, arena=None) -> list[dict]:
     n = len(pts)
     if n == 0:
         return []
+    rep = _representatives(pts)
+    unique, vor = _voronoi_of_representatives(pts, arena, rep)
+    cells_u = _unique_cells(vor, len(unique), arena)
+    _add_edges(vor, unique, cells_u, arena)
+    return _cells_of_every_agent(rep, unique, cells_u)
 
-    # Representative of each agent: the first agent it coincides with.
+
+def _representatives(pts) -> list[int]:
+    """Representative of each agent: the first agent it coincides with (itself if none)."""
+    n = len(pts)
     rep = list(range(n))
     for i in range(n):
         for j in range(i):
             if rep[j] == j and math.dist(pts[i], pts[j]) < _COINCIDENT_EPS:
                 rep[i] = j
                 break
-    # Qhull may still merge two distinct but nearly coincident points into
-    # one region; the later one is then treated as a duplicate as well.
+    return rep
+
+
+def _voronoi_of_representatives(pts, arena, rep: list[int]):
+    """(unique, vor): the representative agents and the mirrored Voronoi diagram of their points.
+
+    Qhull may still merge two distinct but nearly coincident points into one region; the later
+    one is then treated as a duplicate as well (rep is updated in place) and the diagram redone."""
+    n = len(pts)
     while True:
         unique = [i for i in range(n) if rep[i] == i]
-        m = len(unique)
         vor = _mirrored_voronoi(pts[unique], arena)
         first_with_region = {}
         merged = False
-        for a in range(m):
+        for a in range(len(unique)):
             r = vor.point_region[a]
             if r in first_with_region:
                 rep[unique[a]] = unique[first_with_region[r]]
@@ -227,8 +241,12 @@ def reference_cells(points, arena=None) -> list[dict]:
             else:
                 first_with_region[r] = a
         if not merged:
-            break
+            return unique, vor
 
+
+def _unique_cells(vor, m: int, arena) -> list[dict]:
+    """The cells of the first m points of vor (the representatives), clipped to the arena, without
+    their edges yet."""
     arena_poly = shapely.Polygon(arena)
     cells_u = []  # cells of the unique points, indexed like `unique`
     for a in range(m):
@@ -246,7 +264,13 @@ def reference_cells(points, arena=None) -> list[dict]:
                 "edges": {},
             }
         )
+    return cells_u
 
+
+def _add_edges(vor, unique: list[int], cells_u: list[dict], arena) -> None:
+    """Each representative's cell's shared edges longer than _EDGE_MIN_LENGTH, clipped to the
+    arena: cells_u[a]["edges"][unique[b]] = (length, midpoint)."""
+    m = len(unique)
     for (a, b), ridge in zip(vor.ridge_points, vor.ridge_vertices):
         if a >= m or b >= m:
             continue  # ridge involving a mirror point
@@ -259,9 +283,12 @@ def reference_cells(points, arena=None) -> list[dict]:
         cells_u[a]["edges"][unique[b]] = (length, mid)
         cells_u[b]["edges"][unique[a]] = (length, mid.copy())
 
+
+def _cells_of_every_agent(rep: list[int], unique: list[int], cells_u: list[dict]) -> list[dict]:
+    """Every agent's cell: its representative's (a copy for a duplicate agent)."""
     position = {i: a for a, i in enumerate(unique)}
     cells = []
-    for i in range(n):
+    for i in range(len(rep)):
         r = i
         while rep[r] != r:  # follow the chain to the representative
             r = rep[r]
@@ -369,73 +396,81 @@ def reference_velocities(
     needs_cells = pursuer_policy == "area_min" or evader_policy != "target"
     if needs_cells:
         cells = reference_cells(np.vstack([P, E[live]]), arena)
-
-    def is_pursuer(g):
-        return g < n_p
-
-    def evader_of(g):
-        return live[g - n_p]
-
-    # ---- pursuers
     for j in range(n_p):
-        heading = None
-        if pursuer_policy == "area_min":
-            best_e, best_d, best_mid = None, math.inf, None
-            for g, (_, mid) in cells[j]["edges"].items():
-                if is_pursuer(g):
-                    continue
-                i = evader_of(g)
-                d = _dist(P[j], E[i])
-                if d < best_d or (d == best_d and i < best_e):
-                    best_e, best_d, best_mid = i, d, mid
-            if best_e is not None:
-                heading = (best_mid[0] - P[j, 0], best_mid[1] - P[j, 1])
-        if heading is None:  # pure pursuit (also the area_min fallback)
-            best_e, best_d = None, math.inf
-            for i in live:
-                d = _dist(P[j], E[i])
-                if d < best_d:  # strict: ties keep the lowest index
-                    best_e, best_d = i, d
-            heading = (E[best_e, 0] - P[j, 0], E[best_e, 1] - P[j, 1])
-        u_p[j] = v_p * _unit(*heading)
-
-    # ---- evaders
-    tx, ty = float(target[0]), float(target[1])
+        u_p[j] = v_p * _unit(*_pursuer_heading(j, P, E, live, cells, pursuer_policy))
     for a, i in enumerate(live):
-        x = E[i]
         if evader_policy == "target":
-            hx, hy = tx - x[0], ty - x[1]
-            dist = math.sqrt(hx * hx + hy * hy)
-            if dist < _TARGET_EPS:
-                continue
-            speed = min(v_e, dist / dt)
-            u_e[i] = np.array([hx / dist * speed, hy / dist * speed])
-            continue
-
-        cell = cells[n_p + a]
-        pursuer_edges = {g: e for g, e in cell["edges"].items() if is_pursuer(g)}
-        if evader_policy == "constant_area" and pursuer_edges:
-            best_j, best_d, best_mid = None, math.inf, None
-            for j, (_, mid) in pursuer_edges.items():
-                d = _dist(P[j], x)
-                if d < best_d or (d == best_d and j < best_j):
-                    best_j, best_d, best_mid = j, d, mid
-            u_e[i] = v_e * _unit(best_mid[0] - x[0], best_mid[1] - x[1])
-        elif evader_policy == "area_max" and pursuer_edges:
-            hx = hy = 0.0
-            for j in sorted(pursuer_edges):
-                length, mid = pursuer_edges[j]
-                d = _dist(P[j], x)
-                if d < _COINCIDENT_EPS:
-                    continue
-                w = length / d
-                hx += w * (mid[0] - x[0])
-                hy += w * (mid[1] - x[1])
-            u_e[i] = v_e * _unit(hx, hy)
-        else:  # centroid (also the fallback without pursuer neighbours)
-            c = cell["centroid"]
-            u_e[i] = v_e * _unit(c[0] - x[0], c[1] - x[1])
+            u = _target_velocity(E[i], target, v_e, dt)
+        else:
+            u = _evader_velocity(E[i], cells[n_p + a], P, evader_policy, v_e)
+        if u is not None:
+            u_e[i] = u
     return u_p, u_e
+
+
+def _pursuer_heading(j, P, E, live, cells, pursuer_policy) -> tuple:
+    """Pursuer j's heading (hx, hy): area_min heads for the midpoint of its edge shared with the
+    nearest evader among its neighbours; pure pursuit (and area_min without an evader neighbour)
+    heads for the nearest live evader."""
+    n_p = len(P)
+    if pursuer_policy == "area_min":
+        best_e, best_d, best_mid = None, math.inf, None
+        for g, (_, mid) in cells[j]["edges"].items():
+            if g < n_p:  # a pursuer
+                continue
+            i = live[g - n_p]
+            d = _dist(P[j], E[i])
+            if d < best_d or (d == best_d and i < best_e):
+                best_e, best_d, best_mid = i, d, mid
+        if best_e is not None:
+            return (best_mid[0] - P[j, 0], best_mid[1] - P[j, 1])
+    best_e, best_d = None, math.inf
+    for i in live:
+        d = _dist(P[j], E[i])
+        if d < best_d:  # strict: ties keep the lowest index
+            best_e, best_d = i, d
+    return (E[best_e, 0] - P[j, 0], E[best_e, 1] - P[j, 1])
+
+
+def _target_velocity(x, target, v_e, dt):
+    """A `target` evader's velocity at x: toward the target at min(v_e, distance / dt); None (no
+    move) within _TARGET_EPS of it."""
+    tx, ty = float(target[0]), float(target[1])
+    hx, hy = tx - x[0], ty - x[1]
+    dist = math.sqrt(hx * hx + hy * hy)
+    if dist < _TARGET_EPS:
+        return None
+    speed = min(v_e, dist / dt)
+    return np.array([hx / dist * speed, hy / dist * speed])
+
+
+def _evader_velocity(x, cell, P, evader_policy, v_e):
+    """The velocity of an evader at x with Voronoi cell `cell`: constant_area heads for the
+    midpoint of its edge shared with the nearest pursuer, area_max along the edge-weighted sum of
+    its pursuer edges' midpoints, centroid (and both others without a pursuer neighbour) for its
+    cell's centroid."""
+    n_p = len(P)
+    pursuer_edges = {g: e for g, e in cell["edges"].items() if g < n_p}
+    if evader_policy == "constant_area" and pursuer_edges:
+        best_j, best_d, best_mid = None, math.inf, None
+        for j, (_, mid) in pursuer_edges.items():
+            d = _dist(P[j], x)
+            if d < best_d or (d == best_d and j < best_j):
+                best_j, best_d, best_mid = j, d, mid
+        return v_e * _unit(best_mid[0] - x[0], best_mid[1] - x[1])
+    if evader_policy == "area_max" and pursuer_edges:
+        hx = hy = 0.0
+        for j in sorted(pursuer_edges):
+            length, mid = pursuer_edges[j]
+            d = _dist(P[j], x)
+            if d < _COINCIDENT_EPS:
+                continue
+            w = length / d
+            hx += w * (mid[0] - x[0])
+            hy += w * (mid[1] - x[1])
+        return v_e * _unit(hx, hy)
+    c = cell["centroid"]
+    return v_e * _unit(c[0] - x[0], c[1] - x[1])
 
 
 # --------------------------------------------------------------------------

@@ -125,7 +125,8 @@ def make_trial(folder, key, point, seed, c_capture, steps_rows, returns, timeste
     env = {"grid_size": 3, "n_defenders": defenders, "c_capture": c_capture}
     (run / "config.yaml").write_text(yaml.safe_dump({"name": f"fake-{key}", "seed": seed, "env": env,
                                                      "td3": {"n_timesteps": 20000}}))
-    np.savez(run / "evaluations.npz", timesteps=np.array(timesteps), results=np.array(returns)[:, None].repeat(3, axis=1))
+    np.savez(run / "evaluations.npz", timesteps=np.array(timesteps),
+             results=np.array(returns)[:, None].repeat(3, axis=1))
     if not finished:
         return
     pd.DataFrame(steps_rows, columns=["policy", "episode", "step", "coverage", "engaged_cells",
@@ -153,7 +154,8 @@ def make_experiment(root, seed1_b=None, defenders15=100):
               ("p1_s0", 1, 0, 1.5, spread_rows((1, 1), (90.0, 100.0), 0.4), [-2, -2, -2, -1, 0], STEPS, 600),
               ("p1_s1", 1, 1, 1.5, seed1_b or spread_rows((2, 3), (33.0, 50.0), 0.5), [-1, -1, -1, -1, -1], STEPS, 600)]
     for key, point, seed, c, rows, returns, timesteps, wall in trials:
-        make_trial(folder, key, point, seed, c, rows, returns, timesteps, wall, defenders=100 if point == 0 else defenders15)
+        make_trial(folder, key, point, seed, c, rows, returns, timesteps, wall,
+                   defenders=100 if point == 0 else defenders15)
     make_trial(folder, "p1_s2", 1, 2, 1.5, [], [-5, -4], [4000, 8000], finished=False, defenders=defenders15)
     manifest = {"name": "fake", "digest": "0" * 16, "config": {"name": "fake", "grid": {"env.c_capture": [0.0, 1.5]},
                                                               "seeds": [0, 1, 2]},
@@ -184,7 +186,8 @@ def test_claims_over_seeds_on_a_known_experiment(tmp_path):
     rows = {r["claim"][:3]: r for r in found.rows}
     assert rows["(a)"]["verdict"] == "mixed (confirmed in 1 of 2 seeds)"
     # coverage at step 1: 1.0 and 0.5 -> mean 0.75, half-width t(0.975, 1) * sd 0.3536 / sqrt 2 = 12.706 * 0.25
-    assert f"coverage at step 1 over seeds 0.750 ± {T975_1 * 0.25:.3f} (per seed 1.000, 0.500)" in rows["(a)"]["measured"]
+    expected = f"coverage at step 1 over seeds 0.750 ± {T975_1 * 0.25:.3f} (per seed 1.000, 0.500)"
+    assert expected in rows["(a)"]["measured"]
     assert rows["(b)"]["verdict"] == ("mixed (fewer engaged cells in 1 of 2 seeds, more defenders per engaged cell "
                                       "in 1 of 2)")
     # engaged cells 1.5 - 0: seed 0 1 - 3 = -2, seed 1 2.5 - 2.5 = 0 -> -1 ± 12.706 * 1.414 / 1.414;

@@ -90,7 +90,8 @@ def test_game_with_exit_point_and_speeds():
 @pytest.mark.parametrize(
     "args,message",
     [
-        (["game", "--pursuers", "4,5", "--evaders", "18,5"], "evaders: agent 0 of game 0 at (18, 5) is outside the arena"),
+        (["game", "--pursuers", "4,5", "--evaders", "18,5"],
+         "evaders: agent 0 of game 0 at (18, 5) is outside the arena"),
         (["game", "--pursuers", "4,5", "--evaders", "8,5", "--dt", "-1"], "dt: must be positive"),
         (["game", "--pursuers", "4,5", "--evaders", "8"], "--evaders: expected x,y pairs"),
         (["game", "--pursuers", "4,nan", "--evaders", "8,5"], "pursuers: positions must be finite"),
@@ -104,7 +105,8 @@ def test_game_with_exit_point_and_speeds():
         (["game", "--exit-point", "nan,5"], "--exit-point: must be a finite point (x, y), got (nan, 5.0)"),
         (["game", "--pursuers", "4,5", "--evaders", "8,5", "--exit-point", "inf,5"], "--exit-point: must be a finite"),
         (["game", "--pursuer-speed", "0"], "--pursuer-speed: must be positive and finite, got 0.0"),
-        (["game", "--pursuers", "4,5", "--evaders", "8,5", "--evader-speed", "nan"], "--evader-speed: must be positive"),
+        (["game", "--pursuers", "4,5", "--evaders", "8,5", "--evader-speed", "nan"],
+         "--evader-speed: must be positive"),
         (["game", "--evader-speed", "fast"], "--evader-speed: Input should be a valid number"),
         (["pe-table", "--pursuer-speed", "-2"], "--pursuer-speed: must be positive and finite, got -2.0"),
         (["pe-table", "--evader-speed", "inf"], "--evader-speed: must be positive and finite, got inf"),

@@ -90,7 +90,8 @@ def findings(path: Path, root: Path) -> list[str]:
             after = prose[k + 1][1] if k + 1 < len(prose) else ""
             for what, rule in RULES.items():
                 alone = rule.search(text)
-                wrapped = not alone and after and rule.search(f"{text.strip()} {after.strip()}") and not rule.search(after)
+                joined = f"{text.strip()} {after.strip()}"
+                wrapped = not alone and after and rule.search(joined) and not rule.search(after)
                 if (alone or wrapped) and (name, shown) not in ALLOWED:
                     out.append(f"{name}:{line}: {what}: {shown}")
     return out

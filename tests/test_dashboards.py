@@ -184,7 +184,7 @@ def test_dashboard_variables_are_defined_and_list_real_label_values():
         if var.get("multi") or var.get("includeAll"):
             for expr in panel_exprs(d):
                 for _, matchers in selectors(expr):
-                    for lbl, op, value in matchers:
+                    for _, op, value in matchers:
                         if f"${var['name']}" in value or f"${{{var['name']}}}" in value:
                             assert op in {"=~", "!~"}, f"{expr}: multi-value ${var['name']} needs =~"
 

@@ -439,7 +439,7 @@ def test_rayjob_runs_a_real_farm_command_with_the_installed_package():
 def test_documented_farm_commands_parse_and_their_configs_load():
     commands = farm_commands()
     assert {where for where, _ in commands} >= {"README.md", "rayjob.yaml:entrypoint"}
-    for where, argv in commands:
+    for _, argv in commands:
         farm_cli(argv)
 
 
@@ -482,13 +482,15 @@ def test_cluster_yaml_passes_rays_own_schema():
 
 
 # ----- paths -----------------------------------------------------------------------------------
-_REPO_PATH = re.compile(r"(?:(?<![\w.~/-])|(?<=\$PWD/))(?:(?:deploy|dashboards|configs|farm|workers|tests|benchmarks)/[\w./-]*\w)")
+_REPO_PATH = re.compile(r"(?:(?<![\w.~/-])|(?<=\$PWD/))"
+                        r"(?:(?:deploy|dashboards|configs|farm|workers|tests|benchmarks)/[\w./-]*\w)")
 
 
 def test_repo_paths_named_in_deploy_exist():
     """Every repo path deploy/ and dashboards/README.md name (configs, manifests, the
     Dockerfile, code) is in the repo."""
-    texts = [p.read_text() for p in DEPLOY.rglob("*") if p.is_file()] + [(ROOT / "dashboards" / "README.md").read_text()]
+    texts = [p.read_text() for p in DEPLOY.rglob("*") if p.is_file()]
+    texts.append((ROOT / "dashboards" / "README.md").read_text())
     named = {m for t in texts for m in _REPO_PATH.findall(t)}
     assert any(n.startswith("configs/") for n in named), "deploy/ names no config"
     missing = sorted(n for n in named if not (ROOT / n).exists())

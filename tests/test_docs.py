@@ -21,8 +21,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync", "--disable-quic"]
+FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync", "--disable-quic"]
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +93,8 @@ def test_every_page_renders_in_chromium_with_its_images_and_no_console_error(sit
                             images: imgs.length,
                             broken: imgs.filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.src)};
                 }""")
-                if response is None or response.status != 200 or (state["text"] < 100 and name != "404.html") or state["broken"] or errors:
+                if (response is None or response.status != 200 or (state["text"] < 100 and name != "404.html")
+                        or state["broken"] or errors):
                     problems.append((name, response and response.status, state, list(errors)))
         finally:
             browser.close()

@@ -124,7 +124,8 @@ def test_evader_within_capture_radius_is_caught_at_t0(pp, ep):
     np.testing.assert_array_equal(res.capture_times[0, :3], [0.0, 0.0, 0.0])
     assert res.capture_step[0, 3] > 0
     # evaders caught at t = 0 never move
-    np.testing.assert_array_equal(res.evader_paths[:, 0, :3], np.broadcast_to(e[0, :3], res.evader_paths[:, 0, :3].shape))
+    np.testing.assert_array_equal(res.evader_paths[:, 0, :3],
+                                  np.broadcast_to(e[0, :3], res.evader_paths[:, 0, :3].shape))
     # a game whose only evaders start caught takes no step
     only = simulate_games(p, e[:, :3], pursuer_policy=pp, evader_policy=ep)
     assert only.steps[0] == 0 and np.all(only.capture_step == 0)
@@ -459,8 +460,8 @@ def test_agrees_with_the_numpy_engine_up_to_round_off_on_chaotic_games():
         assert len(differ) <= 0.2 * len(ours), (n_p, ep, ours[differ], theirs[differ])
         nudges = np.random.default_rng(0).normal(size=(4,) + P.shape[1:]) * 1e-9
         for b in differ:
-            nudged = [simulate_games(np.clip(P[b : b + 1] + d, 0, 10), E[b : b + 1], evader_policy=ep).capture_times[0, 0]
-                      for d in nudges]
+            nudged = [simulate_games(np.clip(P[b : b + 1] + d, 0, 10), E[b : b + 1],
+                                     evader_policy=ep).capture_times[0, 0] for d in nudges]
             assert any(t != ours[b] for t in nudged), f"game {b} differs ({ours[b]} vs {theirs[b]}) but is not chaotic"
 
 

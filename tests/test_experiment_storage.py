@@ -50,7 +50,8 @@ def test_a_checkpoint_holds_the_run_folder_with_its_own_checkpoint_only(tmp_path
         "checkpoints/rl_model_150_steps.zip", "checkpoints/rl_model_replay_buffer_150_steps.pkl",
         "checkpoints/rl_model_state_150_steps.pkl"]
     assert {k: v for k, v in held.items() if not k.startswith("checkpoints/")} == {
-        "best/best_model.zip": "best/best_model.zip", "config.yaml": "config.yaml", "evaluations.npz": "evaluations.npz"}
+        "best/best_model.zip": "best/best_model.zip", "config.yaml": "config.yaml",
+        "evaluations.npz": "evaluations.npz"}
 
 
 @pytest.mark.parametrize("local_steps, expected_steps, from_checkpoint", [
@@ -115,7 +116,8 @@ def test_a_pretraining_checkpoint_holds_the_run_folder_with_its_newest_iteration
                     "evaluations.npz": "evaluations.npz", "pretrain/iteration_2.pkl": "iteration 2 of run"}
     later = pretrained_run(tmp_path / "later", 3, steps=[64])  # training's checkpoints keep the newest iteration too
     checkpoint_of(later, 64, tmp_path / "ck64")
-    assert sorted(k for k in files(tmp_path / "ck64" / "run") if k.startswith("pretrain/")) == ["pretrain/iteration_2.pkl"]
+    pretraining = sorted(k for k in files(tmp_path / "ck64" / "run") if k.startswith("pretrain/"))
+    assert pretraining == ["pretrain/iteration_2.pkl"]
 
 
 @pytest.mark.parametrize("local, expected_steps, from_checkpoint", [
@@ -174,8 +176,9 @@ def test_a_trial_in_a_bucket_uploads_its_run_without_its_state_then_its_result(s
     assert not storage.finished("p0_s0")
     storage.finish("p0_s0", {"trial": "p0_s0", "x": 1.5}, run)
     assert storage.finished("p0_s0") and storage.read_result("p0_s0") == {"trial": "p0_s0", "x": 1.5}
-    assert [k for k in bucket_keys(s3, prefix="trial/") if not k.endswith("/")] == ["trial/trials/p0_s0/result.json", "trial/trials/p0_s0/run/best/best_model.zip",
-                                                "trial/trials/p0_s0/run/config.yaml", "trial/trials/p0_s0/run/evaluations.npz"]
+    assert [k for k in bucket_keys(s3, prefix="trial/") if not k.endswith("/")] == [
+        "trial/trials/p0_s0/result.json", "trial/trials/p0_s0/run/best/best_model.zip",
+        "trial/trials/p0_s0/run/config.yaml", "trial/trials/p0_s0/run/evaluations.npz"]
     assert not run.parent.exists()
     with storage.staged() as stage:
         storage.stage_results(stage, ["p0_s0", "p1_s0"])

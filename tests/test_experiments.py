@@ -205,8 +205,9 @@ def cold(ray_local, tmp_path_factory):
 
 def test_every_trial_is_an_mlflow_run_whose_metrics_are_its_trials_csv_row(cold):
     """The smoke grid is tracked (tracking.mlflow, an SQLite store): the MLflow logger
-    (farm.studies.experiments.tracking.TrialRuns) made one FINISHED run per trial in the experiment's MLflow experiment, its params the trial's
-    config, its last metrics the trial's row of trials.csv, its steps the training's; the rerun
+    (farm.studies.experiments.tracking.TrialRuns) made one FINISHED run per trial in the
+    experiment's MLflow experiment, its params the trial's config, its last metrics the trial's
+    row of trials.csv, its steps the training's; the rerun
     (test_smoke_grid_then_a_rerun_trains_nothing) trains nothing and logs no run."""
     from mlflow.tracking import MlflowClient
 

@@ -16,8 +16,9 @@ import matplotlib, numba, torch
 os.umask(0o027)
 before = {"umask": os.umask(0o027), "backend": matplotlib.rcParams["backend"], "threads": torch.get_num_threads(),
           "numba_cache": numba.config.CACHE_DIR}
-import workers, farm, farm.cli, farm.core.config, farm.core.output, farm.core.plots, farm.report, farm.runtime, farm.games.sweep
-import farm.service, farm.service.table, farm.alloc, farm.alloc.training, farm.alloc.rollout, farm.alloc.plots
+import workers, farm, farm.cli, farm.core.config, farm.core.output, farm.core.plots, farm.report, farm.runtime
+import farm.games.sweep, farm.service, farm.service.table, farm.alloc, farm.alloc.training, farm.alloc.rollout
+import farm.alloc.plots
 after = {"umask": os.umask(0o027), "backend": matplotlib.rcParams["backend"], "threads": torch.get_num_threads(),
          "numba_cache": numba.config.CACHE_DIR}
 print(json.dumps({"before": before, "after": after, "pyplot": "matplotlib.pyplot" in sys.modules}))

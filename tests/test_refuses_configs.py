@@ -198,7 +198,10 @@ leaves = st.one_of(numbers, st.booleans(), st.none(),
                    st.text(max_size=6))
 
 
-def values(keys=st.sampled_from(JUNK_KEYS)):
+JUNK_KEY = st.sampled_from(JUNK_KEYS)
+
+
+def values(keys=JUNK_KEY):
     """Random YAML values: leaves, and lists and mappings of them (nested a little)."""
     return st.recursive(leaves, lambda inner: st.lists(inner, max_size=4) | st.dictionaries(keys, inner, max_size=3),
                         max_leaves=8)

@@ -125,8 +125,10 @@ TINY = "name: x\nservice: {mode: local}\n"
 @pytest.mark.parametrize("section, fragment", [
     ("td3: {n_timesteps: 300, learning_starts: 300}", "td3.learning_starts: 300 steps of random actions"),
     ("algo: sac\nsac: {n_timesteps: 300, learning_starts: 1000}", "sac.learning_starts: 1000 steps"),
-    ("td3: {n_timesteps: 300, learning_starts: 100, buffer_size: 1, batch_size: 1}", "td3: buffer_size: a replay buffer of 1"),
-    ("td3: {n_timesteps: 300, learning_starts: 100, buffer_size: 50, batch_size: 64}", "td3: batch_size: minibatches of 64"),
+    ("td3: {n_timesteps: 300, learning_starts: 100, buffer_size: 1, batch_size: 1}",
+     "td3: buffer_size: a replay buffer of 1"),
+    ("td3: {n_timesteps: 300, learning_starts: 100, buffer_size: 50, batch_size: 64}",
+     "td3: batch_size: minibatches of 64"),
     ("td3: {n_timesteps: 300, learning_starts: 100, buffer_size: 3, batch_size: 2}\nn_envs: 4",
      "td3.buffer_size: 3 transitions over n_envs = 4"),
 ])

@@ -113,7 +113,8 @@ def test_game_counts_too_large_to_hold_are_refused_before_any_array():
     would have played batches for ever."""
     case = Case(2, 1, t_max=0.05, tau=0.05)
     refused(lambda: run_games(case, 0, 0, 10**400), "stop: games 0..")
-    refused(lambda: sample_initial_positions(case, 0, 5, 10**9), "GiB of starting positions in one batch, more than 4 GiB")
+    refused(lambda: sample_initial_positions(case, 0, 5, 10**9),
+            "GiB of starting positions in one batch, more than 4 GiB")
     refused(lambda: run_case(case, 10**400, 0), "n_games: must be at most 1,000,000,000")
     refused(lambda: run_case(case, 10**5000, 0), "got an integer of about 5,001 digits")  # past repr's limit
     refused(lambda: run_games(case, 0, 0, 10**5000), "need about 1e4992 GiB")
@@ -223,7 +224,7 @@ def test_the_paper_and_allocation_settings_do_not_warn():
     from farm.alloc.config import AllocConfig
 
     for case in (Case(2, 1, t_max=0.05), replace(AllocConfig().game(), t_max=0.05), Case(2, 1, dt=0.25, t_max=0.5)):
-        caught, _ = _warnings_of(lambda: run_games(case, 0, 0, 1))
+        caught, _ = _warnings_of(lambda case=case: run_games(case, 0, 0, 1))
         assert caught == [], case
 
 
@@ -232,7 +233,7 @@ def test_a_near_degenerate_arena_is_refused():
     text = refused(lambda: make_arena([(0, 0), (10, 1e-9), (20, 0)]), "arena: polygon is degenerate (area 1e-08")
     assert "1e-09 x its bounding box's diagonal squared, 400" in text
     for scale in (1e-6, 1e6):
-        refused(lambda: make_arena([(0, 0), (10 * scale, 1e-9 * scale), (20 * scale, 0)]),
+        refused(lambda s=scale: make_arena([(0, 0), (10 * s, 1e-9 * s), (20 * s, 0)]),
                 "arena: polygon is degenerate")
     refused(Case(2, 1, arena=((0, 0), (10, 1e-9), (20, 0))).validate, "arena: polygon is degenerate")
     assert make_arena([(0, 0), (10, 0), (10, 1e-3), (0, 1e-3)]).area == pytest.approx(1e-2)  # thin but fine
@@ -395,7 +396,8 @@ def test_property_simulate_games_plays_or_refuses(teams, args):
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.one_of(st.just(Case(2, 1, t_max=0.05, tau=0.05)), st.just(Case(1, 2, t_max=0.05, tau=0.05, law=InitialLaw("uniform"))),
+@given(st.one_of(st.just(Case(2, 1, t_max=0.05, tau=0.05)),
+                 st.just(Case(1, 2, t_max=0.05, tau=0.05, law=InitialLaw("uniform"))),
                  st.just({"n_pursuers": 2, "n_evaders": 1}), st.builds(Case, JUNK, JUNK), JUNK),
        mostly(st.one_of(st.integers(0, 2**64), st.tuples(st.integers(0, 9), st.integers(0, 9)))),
        mostly(st.integers(-1, 3)), mostly(st.integers(-1, 4)), st.sampled_from(["run_games", "sample", "run_case"]))

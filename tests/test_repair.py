@@ -174,8 +174,8 @@ def test_the_repair_equals_its_plain_loop_over_every_target():
     exact = AllocConfig(grid_size=5, n_defenders=100, n_intruders=50, c_capture=1.5, team_sizes="exact", max_steps=16)
     rng = np.random.default_rng(7)
     repaired_states = 0
-    for config in (PAPER, FEW, DRIFT, exact, theatre):
-        repair, L = LevelRepair(config), Layout(config.grid_size)
+    for map_config in (PAPER, FEW, DRIFT, exact, theatre):
+        repair, L = LevelRepair(map_config), Layout(map_config.grid_size)
         for _ in range(40):
             spread = rng.choice([0.05, 0.3, 3.0])
             D = rng.dirichlet(np.full(L.cells, spread))
@@ -190,8 +190,8 @@ def test_the_repair_equals_its_plain_loop_over_every_target():
 
 
 def test_receding_horizons_actions_play_the_same_games_repaired():
-    client = curve_client(PAPER)
-    planner = make_policy("receding_horizon", PAPER, client)
+    curves = curve_client(PAPER)
+    planner = make_policy("receding_horizon", PAPER, curves)
     repair = LevelRepair(PAPER)
     rng = np.random.default_rng(5)
     for _ in range(6):
@@ -277,11 +277,13 @@ def test_a_repaired_run_evaluates_repaired_and_acts_repaired(store, client, tmp_
     assert as_run.folder == repaired_eval.folder == tmp_path / "run"  # the run's own: its folder
     assert alone.folder == tmp_path / "run" / "repair_none"  # another: its own, the run's evaluation kept
     kept = pd.read_csv(tmp_path / "run" / "eval_table.csv")
-    assert float(kept.loc[kept["policy"] == "ppo", "return_mean"].iloc[0]) == pytest.approx(learned_return(as_run.table))
+    kept_return = float(kept.loc[kept["policy"] == "ppo", "return_mean"].iloc[0])
+    assert kept_return == pytest.approx(learned_return(as_run.table))
     assert (alone.folder / "eval_table.csv").is_file()
     for repair, result in (("levels", repaired_eval), ("none", alone)):
         policy = make_policy("ppo", cfg.env, None, run=str(tmp_path / "run"), repair=repair)
         episodes = play(cfg.env, policy, client, 2, 1000)
-        assert learned_return(result.table) == pytest.approx(np.mean([e.summary["return"] for e in episodes]), abs=1e-12)
+        assert learned_return(result.table) == pytest.approx(np.mean([e.summary["return"] for e in episodes]),
+                                                             abs=1e-12)
     status, _, stderr = farm_main("eval", tmp_path / "run", "--episodes", "1", "--repair", "round")
     assert status != 0 and stderr.strip() == "farm: error: --repair: must be one of none, levels, got 'round'", stderr

@@ -31,7 +31,8 @@ def results(tmp_path_factory):
     assert farm("pe-table", "--games", 3, "--out", root / "pe-table").returncode == 0
     assert farm("game", "--n-pursuers", 3, "--seed", 2, "--plot", root / "game.png").returncode == 0
     sweep = root.parent / "sweep.yaml"
-    sweep.write_text("name: tiny\ngames_per_point: 4\nbase: {n_evaders: 1, t_max: 20}\nvary: {grid: {n_pursuers: [1, 2]}}\n")
+    sweep.write_text("name: tiny\ngames_per_point: 4\nbase: {n_evaders: 1, t_max: 20}\n"
+                     "vary: {grid: {n_pursuers: [1, 2]}}\n")
     assert farm("sweep", sweep, "--out", root / "sweep", "--no-ray", "--quiet").returncode == 0
     client = CaptureTimeClient(GameSettings.of(games=3, t_max=15.0), local_store=root / "capture_times.sqlite")
     client.get_many([(1, 1), (2, 1), (1, 2), (2, 2)])

@@ -153,7 +153,8 @@ def test_the_local_ray_is_on_loopback_and_starts_quietly(ray_local, tmp_path):
     assert {n["NodeManagerAddress"] for n in ray.nodes() if n["Alive"]} == {"127.0.0.1"}
     assert ray.get_runtime_context().gcs_address.startswith("127.0.0.1:")
     config = tmp_path / "s.yaml"
-    config.write_text("name: quiet\ngames_per_point: 4\nshard_games: 2\nbase: {n_pursuers: 1, n_evaders: 1, t_max: 2, tau: 2}\n")
+    config.write_text("name: quiet\ngames_per_point: 4\nshard_games: 2\n"
+                      "base: {n_pursuers: 1, n_evaders: 1, t_max: 2, tau: 2}\n")
     r = _farm("sweep", config, "--out", tmp_path / "out", "--quiet", "--workers", 1)
     assert r.returncode == 0, r.stderr
     assert "WARNING" not in r.stderr and "Token authentication" not in r.stderr, r.stderr

@@ -22,8 +22,10 @@ def write(tmp_path, text):
 def test_shipped_configs_load():
     sizes = load_sweep_config(REPO / "configs/team_sizes.yaml").points()
     assert len(sizes) == 20 * 10 * 2
-    assert {(p.case.n_pursuers, p.case.n_evaders) for p in sizes} == {(a, b) for a in range(1, 21) for b in range(1, 11)}
-    assert {(p.case.pursuer_policy, p.case.evader_policy) for p in sizes} == {("area_min", "centroid"), ("pure_pursuit", "target")}
+    assert {(p.case.n_pursuers, p.case.n_evaders) for p in sizes} == {(a, b) for a in range(1, 21)
+                                                                      for b in range(1, 11)}
+    assert ({(p.case.pursuer_policy, p.case.evader_policy) for p in sizes}
+            == {("area_min", "centroid"), ("pure_pursuit", "target")})
     paper = load_sweep_config(REPO / "configs/paper_tables.yaml").points()
     assert [(p.case.n_pursuers, p.case.pursuer_policy, p.case.evader_policy) for p in paper] == [
         (1, "pure_pursuit", "target"), (3, "pure_pursuit", "target"), (5, "pure_pursuit", "target"),
@@ -67,23 +69,31 @@ BAD = [
     ("name: t\ncolour: red\n", "colour: Extra inputs are not permitted"),
     ("name: t\nbase: {n_pursuers: 0, n_evaders: 1}\n", "base: n_pursuers: must be a whole number >= 1, got 0"),
     ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, dt: -1}\n", "base: dt: must be positive and finite, got -1.0"),
-    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, pursuer_policy: chase}\n", "base: pursuer_policy: unknown policy 'chase'"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, pursuer_policy: chase}\n",
+     "base: pursuer_policy: unknown policy 'chase'"),
     ("name: t\nbase: {speed: 2}\n", "base: speed: not a game setting (choose from n_pursuers, n_evaders"),
     ("name: t\nvary: {grid: {speed: [1, 2]}}\n", "'speed' cannot vary"),
     ("name: t\nvary: {zip: {dt: [0.1, 0.2], tau: [1]}}\n", "zip: lists must have the same length"),
-    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1}\nvary: {grid: {evader_policy: [centroid, hide]}}\n", "vary: point 1 (evader_policy='hide'): evader_policy: unknown policy 'hide'"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1}\nvary: {grid: {evader_policy: [centroid, hide]}}\n",
+     "vary: point 1 (evader_policy='hide'): evader_policy: unknown policy 'hide'"),
     ("name: t\nbase: {n_pursuers: 2}\nvary: {grid: {n_evaders: [1, -1]}}\n", "vary: point 1 (n_evaders=-1)"),
     ("name: t\nvary: {random: {n: 3, ranges: {dt: [0.2, 0.1]}}}\n", "dt: range must be [low, high]"),
-    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, pursuer_speed: 0}\n", "base: pursuer_speed: must be positive and finite, got 0.0"),
-    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, evader_speed: .inf}\n", "base: evader_speed: must be positive and finite, got inf"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, pursuer_speed: 0}\n",
+     "base: pursuer_speed: must be positive and finite, got 0.0"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, evader_speed: .inf}\n",
+     "base: evader_speed: must be positive and finite, got inf"),
     ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, exit_point: [1]}\n", "base: exit_point.1: Field required"),
-    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, exit_point: [.nan, 5]}\n", "base: exit_point: must be a finite point (x, y)"),
-    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1}\nvary: {grid: {evader_speed: [1, -1]}}\n", "vary: point 1 (evader_speed=-1): evader_speed: must be positive and finite, got -1.0"),
-    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1}\nvary: {grid: {exit_point: [[0, 5], [0, .inf]]}}\n", "vary: point 1 (exit_point=[0, inf]): exit_point: must be a finite point"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, exit_point: [.nan, 5]}\n",
+     "base: exit_point: must be a finite point (x, y)"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1}\nvary: {grid: {evader_speed: [1, -1]}}\n",
+     "vary: point 1 (evader_speed=-1): evader_speed: must be positive and finite, got -1.0"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1}\nvary: {grid: {exit_point: [[0, 5], [0, .inf]]}}\n",
+     "vary: point 1 (exit_point=[0, inf]): exit_point: must be a finite point"),
     ("name: t\nvary: {random: {n: 2, ranges: {exit_point: [0, 5]}}}\n", "'exit_point' cannot be drawn at random"),
     ("name: t\ngames_per_point: many\n", "games_per_point: Input should be a valid integer"),
     ("name: t\n", "base: n_pursuers: Field required"),
-    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, engine_version: '1.0'}\n", "base: engine_version: not a game setting"),
+    ("name: t\nbase: {n_pursuers: 2, n_evaders: 1, engine_version: '1.0'}\n",
+     "base: engine_version: not a game setting"),
     ("name: 'a b'\n", "name: String should match pattern"),
     ("- just\n- a list\n", "must be a mapping"),
     ("name: [unclosed\n", "not valid YAML (line"),
@@ -102,7 +112,10 @@ def test_bad_config_one_line(tmp_path, text, message):
 def test_cli_bad_config_is_one_line_and_keeps_results(tmp_path):
     good = write(tmp_path, "name: t\ngames_per_point: 4\nbase: {n_pursuers: 2, n_evaders: 1, t_max: 10}\n")
     out = tmp_path / "out"
-    run = lambda *a: subprocess.run([sys.executable, "-m", "farm.cli", *map(str, a)], capture_output=True, text=True, timeout=300)
+    def run(*a):
+        return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, a)], capture_output=True, text=True,
+                              timeout=300)
+
     r = run("sweep", good, "--out", out, "--no-ray", "--quiet")
     assert r.returncode == 0, r.stderr
     before = {p.name: p.read_bytes() for p in (out / "shards").iterdir()}
@@ -128,9 +141,10 @@ def test_nan_target_is_rejected_before_anything_runs(tmp_path):
 def test_point_numbers_do_not_depend_on_their_place(tmp_path):
     from farm.games.sweep import run_sweep, SweepRun
 
-    a = load_sweep_config(write(tmp_path, "name: t\ngames_per_point: 3\nbase: {n_evaders: 1, t_max: 10}\nvary: {grid: {n_pursuers: [2, 3]}}\n"))
+    common = "name: t\ngames_per_point: 3\nbase: {n_evaders: 1, t_max: 10}\n"
+    a = load_sweep_config(write(tmp_path, common + "vary: {grid: {n_pursuers: [2, 3]}}\n"))
     b_path = tmp_path / "b.yaml"
-    b_path.write_text("name: t\ngames_per_point: 3\nbase: {n_evaders: 1, t_max: 10}\nvary: {grid: {n_pursuers: [1, 3]}}\n")
+    b_path.write_text(common + "vary: {grid: {n_pursuers: [1, 3]}}\n")
     b = load_sweep_config(b_path)
     ga = (run_sweep(a, tmp_path / "a", use_ray=False, show_progress=False), SweepRun(a, tmp_path / "a").read_games())[1]
     gb = (run_sweep(b, tmp_path / "b", use_ray=False, show_progress=False), SweepRun(b, tmp_path / "b").read_games())[1]
@@ -160,9 +174,11 @@ def test_exit_point_and_speeds_can_be_set_and_varied(tmp_path):
     assert {p.case.exit_point for p in points} == {(0.0, 5.0), None}
     assert all(0.5 <= p.case.evader_speed <= 1.5 for p in points) and len({p.case.evader_speed for p in points}) == 2
     assert len({p.case.key() for p in points}) == len(points)
-    base_only = load_sweep_config(write(tmp_path, "name: t\nbase: {n_pursuers: 3, n_evaders: 1, exit_point: [0, 5], evader_speed: 0.5}\n"))
+    base_only = load_sweep_config(write(tmp_path, "name: t\nbase: {n_pursuers: 3, n_evaders: 1, exit_point: [0, 5], "
+                                                  "evader_speed: 0.5}\n"))
     assert base_only.points()[0].case.exit_point == (0.0, 5.0) and base_only.points()[0].case.evader_speed == 0.5
-    assert base_only.sweep_id() != load_sweep_config(write(tmp_path, "name: t\nbase: {n_pursuers: 3, n_evaders: 1}\n")).sweep_id()
+    plain = load_sweep_config(write(tmp_path, "name: t\nbase: {n_pursuers: 3, n_evaders: 1}\n"))
+    assert base_only.sweep_id() != plain.sweep_id()
 
 
 def test_default_shard_size_follows_the_engines_cost_model():

@@ -95,7 +95,8 @@ def test_tracking_changes_no_number(tracked):
     _, _, first, _, plain, first_evaluations = tracked
     untracked = json.loads((plain / "metrics.json").read_text())
     timing = {"wall_seconds", "steps_per_second", "update_seconds", "outside_update_share"}
-    assert {k: v for k, v in first.items() if k not in timing} == {k: v for k, v in untracked.items() if k not in timing}
+    assert ({k: v for k, v in first.items() if k not in timing}
+            == {k: v for k, v in untracked.items() if k not in timing})
     plain_evaluations = np.load(plain / "evaluations.npz")
     for key in ("timesteps", "results", "ep_lengths"):
         np.testing.assert_array_equal(first_evaluations[key], plain_evaluations[key])
@@ -156,7 +157,7 @@ def test_a_tune_report_s_numbers_are_its_metrics_flattened_without_its_config():
     assert all(type(v) is float for v in metrics.values())
 
 
-def test_a_trial_started_again_after_a_restore_reopens_its_run_even_finished_and_a_new_experiment_opens_its_own(tmp_path):
+def test_a_trial_started_again_after_a_restore_reopens_its_run_and_a_new_experiment_opens_its_own(tmp_path):
     """The order CI met (stop 44): Tune ended p0_s0 (its run FINISHED), the driver was killed before
     Tune saved that, and the restored experiment (its callbacks unpickled from Tune's state)
     started p0_s0 again. That reopens p0_s0's run; it does not open a second. An experiment made

@@ -67,7 +67,7 @@ RULES = [
     ("logs/table.out", "text_subs", {"subs": [(r"(the rest from the store) \(\d+(?:\.\d+)? s\)", r"\1 (<T> s)")]},
      "stdout's '(N s)' after 'the rest from the store' is fill_table's wall seconds"),
     ("logs/train.out", "text_subs",
-     {"subs": [(r'("(?:%s)": )[^,\n]+' % "|".join(TRAIN_TIMING), r"\1" + MASK)]},
+     {"subs": [(r'("(?:' + "|".join(TRAIN_TIMING) + r')": )[^,\n]+', r"\1" + MASK)]},
      "stdout prints metrics.json: its timing keys " + ", ".join(TRAIN_TIMING) + " masked"),
     ("logs/suite.out", "suite_out", {},
      "stdout's leaderboard: its last column 'ms/step' is the policies' decision wall time (seconds_per_step); "
@@ -80,7 +80,8 @@ RULES = [
      "report.html embeds timings: the 'generated <date time>' line, the training tables' columns wall (s), "
      "steps/s, update (s), share outside updates, the leaderboard's 'ms per step', the sweep's runs.jsonl "
      "(time, seconds, nodes: Ray node ids) and suite.json (warm_seconds, evaluation_seconds, seconds) in "
-     "<pre>, claim (c)'s measured minutes, and the <title>'s OUTDIR folder name; those masked, the rest (all images, all other cells) compared"),
+     "<pre>, claim (c)'s measured minutes, and the <title>'s OUTDIR folder name; those masked, the rest "
+     "(all images, all other cells) compared"),
     ("*.sqlite", "sqlite", {},
      "SQLite store: rows compared through sqlite3 (schema; per key: settings, n_pursuers, n_evaders, key_json, "
      "value_json, checksum) on a copy with its WAL; left out: column `created` (time.time() of the insert) "
@@ -261,8 +262,9 @@ def csv_diff(ra, rb) -> str:
     if not ra or not rb:
         return f"{len(ra)} vs {len(rb)} rows"
     if ra[0] != rb[0]:
-        return f"header differs: only A {[c for c in ra[0] if c not in rb[0]]}, only B {[c for c in rb[0] if c not in ra[0]]}" \
-               + ("" if set(ra[0]) != set(rb[0]) else " (column order)")
+        only_a, only_b = [c for c in ra[0] if c not in rb[0]], [c for c in rb[0] if c not in ra[0]]
+        return (f"header differs: only A {only_a}, only B {only_b}"
+                + ("" if set(ra[0]) != set(rb[0]) else " (column order)"))
     header = ra[0]
     parts = []
     if len(ra) != len(rb):
@@ -277,7 +279,8 @@ def csv_diff(ra, rb) -> str:
                     cols.setdefault(name, (i, x[j] if j < len(x) else None, y[j] if j < len(y) else None))
     if rows:
         parts.append(f"{len(rows)} row(s) differ (data rows {rows[:8]}{'...' if len(rows) > 8 else ''}), columns "
-                     + ", ".join(f"{c} (row {r}: {str(u)[:30]!r} vs {str(v)[:30]!r})" for c, (r, u, v) in list(cols.items())[:6]))
+                     + ", ".join(f"{c} (row {r}: {str(u)[:30]!r} vs {str(v)[:30]!r})"
+                                 for c, (r, u, v) in list(cols.items())[:6]))
     return "; ".join(parts) or "bytes differ (quoting/line endings)"
 
 
@@ -323,7 +326,8 @@ def cmp_text_subs(a, b, ra, rb, params):
 
 
 _TQDM = re.compile(r"^(?P<desc>.*?)(?::\s*)?\s*\d+%\|[^|]*\|\s*(?P<n>\d+)/(?P<total>\d+) \[[^\]]*\]\s*$")
-_ERR_TIMES = [(re.compile(r"\bin \d+(?:\.\d+)? s\b"), "in <T> s"), (re.compile(r"\b\d+(?:\.\d+)? s in all\b"), "<T> s in all"),
+_ERR_TIMES = [(re.compile(r"\bin \d+(?:\.\d+)? s\b"), "in <T> s"),
+              (re.compile(r"\b\d+(?:\.\d+)? s in all\b"), "<T> s in all"),
               (re.compile(r"\bevaluations \d+(?:\.\d+)? s\b"), "evaluations <T> s")]
 
 
@@ -377,12 +381,13 @@ def cmp_json(a, b, ra, rb, params):
     ma, mb = mask_json(ja, keys, params.get("values_only", ())), mask_json(jb, keys, params.get("values_only", ()))
     # formatting too: the masked objects re-serialised must match, and the raw text with the masked
     # values cut out must match (so key order / indentation changes show)
-    rx = re.compile(r'("(?:%s)":\s*)(?:"[^"]*"|[^,\n}\]]+)' % "|".join(map(re.escape, keys))) if keys else None
+    rx = re.compile(r'("(?:' + "|".join(map(re.escape, keys)) + r')":\s*)(?:"[^"]*"|[^,\n}\]]+)') if keys else None
     ra_txt, rb_txt = (rx.sub(r"\1" + MASK, ta), rx.sub(r"\1" + MASK, tb)) if rx else (ta, tb)
     if ma == mb and ra_txt == rb_txt:
         return True, "", "masked"
     diffs = json_diff(ma, mb)
-    return False, ("keys " + "; ".join(diffs)) if diffs else ("formatting: " + first_diff_line(ra_txt, rb_txt)), "masked"
+    what = ("keys " + "; ".join(diffs)) if diffs else ("formatting: " + first_diff_line(ra_txt, rb_txt))
+    return False, what, "masked"
 
 
 def cmp_jsonl(a, b, ra, rb, params):
@@ -437,7 +442,8 @@ def cmp_sqlite(a, b, ra, rb, params):
                     shutil.copy2(str(src) + suffix, Path(tmp) / (src.name + suffix))
             con = sqlite3.connect(Path(tmp) / src.name)
             try:
-                schema = con.execute("SELECT type, name, tbl_name, sql FROM sqlite_master ORDER BY type, name").fetchall()
+                schema = con.execute("SELECT type, name, tbl_name, sql FROM sqlite_master "
+                                     "ORDER BY type, name").fetchall()
                 tables = {}
                 for (t,) in con.execute("SELECT name FROM sqlite_master WHERE type='table' ORDER BY name"):
                     cols = [r[1] for r in con.execute(f"PRAGMA table_info({t})")]
@@ -649,8 +655,9 @@ def mask_report(text: str) -> str:
         except ValueError:
             pass
         try:
-            lines = [json.loads(l) for l in raw.splitlines() if l.strip()]
-            return m.group(1) + htmlmod.escape("\n".join(json.dumps(mask_json(d, keys, ("nodes",))) for d in lines)) + m.group(3)
+            lines = [json.loads(line) for line in raw.splitlines() if line.strip()]
+            masked = "\n".join(json.dumps(mask_json(d, keys, ("nodes",))) for d in lines)
+            return m.group(1) + htmlmod.escape(masked) + m.group(3)
         except ValueError:
             return m.group(0)
     return _PRE.sub(pre, text)
@@ -661,8 +668,9 @@ def cmp_report(a, b, ra, rb, params):
     if ta == tb:
         return True, "", None
     # <title> names the OUTDIR folder (root.name), not its path
-    ta = ta.replace(f"<title>swarm-farm report: {htmlmod.escape(a.root.name)}</title>", "<title>swarm-farm report: <OUTDIR-name></title>")
-    tb = tb.replace(f"<title>swarm-farm report: {htmlmod.escape(b.root.name)}</title>", "<title>swarm-farm report: <OUTDIR-name></title>")
+    masked_title = "<title>swarm-farm report: <OUTDIR-name></title>"
+    ta = ta.replace(f"<title>swarm-farm report: {htmlmod.escape(a.root.name)}</title>", masked_title)
+    tb = tb.replace(f"<title>swarm-farm report: {htmlmod.escape(b.root.name)}</title>", masked_title)
     ma, mb = mask_report(ta), mask_report(tb)
     if ma == mb:
         return True, "", "masked"

@@ -118,7 +118,8 @@ def make_arena(vertices=None) -> Arena:
             raise TypeError
         v = np.array(vertices, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise InputError(f"arena: vertices must be numbers of shape (k, 2){not_a_number_hint(vertices)}", field="arena") from None
+        raise InputError(f"arena: vertices must be numbers of shape (k, 2){not_a_number_hint(vertices)}",
+                         field="arena") from None
     if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
         raise InputError(f"arena: vertices must have shape (k, 2) with k >= 3, got {v.shape}", field="arena")
     if not np.all(np.isfinite(v)):

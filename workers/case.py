@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 
 from workers.arena import make_arena
-from workers.errors import InputError, all_numbers, exact, is_number, not_a_number_hint, point, positive, shown
+from workers.errors import InputError, all_numbers, exact, is_number, not_a_number_hint, point, positive, shown, whole
 from workers.policies import get_evader_policy, get_pursuer_policy
 from workers.version import ENGINE_VERSION
 
@@ -102,7 +102,7 @@ class Case:
             object.__setattr__(self, "law", InitialLaw(self.law.kind, nums(self.law.pursuer_box),
                                                        nums(self.law.evader_box)))
 
-    def validate(self) -> "Case":
+    def validate(self) -> Case:
         """The Case itself when every setting is valid, else an InputError naming the first bad one.
 
         Checks the team sizes (whole numbers, not bools, at most MAX_TEAM), the policies'
@@ -113,8 +113,7 @@ class Case:
         calls it first, so no game is built from a Case it refuses."""
         for name in ("n_pursuers", "n_evaders"):
             v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise InputError(f"{name}: must be a whole number >= 1, got {shown(v)}", field=name)
+            whole(name, v, 1)
             if v > MAX_TEAM:
                 raise InputError(f"{name}: {shown(v)} agents is more than the engine's limit of {MAX_TEAM}", field=name)
         get_pursuer_policy(self.pursuer_policy)
@@ -141,7 +140,7 @@ class Case:
                 raise InputError(f"law.{name}: {shown(box)} is not inside the arena", field=f"law.{name}")
         return self
 
-    def check_window(self) -> "Case":
+    def check_window(self) -> Case:
         """The Case itself when its statistics window fits its games (tau <= t_max), else an
         InputError naming tau: the "by tau" statistics (frac_captured_tau, capture_score_tau)
         of games shorter than tau would count captures the games never reach. The game itself
@@ -182,7 +181,8 @@ def check_exit_point(exit_xy: np.ndarray, arena) -> None:
     """InputError unless the exit point (2,) float64 is in the arena (or on its boundary):
     no evader could reach one outside. The message prints the coordinates exactly."""
     if not arena.contains(exit_xy):
-        raise InputError(f"exit_point: ({exact(exit_xy[0])}, {exact(exit_xy[1])}) is outside the arena", field="exit_point")
+        raise InputError(f"exit_point: ({exact(exit_xy[0])}, {exact(exit_xy[1])}) is outside the arena",
+                         field="exit_point")
 
 
 # The game settings a config may name (the engine's version is not a setting).

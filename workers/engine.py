@@ -21,15 +21,17 @@ import types
 import warnings
 from collections import namedtuple
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 from numba import njit
 
 from workers.arena import Arena, make_arena
 from workers.case import case_defaults, check_exit_point
-from workers.errors import CoarseStepWarning, InputError, all_numbers, exact, not_a_number_hint, point, positive
-from workers.geometry import NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity, voronoi_cells
+from workers.errors import (CoarseStepWarning, InputError, all_numbers, exact, is_whole, not_a_number_hint, point,
+                            positive)
+from workers.geometry import (NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity,
+                              voronoi_cells)
 from workers.policies import Policy, Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
 from workers.policies.registry import dispatch, is_builtin
 from workers.version import ENGINE_VERSION
@@ -92,11 +94,11 @@ class GameResults:
         """
         if self.pursuer_paths is None:
             raise InputError("cells_at: the games were simulated without record=True", field="cells_at")
-        if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or frame < 0:
+        if not is_whole(frame) or frame < 0:
             raise InputError(f"cells_at: frame must be a whole number >= 0 (a step index), got {frame!r}",
                              field="cells_at")
         games = self.pursuer_paths.shape[1]
-        if isinstance(game, bool) or not isinstance(game, (int, np.integer)) or not 0 <= game < games:
+        if not is_whole(game) or not 0 <= game < games:
             raise InputError(f"cells_at: game must be a whole number from 0 to {games - 1}, got {game!r}",
                              field="cells_at")
         frame = min(frame, len(self.pursuer_paths) - 1)
@@ -326,7 +328,7 @@ def _uncached_copy(kernel, **names):
     return njit(**{k: v for k, v in kernel.targetoptions.items() if k != "nopython"})(copy)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _kernels_with(pursuer_dispatch, evader_dispatch):
     """(_play, _step_velocities) compiled with these dispatches inlined, not cached on disk.
 
@@ -369,7 +371,8 @@ def _positions(name: str, value, arena: Arena) -> np.ndarray:
             raise TypeError
         a = np.array(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise InputError(f"{name}: positions must be numbers of shape (B, n, 2){not_a_number_hint(value)}", field=name) from None
+        raise InputError(f"{name}: positions must be numbers of shape (B, n, 2){not_a_number_hint(value)}",
+                         field=name) from None
     if a.ndim != 3 or a.shape[2] != 2:
         raise InputError(f"{name}: positions must have shape (B, n, 2), got {a.shape}", field=name)
     if a.shape[1] == 0:

@@ -17,8 +17,8 @@ import numbers
 
 import numpy as np
 
-__all__ = ["SwarmFarmError", "InputError", "CoarseStepWarning", "positive", "point", "is_number", "all_numbers",
-           "not_a_number_hint", "shown", "exact"]
+__all__ = ["SwarmFarmError", "InputError", "CoarseStepWarning", "positive", "point", "whole", "is_number", "is_whole",
+           "is_finite_number", "is_positive", "all_numbers", "not_a_number_hint", "shown", "exact"]
 
 
 class SwarmFarmError(Exception):
@@ -52,6 +52,22 @@ def is_number(value) -> bool:
     """True for a real number (int, float, Fraction, numpy's integers and floats), False for
     a bool (numpy's too), a string, None, a complex or anything else."""
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def is_whole(value, *, numpy: bool = True) -> bool:
+    """True for a whole number: an int, or one of numpy's integers unless numpy is False;
+    False for a bool (an int to Python), a float, even 3.0, and anything else."""
+    return isinstance(value, (int, np.integer) if numpy else int) and not isinstance(value, bool)
+
+
+def is_finite_number(value) -> bool:
+    """True for a number (is_number) that is finite: not inf, -inf or NaN."""
+    return is_number(value) and math.isfinite(value)
+
+
+def is_positive(value) -> bool:
+    """True for a positive finite number (is_finite_number and > 0)."""
+    return is_finite_number(value) and value > 0
 
 
 def all_numbers(value) -> bool:
@@ -105,8 +121,16 @@ def positive(name: str, value) -> float:
     except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float's range
         x = math.nan
     if not math.isfinite(x) or x <= 0:
-        raise InputError(f"{name}: must be positive and finite, got {shown(value)}{not_a_number_hint(value)}", field=name)
+        raise InputError(f"{name}: must be positive and finite, got {shown(value)}{not_a_number_hint(value)}",
+                         field=name)
     return x
+
+
+def whole(name: str, value, least: int) -> int:
+    """value as an int; InputError unless it is a whole number >= least (is_whole: never a bool)."""
+    if not is_whole(value) or value < least:
+        raise InputError(f"{name}: must be a whole number >= {least}, got {shown(value)}", field=name)
+    return int(value)
 
 
 def point(name: str, value) -> np.ndarray:

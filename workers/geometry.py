@@ -156,6 +156,52 @@ def clip(px, py, pl, m, sx, sy, qx, qy, label, wx, wy, wl, s):
 
 
 @njit(cache=True, inline="always")
+def _ring_candidates(ring, cx, cy, g, start, items, xs, ys, sx, sy, r2, cand, cd2):
+    """The points of grid ring `ring` around grid cell (cx, cy) that can still cut a cell of
+    radius^2 r2 about (sx, sy): closer than 2 R, and not within COINCIDENT of the site.
+
+    They go into cand[:count] with their squared distances in cd2[:count], nearest first
+    (ties: lower index), by insertion as they are met. Returns count."""
+    nc = 0
+    for gy in range(max(0, cy - ring), min(g - 1, cy + ring) + 1):
+        edge_row = gy == cy - ring or gy == cy + ring
+        step = 1 if edge_row else 2 * ring
+        gx = cx - ring
+        while gx <= cx + ring:
+            if 0 <= gx < g:
+                c = gy * g + gx
+                for t in range(start[c], start[c + 1]):
+                    a = items[t]
+                    d2 = (xs[a] - sx) * (xs[a] - sx) + (ys[a] - sy) * (ys[a] - sy)
+                    if d2 >= COINCIDENT * COINCIDENT and d2 < 4.0 * r2:
+                        u = nc
+                        while u > 0 and (cd2[u - 1] > d2 or (cd2[u - 1] == d2 and cand[u - 1] > a)):
+                            cand[u], cd2[u] = cand[u - 1], cd2[u - 1]
+                            u -= 1
+                        cand[u], cd2[u] = a, d2
+                        nc += 1
+            gx += step
+    return nc
+
+
+@njit(cache=True, inline="always")
+def _unvisited_bound(ring, cx, cy, g, x0, y0, h, sx, sy):
+    """The least distance from (sx, sy) at which a point outside rings 0..ring around grid
+    cell (cx, cy) can lie: the nearest side of that block of rings that is not the grid's
+    own edge (inf when the block covers the grid)."""
+    lb = np.inf
+    if cx - ring > 0:
+        lb = min(lb, sx - (x0 + (cx - ring) * h))
+    if cx + ring < g - 1:
+        lb = min(lb, x0 + (cx + ring + 1) * h - sx)
+    if cy - ring > 0:
+        lb = min(lb, sy - (y0 + (cy - ring) * h))
+    if cy + ring < g - 1:
+        lb = min(lb, y0 + (cy + ring + 1) * h - sy)
+    return lb
+
+
+@njit(cache=True, inline="always")
 def build_cell(site, xs, ys, n, grid, cell_of, start, items, av, px, py, pl, wx, wy, wl, s, cand, cd2):
     """The Voronoi cell of point `site` among points 0..n-1, inside the arena.
 
@@ -187,26 +233,7 @@ def build_cell(site, xs, ys, n, grid, cell_of, start, items, av, px, py, pl, wx,
     cx, cy = cell_of[site] % g, cell_of[site] // g
     ring = 0
     while True:
-        # This ring's candidates that can still cut, nearest first (ties: lower index).
-        nc = 0
-        for gy in range(max(0, cy - ring), min(g - 1, cy + ring) + 1):
-            edge_row = gy == cy - ring or gy == cy + ring
-            step = 1 if edge_row else 2 * ring
-            gx = cx - ring
-            while gx <= cx + ring:
-                if 0 <= gx < g:
-                    c = gy * g + gx
-                    for t in range(start[c], start[c + 1]):
-                        a = items[t]
-                        d2 = (xs[a] - sx) * (xs[a] - sx) + (ys[a] - sy) * (ys[a] - sy)
-                        if d2 >= COINCIDENT * COINCIDENT and d2 < 4.0 * r2:
-                            u = nc
-                            while u > 0 and (cd2[u - 1] > d2 or (cd2[u - 1] == d2 and cand[u - 1] > a)):
-                                cand[u], cd2[u] = cand[u - 1], cd2[u - 1]
-                                u -= 1
-                            cand[u], cd2[u] = a, d2
-                            nc += 1
-                gx += step
+        nc = _ring_candidates(ring, cx, cy, g, start, items, xs, ys, sx, sy, r2, cand, cd2)
         for u in range(nc):
             if cd2[u] >= 4.0 * r2:
                 break
@@ -216,16 +243,7 @@ def build_cell(site, xs, ys, n, grid, cell_of, start, items, av, px, py, pl, wx,
                 if m == 0:
                     return 0
                 r2 = _radius2(px, py, m, sx, sy)
-        # Unvisited points lie beyond the nearest side of the block that is not the grid's edge.
-        lb = np.inf
-        if cx - ring > 0:
-            lb = min(lb, sx - (x0 + (cx - ring) * h))
-        if cx + ring < g - 1:
-            lb = min(lb, x0 + (cx + ring + 1) * h - sx)
-        if cy - ring > 0:
-            lb = min(lb, sy - (y0 + (cy - ring) * h))
-        if cy + ring < g - 1:
-            lb = min(lb, y0 + (cy + ring + 1) * h - sy)
+        lb = _unvisited_bound(ring, cx, cy, g, x0, y0, h, sx, sy)
         if lb == np.inf or lb * lb >= 4.0 * r2:
             return m
         ring += 1
@@ -343,5 +361,6 @@ def voronoi_cells(points, live, site_game, site_agent, arena: Arena) -> Cells:
     site_game = np.ascontiguousarray(site_game, dtype=np.int64)
     site_agent = np.ascontiguousarray(site_agent, dtype=np.int64)
     cap = cell_capacity(points.shape[1], arena.k)
-    x, y, count, labels = _cells_of_sites(points, live, site_game, site_agent, np.ascontiguousarray(arena.vertices), cap)
+    av = np.ascontiguousarray(arena.vertices)
+    x, y, count, labels = _cells_of_sites(points, live, site_game, site_agent, av, cap)
     return Cells(points[site_game, site_agent], x, y, count, labels)

@@ -18,7 +18,7 @@ import pandas as pd
 from workers.arena import make_arena
 from workers.case import Box, Case
 from workers.engine import GameResults, simulate_games
-from workers.errors import InputError, shown
+from workers.errors import InputError, is_whole, shown, whole
 from workers.stats import CaptureStats, results_statistics
 
 __all__ = ["sample_initial_positions", "run_games", "simulate_case", "run_case", "SEEDING", "MAX_GAMES",
@@ -38,17 +38,10 @@ def _checked_case(case) -> Case:
     return case.validate()
 
 
-def _whole(name: str, value, least: int) -> int:
-    """value as an int; InputError unless it is a whole number >= least (never a bool)."""
-    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
-        raise InputError(f"{name}: must be a whole number >= {least}, got {shown(value)}", field=name)
-    return int(value)
-
-
 def _seed_words(seed) -> list[int]:
     words = list(seed) if isinstance(seed, (tuple, list)) else [seed]
     for w in words:
-        if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 0:
+        if not is_whole(w) or w < 0:
             raise InputError(f"seed: must be a whole number >= 0 (or a tuple of them), got {shown(seed)}", field="seed")
     return [int(w) for w in words]
 
@@ -66,8 +59,8 @@ def sample_initial_positions(case: Case, seed, start: int, stop: int):
 def _initial_positions(case: Case, seed, start, stop):
     """sample_initial_positions of a case already validated."""
     words = _seed_words(seed)
-    start = _whole("start", start, 0)
-    stop = _whole("stop", stop, start)
+    start = whole("start", start, 0)
+    stop = whole("stop", stop, start)
     n_p, n_e = case.n_pursuers, case.n_evaders
     needed = (stop - start) * (n_p + n_e) * 2 * 8
     if needed > MAX_BATCH_BYTES:
@@ -140,11 +133,11 @@ def run_case(case: Case, n_games: int, seed, *, batch_size: int = 1024,
     its games too: Case.check_window), n_games, seed, batch_size or progress raises InputError.
     """
     case = _checked_case(case).check_window()
-    n_games = _whole("n_games", n_games, 1)
+    n_games = whole("n_games", n_games, 1)
     if n_games > MAX_GAMES:
         raise InputError(f"n_games: must be at most {MAX_GAMES:,} (one run_case's table holds a row a game), "
                          f"got {shown(n_games)}", field="n_games")
-    batch_size = _whole("batch_size", batch_size, 1)
+    batch_size = whole("batch_size", batch_size, 1)
     _seed_words(seed)
     if progress is not None and not callable(progress):
         raise InputError(f"progress: must be a callable or None, got {type(progress).__name__}", field="progress")

@@ -58,7 +58,8 @@ def game_statistics(capture_times: np.ndarray, tau: float, first_game: int = 0,
     ct = np.asarray(capture_times, dtype=np.float64)
     et = np.full(ct.shape, np.nan) if escape_times is None else np.asarray(escape_times, dtype=np.float64)
     if et.shape != ct.shape:
-        raise InputError(f"escape_times: must have the shape of capture_times {ct.shape}, got {et.shape}", field="escape_times")
+        raise InputError(f"escape_times: must have the shape of capture_times {ct.shape}, got {et.shape}",
+                         field="escape_times")
     n_e = ct.shape[1]
     captured = _event_stats(ct, tau)
     escaped = _event_stats(et, tau)
@@ -124,7 +125,7 @@ class TimeSummary:
     n_censored: int
 
     @classmethod
-    def of(cls, times: np.ndarray) -> "TimeSummary":
+    def of(cls, times: np.ndarray) -> TimeSummary:
         """The summary of times: (B,) float64 per game, NaN = censored."""
         x = times[np.isfinite(times)]
         n = len(x)
@@ -192,7 +193,7 @@ class CaptureStats:
     estimate: str | None = None
 
     @classmethod
-    def from_games(cls, per_game: pd.DataFrame) -> "CaptureStats":
+    def from_games(cls, per_game: pd.DataFrame) -> CaptureStats:
         """The statistics of game_statistics rows (one per game)."""
         fractions = {name: float(per_game[column].mean()) for name, (column, _) in _FRACTIONS.items()}
         times = {m: TimeSummary.of(per_game[m].to_numpy(dtype=np.float64)) for m in TIME_METRICS}
@@ -211,7 +212,7 @@ class CaptureStats:
         return out
 
     @classmethod
-    def from_flat(cls, row: dict, estimate: str | None = None) -> "CaptureStats":
+    def from_flat(cls, row: dict, estimate: str | None = None) -> CaptureStats:
         """The inverse of flat(); also reads the store's rows of older formats (_FORMER_KEYS ignored).
 
         A row without a field of flat() (an older format's, e.g. without capture_score_tau_mean,

@@ -10,7 +10,6 @@ Case's default.
 
 from __future__ import annotations
 
-import math
 from typing import Literal
 
 from pydantic import Field, create_model, model_validator
@@ -18,6 +17,7 @@ from pydantic import Field, create_model, model_validator
 from workers import Case
 from workers.engine import case_defaults
 
+from farm.core.checks import is_positive
 from farm.core.config import CASE_TYPES, SETTING_FIELDS, Strict, case_from
 from farm.service.keys import GameSettings
 
@@ -40,7 +40,7 @@ def _positive(x) -> bool:
             x = float(x)
         except ValueError:
             return False
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+    return isinstance(x, (int, float)) and is_positive(x)  # Python's numbers, as YAML gives them
 
 
 class _AllocFields(Strict):

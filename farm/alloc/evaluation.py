@@ -15,9 +15,11 @@ from farm.alloc.plots import plot_behaviour_steps
 from farm.alloc.policies import PolicySpec, make_policy, policy_entry, policy_names
 from farm.alloc.rollout import behaviour_pair, evaluate_policies, steps_table
 from farm.alloc.runs import RunFolder
+from farm.core.checks import whole
 from farm.core.errors import ConfigError
 
-__all__ = ["fidelity_lines", "RunEvaluation", "reference_specs", "allocators", "evaluate_trained", "evaluate_run", "FIDELITIES"]
+__all__ = ["fidelity_lines", "RunEvaluation", "reference_specs", "allocators", "evaluate_trained", "evaluate_run",
+           "FIDELITIES"]
 
 FIDELITIES = ("service", "games")
 
@@ -90,22 +92,38 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     output, `none` (its network alone) or `levels` (farm.alloc.policies.repair); None: the run's
     config's. One other than the run's own writes into repair_<value>/ of the folder the
     tables go into, so the run's own evaluation there is kept."""
-    from farm.alloc.scenarios import SCENARIOS
-    from farm.alloc.training.config import store_of
-    from farm.service.client import open_client
-
     run = RunFolder(run_dir)
-    config = run.read_config()
-    if scenario is not None:
-        if scenario not in SCENARIOS:
-            raise ConfigError(f"scenario: unknown scenario {scenario!r} (choose from {', '.join(SCENARIOS)})",
-                              field="scenario")
-        own = config.env  # the run's service games and seed stay, as farm suite keeps them
-        config = config.model_copy(update={"env": SCENARIOS[scenario].config(games=own.games, seed=own.seed)})
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise ConfigError(f"episodes: must be a whole number >= 1, got {episodes!r}", field="episodes")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"seed: must be a whole number >= 0, got {seed!r}", field="seed")
+    config = _on_scenario(run.read_config(), scenario)
+    _check_arguments(episodes, seed, fidelity, references)
+    specs = None if references is None else [PolicySpec(policy_entry(name)) for name in references]
+    learned = _trained_allocator(run, config, scenario, repair)
+    folder, animate = _output_paths(run, config, scenario, repair, animate)
+    if folder != run.path:
+        run = RunFolder(folder)  # where this evaluation's files go
+        run.path.mkdir(parents=True, exist_ok=True)
+    return _evaluate(run, config, learned, specs, episodes, seed, fidelity, animate=animate,
+                     map_name=scenario or config.name, show_progress=show_progress)
+
+
+def _on_scenario(config, scenario: str | None):
+    """config (a TrainConfig) with its env on scenario's map, the service's games and seed kept
+    (as farm suite keeps them); config itself for scenario None. ConfigError for an unknown one."""
+    from farm.alloc.scenarios import SCENARIOS
+
+    if scenario is None:
+        return config
+    if scenario not in SCENARIOS:
+        raise ConfigError(f"scenario: unknown scenario {scenario!r} (choose from {', '.join(SCENARIOS)})",
+                          field="scenario")
+    own = config.env
+    return config.model_copy(update={"env": SCENARIOS[scenario].config(games=own.games, seed=own.seed)})
+
+
+def _check_arguments(episodes, seed, fidelity, references) -> None:
+    """ConfigError naming the field unless episodes is a whole number >= 1, seed one >= 0,
+    fidelity one of FIDELITIES and references None or names of baselines and planners."""
+    whole("episodes", episodes, 1)
+    whole("seed", seed, 0)
     if fidelity not in FIDELITIES:
         raise ConfigError(f"fidelity: must be one of {', '.join(FIDELITIES)}, got {fidelity!r}", field="fidelity")
     choices = policy_names(("baseline", "planner"))
@@ -113,22 +131,32 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
         if name not in choices:
             raise ConfigError(f"references: {name!r} is not a baseline or planner (choose from {', '.join(choices)}, "
                               f"or none)", field="references")
-    specs = None if references is None else [PolicySpec(policy_entry(name)) for name in references]
+
+
+def _trained_allocator(run: RunFolder, config, scenario: str | None, repair: str | None):
+    """The run's trained allocator for config's map, with its output repaired as repair says,
+    loaded before any service starts: a model.zip that cannot be loaded is one line. A model
+    that does not fit the run's own map is a ConfigError naming run_dir (its config.yaml no longer
+    says what was trained); one that does not fit a scenario's map names scenario."""
     try:
-        learned = make_policy(config.algo, config.env, None, run=run.path,  # a bad model.zip: one line, before Ray starts
-                              repair=repair)
+        return make_policy(config.algo, config.env, None, run=run.path, repair=repair)
     except ConfigError as e:
         if scenario is not None or e.field != "scenario":
             raise
-        # the run's own map that its model does not fit: config.yaml no longer says what was trained
         raise ConfigError(f"run_dir: {run.path}'s config.yaml does not fit its model: {e.problem} (was config.yaml "
                           f"edited?)", field="run_dir") from None
+
+
+def _output_paths(run: RunFolder, config, scenario: str | None, repair: str | None, animate):
+    """(folder, animate): the folder this evaluation's tables and figures go into (the run's,
+    its scenarios/<scenario>/, and repair_<repair>/ of that for a repair other than the run's
+    own), and the animation's path in it (None without animate). Both are checked writable now,
+    before any episode, so that a read-only run folder is found at once, not at the end."""
     from farm.core.output import check_writable_folder
 
     folder = run.path if scenario is None else run.path / "scenarios" / scenario
     if repair is not None and repair != config.repair:
         folder = folder / f"repair_{repair}"  # the run's own evaluation stays where it is
-    # where the tables go, checked before any episode: a read-only run folder is found now, not at the end
     check_writable_folder(folder, "run_dir")
     if animate is not None:
         from farm.core.game_animation import check_animation_path
@@ -136,26 +164,35 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
 
         animate = folder / check_animation_path(animate)
         check_writable_file(animate, "animate")
-    if folder != run.path:
-        run = RunFolder(folder)  # where this evaluation's files go
-        run.path.mkdir(parents=True, exist_ok=True)
+    return folder, animate
+
+
+def _evaluate(run: RunFolder, config, learned, specs, episodes: int, seed: int, fidelity: str, *, animate,
+              map_name: str, show_progress: bool) -> RunEvaluation:
+    """The evaluation, its files written into run: the trained allocator learned and the
+    references of specs on the seeded episodes (evaluate_trained), under fidelity "games" the
+    same episodes with every engaged cell's game played (evaluate_fidelity), and the animation of
+    the trained allocator's first episode on map_name (with animate). The capture-time service is
+    config's: with service.mode local, it and the games are in this process, no Ray."""
+    from farm.alloc.training.config import store_of
+    from farm.service.client import open_client
+
     settings = config.env.game_settings()
-    mode = config.service.mode  # local: the service and the games of fidelity "games" in this process, no Ray
+    mode = config.service.mode
     with open_client(settings, mode=mode, store=store_of(config), address=config.service.address) as client:
         policies = allocators(run, config, client, specs, learned=learned)
         table, per, steps = evaluate_trained(run, config, policies, client, episodes, seed)
         result = RunEvaluation(table, per, steps, settings.games, folder=run.path)
         if fidelity == "games":
-            result.games_table, result.differences, result.live = evaluate_fidelity(config.env, policies, client, episodes, seed,
-                                                                       in_process=mode == "local",
-                                                                       show_progress=show_progress)
+            result.games_table, result.differences, result.live = evaluate_fidelity(
+                config.env, policies, client, episodes, seed, in_process=mode == "local", show_progress=show_progress)
             run.write_fidelity(result.games_table, result.differences)
         if animate is not None:
             from farm.alloc.episode_animation import write_episode_animation
             from farm.alloc.rollout import play
 
             episode = play(config.env, policies[config.algo], client, 1, seed, record_first=True)[0]
-            title = f"{config.algo} on {scenario or config.name}, episode seed {seed}"
+            title = f"{config.algo} on {map_name}, episode seed {seed}"
             result.animation = write_episode_animation(episode, animate, title,
                                                        settings=settings if fidelity == "games" else None)
     return result

@@ -4,17 +4,18 @@ cell's PE game at each step, and how far those outcomes are from the service's.
 The evaluation's episodes are stepped together (farm.alloc.rollout.play), so a step asks for
 the games of every engaged cell of every episode at once. They are played as coarse Ray tasks
 of about TASK_SECONDS of work each by the engine's cost model (farm.games.sizes.game_seconds,
-plus CALL_SECONDS a game; pack_games), less when a step holds fewer than TASKS_PER_CPU such tasks a CPU (task_seconds: the step
-split in TASKS_PER_CPU tasks a CPU, none under MIN_TASK_SECONDS), at most twice the cluster's CPUs pending (backpressure with ray.wait); in this
-process, one after another, for a run whose service.mode is local. Both play the same games,
-so they give the same outcomes, game for game. Each engagement of a case plays the case's next fresh game:
-game g of the case with the service's seed, g counting up from the service's number of
+plus CALL_SECONDS a game; pack_games), less when a step holds fewer than TASKS_PER_CPU such
+tasks a CPU (task_seconds: the step split in TASKS_PER_CPU tasks a CPU, none under
+MIN_TASK_SECONDS), at most twice the cluster's CPUs pending (backpressure with ray.wait); in
+this process, one after another, for a run whose service.mode is local. Both play the same
+games, so they give the same outcomes, game for game. Each engagement of a case plays the
+case's next fresh game: game g of the case with the service's seed, g counting up from the service's number of
 games, so that these are games the service did not average and any game can be replayed by
 run_games."""
 
 from __future__ import annotations
 
-from typing import Iterator
+from collections.abc import Iterator
 
 import pandas as pd
 
@@ -24,7 +25,8 @@ from farm.alloc.rollout import evaluate_policies
 from farm.service.client import CaptureTimeClient
 from farm.service.lookup import Lookup
 
-__all__ = ["TASK_SECONDS", "MIN_TASK_SECONDS", "TASKS_PER_CPU", "CALL_SECONDS", "FreshGames", "pack_games", "task_seconds", "evaluate_fidelity"]
+__all__ = ["TASK_SECONDS", "MIN_TASK_SECONDS", "TASKS_PER_CPU", "CALL_SECONDS", "FreshGames", "pack_games",
+           "task_seconds", "evaluate_fidelity"]
 
 TASK_SECONDS = 0.5  # a live-engagement task's work by the engine's cost model, at most
 MIN_TASK_SECONDS = 0.05  # and at least (a task well over Ray's per-task overhead)

@@ -5,7 +5,7 @@ and `farm experiments`."""
 
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.model import LATTICE, snap

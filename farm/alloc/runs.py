@@ -218,7 +218,8 @@ class RunFolder:
         """eval_table.csv, eval_episodes.csv and eval_steps.csv (farm.alloc.rollout's tables)."""
         from farm.core.output import write_table
 
-        return [write_table(table, self.path / "eval_table", "csv"), write_table(per, self.path / "eval_episodes", "csv"),
+        return [write_table(table, self.path / "eval_table", "csv"),
+                write_table(per, self.path / "eval_episodes", "csv"),
                 write_table(steps, self.path / "eval_steps", "csv")]
 
     def write_fidelity(self, table: pd.DataFrame, differences: pd.DataFrame) -> list[Path]:
@@ -239,7 +240,8 @@ class RunFolder:
         try:
             steps = pd.read_csv(path)
         except (OSError, UnicodeDecodeError, ValueError) as e:  # pandas' ParserError and EmptyDataError are ValueErrors
-            raise ResultsError(f"{path}: unreadable per-step evaluation ({type(e).__name__}); rerun farm eval") from None
+            raise ResultsError(f"{path}: unreadable per-step evaluation ({type(e).__name__}); "
+                               "rerun farm eval") from None
         missing = [c for c in ("policy", "episode", "step", *STEP_MEASURES) if c not in steps.columns]
         if missing:
             raise ResultsError(f"{path}: not farm eval's per-step table (no column {missing[0]!r}); rerun farm eval")

@@ -16,9 +16,10 @@ docs/results.md, "How the scenarios were chosen".
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
 
 from farm.alloc.config import AllocConfig
 

@@ -17,8 +17,6 @@ stable-baselines3's VecEnv.
 
 from __future__ import annotations
 
-import numbers
-
 import gymnasium as gym
 import numpy as np
 from gymnasium.error import ResetNeeded
@@ -30,6 +28,7 @@ from farm.alloc.config import AllocConfig
 from farm.alloc.dynamics import Layout, check_actions, episode_end, observe, start_densities, step
 from farm.alloc.env import check_env_arguments, env_client
 from farm.alloc.model import EngagementModel, row_sums
+from farm.core.checks import is_whole, whole
 from farm.core.errors import ConfigError
 
 __all__ = ["SwarmAllocationVectorEnv", "INFO_KEYS"]
@@ -47,9 +46,7 @@ _STATE_FIELDS = ("num_envs", "D", "I", "steps", "breached", "eliminated", "start
 
 def _num_envs(value) -> int:
     """num_envs as an int >= 1, or a one-line ConfigError naming it."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-        raise ConfigError(f"num_envs: must be a whole number >= 1, got {value!r}", field="num_envs")
-    return int(value)
+    return whole("num_envs", value, 1, numpy=True)
 
 
 class SwarmAllocationVectorEnv(VectorEnv):
@@ -140,7 +137,7 @@ class SwarmAllocationVectorEnv(VectorEnv):
         if seed is None:
             return [None] * B
         def whole(s) -> bool:
-            return isinstance(s, numbers.Integral) and not isinstance(s, bool) and s >= 0
+            return is_whole(s) and s >= 0
 
         if whole(seed):
             return [int(seed) + k for k in range(B)]

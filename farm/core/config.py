@@ -12,20 +12,23 @@ import dataclasses
 import functools
 import math
 import typing
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, TypeAdapter, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import (BaseModel, ConfigDict, TypeAdapter, ValidationError, ValidationInfo, field_validator,
+                      model_validator)
 
 from workers import GAME_FIELDS, Case, InputError
 
 from farm.core.errors import ConfigError
 
-__all__ = ["Strict", "StrictFile", "refuse_unknown_keys", "ConfigError", "case_from", "check_game_names", "first_line", "load_yaml_model",
-           "read_yaml", "MAX_CONFIG_BYTES", "MAX_CONFIG_DEPTH", "MAX_CONFIG_VALUES",
-           "error_field", "GAME_FIELDS", "SETTING_FIELDS", "CASE_TYPES", "NUMERIC_FIELDS", "find_bool", "find_non_finite"]
+__all__ = ["Strict", "StrictFile", "refuse_unknown_keys", "ConfigError", "case_from", "check_game_names", "first_line",
+           "load_yaml_model", "read_yaml", "MAX_CONFIG_BYTES", "MAX_CONFIG_DEPTH", "MAX_CONFIG_VALUES",
+           "error_field", "GAME_FIELDS", "SETTING_FIELDS", "CASE_TYPES", "NUMERIC_FIELDS", "find_bool",
+           "find_non_finite"]
 
 # A game's settings: every Case field but the team sizes (which a table's or env's cells set).
 SETTING_FIELDS = tuple(name for name in GAME_FIELDS if name not in ("n_pursuers", "n_evaders"))
@@ -76,7 +79,7 @@ def _at(where: str) -> str:
     return f" (at {where.lstrip('.')})" if where else ""
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _checked_elsewhere(annotation) -> bool:
     """Whether a field's type is or holds a pydantic model (a config section, checked by its
     own validators) or Any (values checked where they are used: case_from for game
@@ -86,7 +89,7 @@ def _checked_elsewhere(annotation) -> bool:
     return any(_checked_elsewhere(arg) for arg in typing.get_args(annotation) if arg is not Ellipsis)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _takes_bool(annotation) -> bool:
     """Whether a field's type may hold a boolean, at any depth; a dataclass's field types
     are looked into."""
@@ -170,7 +173,8 @@ def case_from(fields: Mapping[str, Any]) -> Case:
     for name, value in fields.items():  # pydantic's lax mode would read true as 1
         where = find_bool(value, name)
         if where is not None:
-            raise ConfigError(f"{where}: must be a number or a name, got {value!r} (a bool is not a number)", field=where)
+            raise ConfigError(f"{where}: must be a number or a name, got {value!r} (a bool is not a number)",
+                              field=where)
     try:
         case = _CASE.validate_python(dict(fields)).validate()
     except ValidationError as e:

@@ -14,13 +14,14 @@ steps at frame stride K has `game_frame_count(steps, K)` = ceil(steps / K) + 1 f
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Iterable, Iterator
 
 import numpy as np
 
 from workers import GameResults
 
+from farm.core.checks import whole
 from farm.core.errors import ConfigError
 
 __all__ = ["ANIMATION_SUFFIXES", "MAX_AUTO_FRAMES", "check_animation_path", "auto_stride", "game_frame_steps",
@@ -47,8 +48,7 @@ def auto_stride(steps: int, max_frames: int = MAX_AUTO_FRAMES) -> int:
 
 def game_frame_steps(steps: int, stride: int) -> list[int]:
     """The step indices an animation of a `steps`-step game at `stride` shows: 0, K, 2K, ... and steps."""
-    if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
-        raise ConfigError(f"frame_stride: must be a whole number >= 1, got {stride!r}", field="frame_stride")
+    whole("frame_stride", stride, 1)
     shown = list(range(0, steps + 1, stride))
     if shown[-1] != steps:
         shown.append(steps)

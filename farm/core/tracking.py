@@ -26,7 +26,8 @@ from pydantic import Field, field_validator
 from farm.core.config import Strict
 from farm.core.errors import ConfigError
 
-__all__ = ["MlflowParams", "TrackingParams", "flat_params", "flattened", "param_text", "mlflow_client", "mlflow_experiment", "URI_FIELD"]
+__all__ = ["MlflowParams", "TrackingParams", "flat_params", "flattened", "param_text", "mlflow_client",
+           "mlflow_experiment", "URI_FIELD"]
 
 URI_FIELD = "tracking.mlflow.tracking_uri"
 _SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]+:")  # two letters at least: C:\ is a Windows path, not a scheme

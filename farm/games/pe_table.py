@@ -45,7 +45,8 @@ def pe_size(n_games: int, base: Case | None = None):
     return JobSize("pe-table", cases, "case", cases * n_games, seconds * n_games, cases * n_games * GAME_ROW_BYTES)
 
 
-def pe_tables(n_games: int = 50, seed: int = 0, base: Case | None = None, progress=None) -> tuple[pd.DataFrame, pd.DataFrame]:
+def pe_tables(n_games: int = 50, seed: int = 0, base: Case | None = None,
+              progress=None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Run every paper case (PAPER_CASES) for n_games games each; returns (summary, per_game).
 
     summary: one row per case, columns table, n_pursuers, pursuer_policy, evader_policy,
@@ -131,7 +132,7 @@ def write_pe_tables(out: Path, n_games: int, seed: int, fmt: str, progress=None,
     out.mkdir(parents=True, exist_ok=True)
     written = [write_table(summary, out / "pe_tables", fmt), write_table(per_game, out / "pe_games", fmt)]
     if figures:
-        for table, n_p, pp, ep, _ in PAPER_CASES:
+        for _, n_p, pp, ep, _ in PAPER_CASES:
             case = paper_case(base, n_p, pp, ep)
             res = run_games(case, seed, 0, 1, record=True)
             name = f"fig_{pp}_vs_{ep}_{n_p}p.png"

@@ -68,7 +68,8 @@ class JobSize:
 
     def describe(self, cpus: int) -> str:
         """'sweep of 1,000 points, 40,000 games: about 3.1 h of CPU time (1.6 h on 2 CPUs)'."""
-        return (f"{self.what} of {self.items:,} {self.item_name}{'s' if self.items != 1 else ''}, {self.games:,} games: "
+        return (f"{self.what} of {self.items:,} {self.item_name}{'s' if self.items != 1 else ''}, "
+                f"{self.games:,} games: "
                 f"about {duration(self.cpu_seconds)} of CPU time by the engine's cost model "
                 f"({duration(self.cpu_seconds / max(1, cpus))} on {cpus} CPU{'s' if cpus != 1 else ''})")
 

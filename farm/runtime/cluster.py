@@ -19,10 +19,12 @@ import socket
 import sys
 import threading
 from collections import deque
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 from urllib.parse import urlsplit
 
+from farm.core.checks import is_whole, whole
 from farm.core.errors import ClusterError, ConfigError
 
 __all__ = ["NAMESPACE", "DEFAULT_LOCAL_CPUS", "LOOPBACK_ENV", "ray_cluster", "connected", "check_reachable", "bounded",
@@ -84,7 +86,8 @@ def _check_running(ray, address: str | None, num_cpus: int | None, metrics_port:
         ports = {n.get("MetricsExportPort") for n in ray.nodes() if n.get("Alive")}
         if metrics_port not in ports:
             raise ClusterError(f"metrics_port: {metrics_port} asked for, but the Ray this process is connected to "
-                               f"exports its metrics on {', '.join(str(p) for p in sorted(ports, key=str))}", field="metrics_port")
+                               f"exports its metrics on {', '.join(str(p) for p in sorted(ports, key=str))}",
+                               field="metrics_port")
 
 
 def connected() -> bool:
@@ -117,8 +120,8 @@ def tasks_in_flight(workers: int | None, cpus: int, address: str | None) -> int:
 
 def check_workers(workers, field: str = "workers") -> None:
     """ConfigError (one line naming field) unless workers is None or a whole number >= 1."""
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise ConfigError(f"{field}: must be a whole number >= 1, got {workers!r}", field=field)
+    if workers is not None:
+        whole(field, workers, 1)
 
 
 @contextmanager
@@ -152,8 +155,7 @@ def ray_cluster(address: str | None = None, *, num_cpus: int | None = None, metr
     public ray.init argument, only the private `_metrics_export_port` (the public way is
     `ray start --metrics-export-port`, a separate process); it is used here and nowhere else.
     """
-    if metrics_port is not None and (isinstance(metrics_port, bool) or not isinstance(metrics_port, int)
-                                     or not 1 <= metrics_port <= 65535):
+    if metrics_port is not None and not (is_whole(metrics_port, numpy=False) and 1 <= metrics_port <= 65535):
         raise ConfigError(f"metrics_port: must be a TCP port from 1 to 65535, got {metrics_port!r}",
                           field="metrics_port")
     address = address or os.environ.get("RAY_ADDRESS") or None

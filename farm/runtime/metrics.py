@@ -7,7 +7,7 @@ dashboards/ queries exactly these).
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 TAGS = ("sweep",)
 
@@ -33,12 +33,13 @@ def _ray_ready() -> bool:
     return ray.is_initialized()
 
 
-@lru_cache(maxsize=None)
+@cache
 def _worker_metrics():
     from ray.util.metrics import Counter, Gauge
 
     return (
-        Counter("swarm_farm_games_simulated", description=EXPORTED["ray_swarm_farm_games_simulated_total"], tag_keys=TAGS),
+        Counter("swarm_farm_games_simulated", description=EXPORTED["ray_swarm_farm_games_simulated_total"],
+                tag_keys=TAGS),
         Counter("swarm_farm_game_steps", description=EXPORTED["ray_swarm_farm_game_steps_total"], tag_keys=TAGS),
         Gauge("swarm_farm_game_steps_per_second", description=EXPORTED["ray_swarm_farm_game_steps_per_second"],
               tag_keys=TAGS),
@@ -72,7 +73,8 @@ class DriverMetrics:
         from ray.util.metrics import Counter, Gauge
 
         self.tags = {"sweep": sweep}
-        self._done = Counter("swarm_farm_shards_done", description=EXPORTED["ray_swarm_farm_shards_done_total"], tag_keys=TAGS)
+        self._done = Counter("swarm_farm_shards_done", description=EXPORTED["ray_swarm_farm_shards_done_total"],
+                             tag_keys=TAGS)
         self._pending = Gauge("swarm_farm_pending_shards", description=EXPORTED["ray_swarm_farm_pending_shards"],
                               tag_keys=TAGS)
 

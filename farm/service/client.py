@@ -5,9 +5,9 @@ decides "Ray or local". The lookup itself is farm/service/lookup.py."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
 
 from workers import CaptureStats, InputError
 
@@ -77,7 +77,7 @@ class CaptureTimeClient:
         self._memo: dict[tuple[int, int], CaptureStats] = {}
         self._estimates: dict[tuple[int, int], CaptureStats] = {}  # estimate="lattice": fixed per client
 
-    def with_settings(self, settings: GameSettings) -> "CaptureTimeClient":
+    def with_settings(self, settings: GameSettings) -> CaptureTimeClient:
         """A client of other settings on the same backend (which this client keeps owning)."""
         return CaptureTimeClient(settings, backend=self.backend)
 

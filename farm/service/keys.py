@@ -16,6 +16,7 @@ from functools import cached_property
 
 from workers import Case, InputError
 
+from farm.core.checks import whole
 from farm.core.config import SETTING_FIELDS
 
 __all__ = ["GameSettings", "StatsKey", "SERVICE_FIELDS", "LATTICE", "lattice_anchors"]
@@ -51,22 +52,20 @@ class GameSettings:
     seed: int = 0
 
     @classmethod
-    def of(cls, **fields) -> "GameSettings":
+    def of(cls, **fields) -> GameSettings:
         """GameSettings.of(games=16, t_max=10.0, evader_policy="centroid"): games, seed and
         Case fields by name; the rest at their defaults."""
         return cls().with_(**fields)
 
-    def key(self, n_pursuers: int, n_evaders: int) -> "StatsKey":
+    def key(self, n_pursuers: int, n_evaders: int) -> StatsKey:
         """The StatsKey of one team-size pair under these settings; InputError (one line) for bad
         games, seed or sizes, or a window tau longer than the games (Case.check_window)."""
-        if isinstance(self.games, bool) or not isinstance(self.games, int) or self.games < 2:
-            raise InputError(f"games: must be a whole number >= 2, got {self.games!r}", field="games")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise InputError(f"seed: must be a whole number >= 0, got {self.seed!r}", field="seed")
+        whole("games", self.games, 2, error=InputError)
+        whole("seed", self.seed, 0, error=InputError)
         case = replace(self.game, n_pursuers=n_pursuers, n_evaders=n_evaders).validate().check_window()
         return StatsKey(case, self.games, self.seed)
 
-    def with_(self, **changes) -> "GameSettings":
+    def with_(self, **changes) -> GameSettings:
         """A copy with games, seed or any Case field changed."""
         own = {k: changes.pop(k) for k in SERVICE_FIELDS if k in changes}
         _known(changes)
@@ -106,7 +105,8 @@ class StatsKey:
         return self._digest
 
     def settings_digest(self) -> str:
-        """16 hex digits identifying everything of the key but the team sizes (its neighbours for estimates share it)."""
+        """16 hex digits identifying everything of the key but the team sizes (its neighbours for
+        estimates share it)."""
         d = self.to_dict()
         d["case"] = {k: v for k, v in d["case"].items() if k not in ("n_pursuers", "n_evaders")}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]

@@ -21,8 +21,9 @@ import math
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
-from typing import Callable, Iterator, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import pandas as pd
@@ -33,8 +34,8 @@ from farm.service.keys import StatsKey
 from farm.service.store import StatsStore
 from farm.games.shards import games_per_shard, play_shard, shard_ranges
 
-__all__ = ["StatsBackend", "Lookup", "LocalBackend", "ServiceLookup", "compute_in_process", "compute_on_ray", "stats_from_games", "NeighbourIndex", "estimate",
-           "ESTIMATE_NEIGHBOURS"]
+__all__ = ["StatsBackend", "Lookup", "LocalBackend", "ServiceLookup", "compute_in_process", "compute_on_ray",
+           "stats_from_games", "NeighbourIndex", "estimate", "ESTIMATE_NEIGHBOURS"]
 
 log = logging.getLogger(__name__)
 

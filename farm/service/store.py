@@ -161,7 +161,8 @@ class StatsStore:
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
             except OSError as e:
-                raise ConfigError(f"store: {self.path}: cannot make its folder ({e.strerror or e})", field="store") from None
+                raise ConfigError(f"store: {self.path}: cannot make its folder ({e.strerror or e})",
+                                  field="store") from None
         self.corrupt_rows: set[str] = set()
         self.older_rows: set[str] = set()  # rows of an older engine's layout: never served (their keys differ)
         self._lock = threading.Lock()

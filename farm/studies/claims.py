@@ -126,7 +126,8 @@ def _plateau_confirmed(minutes: float) -> bool:
     return minutes <= PLATEAU_MINUTES
 
 
-def claims(runs_dir: Path, c0: str = "paper_3x3_c1_0", c15: str = "paper_3x3_c1_1.5", policy: str | None = None) -> list[dict]:
+def claims(runs_dir: Path, c0: str = "paper_3x3_c1_0", c15: str = "paper_3x3_c1_1.5",
+           policy: str | None = None) -> list[dict]:
     """Measure the paper's three claims on evaluated runs: rows {claim, measured, verdict}.
 
     runs_dir: the folder of training runs; c0, c15: the names of the C_capture = 0 and
@@ -143,27 +144,30 @@ def claims(runs_dir: Path, c0: str = "paper_3x3_c1_0", c15: str = "paper_3x3_c1_
     a = measure_a(runs_dir / c0, policy)
     if a is not None:
         out.append({"claim": CLAIM_A,
-                    "measured": f"{policy} coverage at step 1: {format_ci(a['coverage_mean'], a['coverage_ci95'])} of the "
-                                f"intruder mass; every intruder cell engaged at step 1 in {100 * a['all_engaged']:.0f}% "
-                                f"of episodes",
+                    "measured": f"{policy} coverage at step 1: {format_ci(a['coverage_mean'], a['coverage_ci95'])} "
+                                f"of the intruder mass; every intruder cell engaged at step 1 in "
+                                f"{100 * a['all_engaged']:.0f}% of episodes",
                     "verdict": f"{a['verdict']} (threshold: the coverage CI above {COVERAGE_THRESHOLD})"})
     b = measure_b(runs_dir / c0, runs_dir / c15, policy)
     if b is not None:
         out.append({"claim": CLAIM_B,
                     "measured": f"engaged cells per step {format_ci(b['engaged_mean_c15'], b['engaged_ci95_c15'])} vs "
                                 f"{format_ci(b['engaged_mean_c0'], b['engaged_ci95_c0'])}; defenders per engaged cell "
-                                f"{format_ci(b['dpe_mean_c15'], b['dpe_ci95_c15'])} vs {format_ci(b['dpe_mean_c0'], b['dpe_ci95_c0'])}",
+                                f"{format_ci(b['dpe_mean_c15'], b['dpe_ci95_c15'])} vs "
+                                f"{format_ci(b['dpe_mean_c0'], b['dpe_ci95_c0'])}",
                     "verdict": f"{b['verdict']} (fewer: {'yes' if b['fewer'] else 'no'}, more: "
                                f"{'yes' if b['more'] else 'no'}; non-overlapping 95% CIs)"})
-    plateaus = {r.name: plateau_minutes(r) for r in sorted(runs_dir.iterdir()) if r.is_dir()} if runs_dir.exists() else {}
+    runs = sorted(r for r in runs_dir.iterdir() if r.is_dir()) if runs_dir.exists() else []
+    plateaus = {r.name: plateau_minutes(r) for r in runs}
     plateaus = {k: v for k, v in plateaus.items() if v is not None}
     if plateaus:
         every = all(_plateau_confirmed(v[0]) for v in plateaus.values())
         out.append({"claim": CLAIM_C,
-                    "measured": "; ".join(f"{k}: {v[0]:.1f} min (step {v[1]}) of {v[2]:.1f}" for k, v in plateaus.items()),
+                    "measured": "; ".join(f"{k}: {v[0]:.1f} min (step {v[1]}) of {v[2]:.1f}"
+                                          for k, v in plateaus.items()),
                     "verdict": f"{'confirmed' if every else 'not confirmed'} (threshold: every run within "
-                               f"{PLATEAU_MINUTES:g} minutes of training on 2 cores; plateau: within 5% of the range of "
-                               f"evaluation returns below the best)"})
+                               f"{PLATEAU_MINUTES:g} minutes of training on 2 cores; plateau: within 5% of the range "
+                               f"of evaluation returns below the best)"})
     return out
 
 
@@ -226,7 +230,9 @@ def _point_configs(folder: Path, manifest: dict) -> dict[int, dict]:
 
     configs: dict[int, dict] = {}
     for t in manifest["trials"]:
-        values = None if t["point"] in configs else RunFolder(ExperimentFolder(folder).run_dir(t["key"])).read_config_values()
+        if t["point"] in configs:
+            continue
+        values = RunFolder(ExperimentFolder(folder).run_dir(t["key"])).read_config_values()
         if values is not None:
             configs[t["point"]] = values
     return configs
@@ -374,7 +380,8 @@ def claims_over_seeds(folder, points: tuple[int, int] | None = None, policy: str
         known = sorted({t["point"] for t in manifest["trials"]})
         for p in points:
             if p not in known:
-                raise ResultsError(f"points: {p} is not a point of {folder} (points {known[0]}-{known[-1]})", field="points")
+                raise ResultsError(f"points: {p} is not a point of {folder} (points {known[0]}-{known[-1]})",
+                                   field="points")
         if points[0] == points[1]:
             raise ResultsError(f"points: names point {points[0]} twice; (a) and (b) compare a C_capture 0 point "
                                f"with a C_capture 1.5 one", field="points")

@@ -168,7 +168,8 @@ def _from_hint(arena: Arena, site, ox, oy, d2, hint) -> Cells:
     along = (xn - x) * (-ny) + (yn - y) * nx
     ok &= np.all(~valid | (along >= -_CLIP_TOL), axis=1)
     # And it has an interior (three lines through one point pass every test above).
-    cross = np.where(valid, (x - site[:, 0, None]) * (yn - site[:, 1, None]) - (xn - site[:, 0, None]) * (y - site[:, 1, None]), 0.0)
+    cross = np.where(valid, (x - site[:, 0, None]) * (yn - site[:, 1, None])
+                     - (xn - site[:, 0, None]) * (y - site[:, 1, None]), 0.0)
     ok &= np.cumsum(cross, axis=1)[:, -1] > 1e-18
 
     count = np.where(ok, count, 0)

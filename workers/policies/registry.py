@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import importlib
 import linecache
-from functools import lru_cache
+from functools import cache
 from typing import NamedTuple
 
 from numba import njit
@@ -156,7 +156,7 @@ def dispatch_source(team: str, n_policies: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-@lru_cache(maxsize=None)
+@cache
 def _compiled_dispatch(team: str, fns: tuple):
     source = dispatch_source(team, len(fns))
     filename = f"<workers.policies.registry: {team} dispatch of {len(fns)}>"

@@ -39,7 +39,7 @@ class _Allocator:
         raise NotImplementedError
 
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        """The action for an observation, as a trained SB3 model's predict() returns it.
+        """The action for an observation, as a trained SB3 model's predict method returns it.
 
         obs: (2 N^2,) float32 [D, I] -> (action: (A,) float32 in [-1, 1], state). state
         is passed through; episode_start and deterministic are accepted and unused (the

@@ -20,9 +20,10 @@ from __future__ import annotations
 import inspect
 import sys
 import sysconfig
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from farm.core.errors import ConfigError
 
@@ -30,7 +31,7 @@ __all__ = ["PolicyEntry", "PolicySpec", "KINDS", "register_policy", "unregister_
            "policy_names", "make_policy"]
 
 KINDS = ("baseline", "planner", "learned")
-_REGISTRY: dict[str, "PolicyEntry"] = {}
+_REGISTRY: dict[str, PolicyEntry] = {}
 
 
 @dataclass(frozen=True)
@@ -97,7 +98,7 @@ def _dumps(value) -> bytes:
         cloudpickle.unregister_pickle_by_value(module)
 
 
-def _spec_from_bytes(data: bytes) -> "PolicySpec":
+def _spec_from_bytes(data: bytes) -> PolicySpec:
     import cloudpickle
 
     entry, options = cloudpickle.loads(data)

@@ -114,6 +114,31 @@ class LevelRepair:
         x = np.bincount(L.dst, weights=f, minlength=k)
         return p, f, x, I2 > c.engage_min_mass, I2
 
+    def _takes(self, d: int, need: float, f: list, free: list) -> list | None:
+        """The defenders that fill target d's gap of `need`: [(m, e, m_in, amount), ...], each
+        taken from move m (to cell e, not d) of the source of a move m_in into d, in the order of
+        self.feeds[d], at most f[m] and e's free count free[e] (taken off free). None, with free
+        as it was, when all of them fall short of need."""
+        takes, got = [], 0.0
+        for m_in, outs in self.feeds[d]:
+            for m, e in outs:
+                if f[m] <= 0.0:
+                    continue
+                amount = min(f[m], free[e], need - got)
+                if amount > 0.0:
+                    takes.append((m, e, m_in, amount))
+                    free[e] -= amount
+                    got += amount
+                if got >= need:
+                    break
+            if got >= need:
+                break
+        if got < need:
+            for _, e, _, amount in takes:
+                free[e] += amount
+            return None
+        return takes
+
     def __call__(self, obs, action) -> np.ndarray:
         """The repaired action: obs (2 N^2,) [D, I], action (A,) -> (A,) float32 in [-1, 1]."""
         L, lo = self.layout, self.levels.lo
@@ -144,23 +169,8 @@ class LevelRepair:
             need = lo_list[i] - x[d] + 1e-9
             if need > max(tol, rel * lo_list[i]):
                 continue
-            takes, got = [], 0.0
-            for m_in, outs in self.feeds[d]:
-                for m, e in outs:
-                    if f[m] <= 0.0:
-                        continue
-                    amount = min(f[m], free[e], need - got)
-                    if amount > 0.0:
-                        takes.append((m, e, m_in, amount))
-                        free[e] -= amount
-                        got += amount
-                    if got >= need:
-                        break
-                if got >= need:
-                    break
-            if got < need:  # not filled whole: nothing moves
-                for _, e, _, amount in takes:
-                    free[e] += amount
+            takes = self._takes(d, need, f, free)
+            if takes is None:  # not filled whole: nothing moves
                 continue
             for m, e, m_in, amount in takes:
                 f[m] -= amount

@@ -118,7 +118,7 @@ class CellNet(nn.Module):
         self.use(n, teams)
         self.latent_dim_pi = len(self.index)
 
-    def use(self, n: int, teams: tuple[int, int]) -> "CellNet":
+    def use(self, n: int, teams: tuple[int, int]) -> CellNet:
         """Act on the map of grid side n and teams (n_defenders, n_intruders) from now on; returns self."""
         key = (int(n), int(teams[0]), int(teams[1]))
         if key not in self._maps:

@@ -4,16 +4,14 @@ every default in one place (docs/training.md shows a config)."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from workers.errors import is_number
-
 from farm.alloc.config import AllocConfig
 from farm.alloc.scenarios import SCENARIOS
+from farm.core.checks import flag, is_finite_number, is_whole, whole
 from farm.core.config import ConfigError, Strict, load_yaml_model
 from farm.core.tracking import TrackingParams
 
@@ -33,16 +31,36 @@ POLICY_KWARGS = {
             "log_std_init", "ortho_init", "full_std", "use_expln", "squash_output"),
 }
 # CellPolicy's (farm.alloc.training.cell_policy, PPO only): its sizes and ActorCriticPolicy's plain values
-CELL_POLICY_KWARGS = ("channels", "layers", "positions", "lateral", "balance", "log_std_init", "ortho_init", "optimizer_kwargs")
+CELL_POLICY_KWARGS = ("channels", "layers", "positions", "lateral", "balance", "log_std_init", "ortho_init",
+                      "optimizer_kwargs")
 ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu")  # torch.nn's ReLU, Tanh, ELU, LeakyReLU, GELU
 
 
-def _whole(x) -> bool:
-    return is_number(x) and isinstance(x, int)
+def _check_net_arch(sizes) -> None:
+    """ValueError unless sizes, policy_kwargs' net_arch, is None, a list of layer sizes (whole
+    numbers >= 1), or a mapping of pi, qf and vf to such lists."""
+    layers = ([] if sizes is None else sizes.values() if isinstance(sizes, dict) and set(sizes) <= {"pi", "qf", "vf"}
+              else [sizes])
+    for layer in layers:
+        if not isinstance(layer, list) or not all(is_whole(x, numpy=False) and x >= 1 for x in layer):
+            raise ValueError(f"net_arch: must be a list of layer sizes >= 1 (or {{pi: [...], qf: [...]}}, vf for ppo), "
+                             f"got {sizes!r}")
 
 
-def _number(x) -> bool:
-    return is_number(x) and math.isfinite(x)
+def _check_adam(adam) -> None:
+    """ValueError unless adam, policy_kwargs' optimizer_kwargs, is a mapping of Adam's betas (two
+    numbers in [0, 1)), eps and weight_decay (numbers >= 0) and amsgrad (true or false)."""
+    if not isinstance(adam, dict) or not set(adam) <= {"betas", "eps", "weight_decay", "amsgrad"}:
+        raise ValueError(f"optimizer_kwargs: must be a mapping of Adam's betas, eps, weight_decay or amsgrad, "
+                         f"got {adam!r}")
+    betas = adam.get("betas", (0.9, 0.999))
+    if not (isinstance(betas, (list, tuple)) and len(betas) == 2
+            and all(is_finite_number(b) and 0 <= b < 1 for b in betas)):
+        raise ValueError(f"optimizer_kwargs.betas: must be two numbers in [0, 1), got {betas!r}")
+    for name in ("eps", "weight_decay"):
+        if name in adam and not (is_finite_number(adam[name]) and adam[name] >= 0):
+            raise ValueError(f"optimizer_kwargs.{name}: must be a number >= 0, got {adam[name]!r}")
+    flag("optimizer_kwargs.amsgrad", adam.get("amsgrad", False), error=ValueError)
 
 
 def _check_policy_kwargs(v: dict, algo: str, policy: str = "MlpPolicy") -> dict:
@@ -54,37 +72,20 @@ def _check_policy_kwargs(v: dict, algo: str, policy: str = "MlpPolicy") -> dict:
         what = "CellPolicy" if policy == "CellPolicy" else f"{algo.upper()} policy"
         raise ValueError(f"{unknown[0]}: not a {what} argument a config can set (choose from {', '.join(allowed)})")
     for name in ("channels", "layers"):
-        if name in v and not (_whole(v[name]) and 1 <= v[name] <= 512):
+        if name in v and not (is_whole(v[name], numpy=False) and 1 <= v[name] <= 512):
             raise ValueError(f"{name}: must be a whole number from 1 to 512, got {v[name]!r}")
-    for name in ("positions", "lateral", "balance", "share_features_extractor", "normalize_images", "ortho_init", "full_std", "use_expln",
-                 "squash_output"):
-        if name in v and not isinstance(v[name], bool):
-            raise ValueError(f"{name}: must be true or false, got {v[name]!r}")
-    sizes = v.get("net_arch")
-    layers = ([] if sizes is None else sizes.values() if isinstance(sizes, dict) and set(sizes) <= {"pi", "qf", "vf"}
-              else [sizes])
-    for layer in layers:
-        if not isinstance(layer, list) or not all(_whole(x) and x >= 1 for x in layer):
-            raise ValueError(f"net_arch: must be a list of layer sizes >= 1 (or {{pi: [...], qf: [...]}}, vf for ppo), "
-                             f"got {sizes!r}")
-    if "n_critics" in v and not (_whole(v["n_critics"]) and v["n_critics"] >= 1):
-        raise ValueError(f"n_critics: must be a whole number >= 1, got {v['n_critics']!r}")
-    adam = v.get("optimizer_kwargs") or {}
-    if not isinstance(adam, dict) or not set(adam) <= {"betas", "eps", "weight_decay", "amsgrad"}:
-        raise ValueError(f"optimizer_kwargs: must be a mapping of Adam's betas, eps, weight_decay or amsgrad, "
-                         f"got {adam!r}")
-    betas = adam.get("betas", (0.9, 0.999))
-    if not (isinstance(betas, (list, tuple)) and len(betas) == 2 and all(_number(b) and 0 <= b < 1 for b in betas)):
-        raise ValueError(f"optimizer_kwargs.betas: must be two numbers in [0, 1), got {betas!r}")
-    for name in ("eps", "weight_decay"):
-        if name in adam and not (_number(adam[name]) and adam[name] >= 0):
-            raise ValueError(f"optimizer_kwargs.{name}: must be a number >= 0, got {adam[name]!r}")
-    if not isinstance(adam.get("amsgrad", False), bool):
-        raise ValueError(f"optimizer_kwargs.amsgrad: must be true or false, got {adam['amsgrad']!r}")
+    for name in ("positions", "lateral", "balance", "share_features_extractor", "normalize_images", "ortho_init",
+                 "full_std", "use_expln", "squash_output"):
+        if name in v:
+            flag(name, v[name], error=ValueError)
+    _check_net_arch(v.get("net_arch"))
+    if "n_critics" in v:
+        whole("n_critics", v["n_critics"], 1, error=ValueError)
+    _check_adam(v.get("optimizer_kwargs") or {})
     if "activation_fn" in v and v["activation_fn"] not in ACTIVATIONS:
         raise ValueError(f"activation_fn: must be one of {', '.join(ACTIVATIONS)}, got {v['activation_fn']!r}")
     for name in ("log_std_init", "clip_mean"):
-        if name in v and not _number(v[name]):
+        if name in v and not is_finite_number(v[name]):
             raise ValueError(f"{name}: must be a number, got {v[name]!r}")
     return v
 
@@ -378,7 +379,7 @@ class TrainConfig(Strict):
         maps = self.pretrain.maps if self.pretrain is not None else []
         return [self.env, *(m.config(games=self.env.games, seed=self.env.seed) for m in maps)]
 
-    def with_timesteps(self, n: int) -> "TrainConfig":
+    def with_timesteps(self, n: int) -> TrainConfig:
         """This config with the learner's n_timesteps set to n."""
         return self.model_copy(update={self.algo: self.learner.model_copy(update={"n_timesteps": n})})
 
@@ -400,7 +401,8 @@ def check_trainable(config: TrainConfig) -> None:
     if starts is not None and starts >= config.learner.n_timesteps:
         field = f"{config.algo}.learning_starts"
         raise ConfigError(f"{field}: {starts} steps of random actions before the first update, but "
-                          f"{config.algo}.n_timesteps is {config.learner.n_timesteps}: the model would never be updated",
+                          f"{config.algo}.n_timesteps is {config.learner.n_timesteps}: "
+                          "the model would never be updated",
                           field=field)
 
 

@@ -95,7 +95,8 @@ class RunState:
         e.evaluations_results = list(history["results"])
         e.evaluations_length = list(history["ep_lengths"])
         e.best_mean_reward, e.last_mean_reward = history["best_mean_reward"], history["last_mean_reward"]
-        e.n_calls = state["steps"] // self.n_envs  # a call per vector step: it evaluates where an uninterrupted run does
+        # a call per vector step: it evaluates where an uninterrupted run does
+        e.n_calls = state["steps"] // self.n_envs
         if e.log_path is not None:  # the stopped part's later evaluations go: the resumed run redoes them
             if e.evaluations_timesteps:  # EvalCallback's own layout
                 np.savez(e.log_path, timesteps=e.evaluations_timesteps, results=e.evaluations_results,

@@ -40,7 +40,7 @@ class MlflowRun:
         self.eval_logger = EvalLogger(self)  # the run's EvalCallback's callback_after_eval (its parent then)
 
     @classmethod
-    def open(cls, config, run_dir, resume: bool) -> "MlflowRun":
+    def open(cls, config, run_dir, resume: bool) -> MlflowRun:
         """The MLflow run of config (a TrainConfig with tracking.mlflow set) training into
         run_dir: on resume the one run_dir's RUN_FILE names (when it is on the same tracking
         URI and not deleted), else a new one (its id written to RUN_FILE); the config's params

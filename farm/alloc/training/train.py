@@ -10,6 +10,7 @@ import shutil
 import sys
 import zipfile
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -172,11 +173,43 @@ def _eval_envs(config: TrainConfig, client):
 
 def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list,
            tracker=None, on_pretrain=None) -> dict:
+    """The training on client's statistics into run_dir: its model and envs made or resumed
+    (_start), its steps learned (_run_steps), then the model kept and the metrics written
+    (_finish); returns the metrics."""
+    training = _start(config, run_dir, resume, show_progress, client, tracker, on_pretrain)
+    _run_steps(training, config, run_dir, show_progress, extra)
+    return _finish(training, config, run_dir)
+
+
+@dataclass
+class _Training:
+    """A training's model and what its steps go through: model (SB3's), env (the VecEnv trained
+    on), train_env (the env whose state a checkpoint keeps), evaluation (the periodic
+    EvalCallback), timer (UpdateTimer), state (the RunState checkpoints save), done_steps (the
+    steps of the checkpoint resumed from, else 0), resumed (whether it goes on from a
+    checkpoint), pretrained (pretrain's outcome when it pretrained now, else None)."""
+
+    model: object
+    env: object
+    train_env: object
+    evaluation: EvalCallback
+    timer: UpdateTimer
+    state: RunState
+    done_steps: int
+    resumed: bool
+    pretrained: object
+
+
+def _start(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, tracker,
+           on_pretrain) -> _Training:
+    """The training ready for its steps: the lattice warmed (service.warm_lattice), the envs,
+    the periodic evaluation (each logged to tracker's MLflow run as it is made), and the model:
+    resumed from run_dir's newest checkpoint that loads (with resume), else a new one, pretrained
+    when the config has `pretrain:` and that pretraining evaluated first in the curve."""
     if config.service.warm_lattice:
         warm_lattices(client, lattice_groups(config.envs()), show_progress)
     env, train_env, monitor = training_envs(config, client)
     eval_vec, eval_env = _eval_envs(config, client)
-    p = config.learner
     timer = UpdateTimer()
     evaluation = EvalCallback(eval_vec, eval_freq=max(1, config.eval.freq // config.n_envs),
                               n_eval_episodes=config.eval.episodes, log_path=str(run_dir),
@@ -197,53 +230,68 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         if config.pretrain is not None:
             pretrained = pretrain(model, config, client, run_dir, show_progress=show_progress, on_progress=on_pretrain)
             _evaluate_pretrained(model, evaluation, eval_vec, config, run_dir)
-    remaining = max(0, p.n_timesteps - done_steps)
+    return _Training(model, env, train_env, evaluation, timer, state, done_steps, bool(checkpoint), pretrained)
+
+
+def _run_steps(training: _Training, config: TrainConfig, run_dir: Path, show_progress: bool, extra: list) -> None:
+    """The model's steps up to the learner's n_timesteps, through the run's callbacks (the
+    update timer, the divergence guard, the evaluation, the checkpoints, the progress bar) and
+    then extra. A divergence (a non-finite action, loss or parameter) is a TrainingDiverged
+    naming the step, and the run folder is marked diverged."""
+    t, p = training, config.learner
     callbacks = CallbackList([
-        timer,  # first: it times the updates alone
+        t.timer,  # first: it times the updates alone
         DivergenceGuard(),  # next: no evaluation or checkpoint sees a step or an update it refuses
-        evaluation,
-        Checkpointer(run_dir, config.checkpoint_freq, state, done_steps),
-        StepProgress(p.n_timesteps, done_steps, show_progress),
+        t.evaluation,
+        Checkpointer(run_dir, config.checkpoint_freq, t.state, t.done_steps),
+        StepProgress(p.n_timesteps, t.done_steps, show_progress),
         *extra,
     ])
     try:
         try:
-            model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=not checkpoint,
-                        tb_log_name=config.algo, log_interval=config.log_interval)
+            t.model.learn(total_timesteps=max(0, p.n_timesteps - t.done_steps), callback=callbacks,
+                          reset_num_timesteps=not t.resumed, tb_log_name=config.algo,
+                          log_interval=config.log_interval)
         except ActionError as e:  # the env refuses a non-finite action before the guard sees it
-            raise TrainingDiverged(f"training diverged at step {model.num_timesteps + 1}: the policy's action is "
+            raise TrainingDiverged(f"training diverged at step {t.model.num_timesteps + 1}: the policy's action is "
                                    f"not finite (lower {config.algo}.learning_rate?): {e}") from None
     except TrainingDiverged as e:  # the folder says so, for farm report and whoever looks
         RunFolder(run_dir).mark_diverged(str(e))
         raise
-    wall = timer.wall_seconds  # the whole run's, as the other figures: a resumed run's earlier parts too
+
+
+def _finish(training: _Training, config: TrainConfig, run_dir: Path) -> dict:
+    """The trained run's files: model.zip (the best evaluated model with `keep: best` when it
+    beats the last, else the last), metrics.json and training_curve.png; returns the metrics."""
+    t = training
+    wall = t.timer.wall_seconds  # the whole run's, as the other figures: a resumed run's earlier parts too
     run = RunFolder(run_dir)
     best = run_dir / "best" / "best_model.zip"
     kept = "final"
-    if config.keep == "best" and best.exists() and evaluation.best_mean_reward > evaluation.last_mean_reward:
+    if config.keep == "best" and best.exists() and t.evaluation.best_mean_reward > t.evaluation.last_mean_reward:
         shutil.copyfile(best, run.model_path())
         kept = "best"
     else:
-        model.save(run.model_path())
+        t.model.save(run.model_path())
     evals = run.evaluations()
     steps, results = evals if evals is not None else (None, None)
-    previous = run.read_metrics() if checkpoint else None  # a resumed run keeps its pretraining's figures
+    previous = run.read_metrics() if t.resumed else None  # a resumed run keeps its pretraining's figures
     metrics = RunMetrics(**{
         "name": config.name,
         "algo": config.algo,
-        "timesteps": int(model.num_timesteps),
-        "resumed_from": done_steps if checkpoint else None,
+        "timesteps": int(t.model.num_timesteps),
+        "resumed_from": t.done_steps if t.resumed else None,
         "wall_seconds": wall,
-        "steps_per_second": model.num_timesteps / wall if wall > 0 else None,
-        "update_seconds": timer.update_seconds,
-        "outside_update_share": 1 - timer.update_seconds / wall if wall > 0 else None,
-        "engagements": train_env.engagements,  # engaged cells of the training steps
-        "estimated_share": train_env.estimated / train_env.engagements if train_env.engagements else 0.0,
+        "steps_per_second": t.model.num_timesteps / wall if wall > 0 else None,
+        "update_seconds": t.timer.update_seconds,
+        "outside_update_share": 1 - t.timer.update_seconds / wall if wall > 0 else None,
+        "engagements": t.train_env.engagements,  # engaged cells of the training steps
+        "estimated_share": t.train_env.estimated / t.train_env.engagements if t.train_env.engagements else 0.0,
         "final_eval_mean_return": float(results[-1].mean()) if evals is not None else None,
         "final_eval_std_return": float(results[-1].std()) if evals is not None else None,
         "best_eval_mean_return": float(results.mean(axis=1).max()) if evals is not None else None,
         "kept": kept,
-        **_pretrain_metrics(pretrained, previous, evals),
+        **_pretrain_metrics(t.pretrained, previous, evals),
     })
     run.write_metrics(metrics)
     if evals is not None:

@@ -31,6 +31,7 @@ VARIABLE_FIELDS = tuple(name for name in GAME_FIELDS if name not in ("arena", "l
 class RandomModel(Strict):
     """`vary.random`: n seeded draws, each field uniform in its [low, high] range (for an int
     field, the whole numbers in it: a range holding none is refused)."""
+
     n: int = Field(ge=1, le=100_000)  # how many random draws (points of this axis)
     ranges: dict[str, tuple[float, float]]  # numeric Case field -> [low, high], drawn uniformly
 
@@ -49,7 +50,9 @@ class RandomModel(Strict):
 
 
 class VaryModel(Strict):
-    """`vary`: what changes between points, `grid` (cartesian product), `zip` (lists in step) and `random`; their product."""
+    """`vary`: what changes between points, `grid` (cartesian product), `zip` (lists in step) and
+    `random`; their product."""
+
     grid: dict[str, list[Any]] | None = None  # Case field -> values: one axis per field (cartesian product)
     zip: dict[str, list[Any]] | None = None  # Case field -> values: lists of one length, taken in step
     random: RandomModel | None = None  # n seeded uniform draws of numeric fields (one axis)
@@ -95,6 +98,8 @@ def varied_names(vary: dict) -> list[str]:
 class SweepConfig(Strict):
     """A sweep config: name, seed, games per point, shard size, the base game and what varies.
 
+    One reads, for example:
+
         name: team-sizes
         seed: 0
         games_per_point: 50
@@ -110,6 +115,7 @@ class SweepConfig(Strict):
           zip: {capture_radius: [0.2, 0.3], dt: [0.01, 0.005]}     # lists in step
           random: {n: 8, ranges: {capture_radius: [0.1, 0.5]}}     # n uniform draws
     """
+
     # the sweep's name: its metrics' label and the default output folder, results/sweeps/NAME
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
     seed: int = Field(0, ge=0)  # game g of every point is seeded (seed, g); also seeds vary.random
@@ -150,7 +156,7 @@ class SweepConfig(Strict):
         """How many points the sweep has, without planning them."""
         return math.prod(len(axis) for axis in self._axes())
 
-    def point(self, index: int, axes: list[list[dict]] | None = None) -> "Point":
+    def point(self, index: int, axes: list[list[dict]] | None = None) -> Point:
         """Point `index` (0 <= index < count()) alone; ConfigError naming it when its case is bad."""
         axes = self._axes() if axes is None else axes
         changes: dict = {}
@@ -171,7 +177,7 @@ class SweepConfig(Strict):
             raise ConfigError(f"{prefix}: {e}") from None
         return Point(index, changes, case, self.games_per_point, self.shard_games or games_per_shard(case))
 
-    def points(self) -> list["Point"]:
+    def points(self) -> list[Point]:
         """The resolved points of the sweep, in a fixed order (every grid combination, zip row
         and random draw; the last block varying fastest)."""
         axes = self._axes()
@@ -199,7 +205,7 @@ class SweepConfig(Strict):
         return JobSize("sweep", total, "point", total * self.games_per_point, mean * total * self.games_per_point,
                        total * ITEM_BYTES)
 
-    def sweep_id(self, points: list["Point"] | None = None) -> str:
+    def sweep_id(self, points: list[Point] | None = None) -> str:
         """Hash of the resolved sweep: every point's case key (engine version inside), games,
         shards, the seed and the seeding rule. points: self.points() when already made."""
         points = self.points() if points is None else points

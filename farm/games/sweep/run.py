@@ -40,6 +40,7 @@ from farm.games.sweep.config import FULL_CHECK_POINTS, Point, SweepConfig
 @dataclass(frozen=True)
 class Shard:
     """One shard of a sweep: games start..stop-1 of point `point`, its `number`-th."""
+
     point: int
     number: int
     start: int
@@ -127,12 +128,14 @@ class SweepRun:
         """ConfigError unless the folder has shards and every one carries this sweep's id."""
         files = sorted(self.shard_dir.glob("*.parquet")) if self.shard_dir.is_dir() else []
         if not files:
-            raise ConfigError(f"out: {self.out} has no shards to rebuild sweep.json from; choose another folder", field="out")
+            raise ConfigError(f"out: {self.out} has no shards to rebuild sweep.json from; choose another folder",
+                              field="out")
         for path in files:
             try:
                 meta = pq.read_schema(path).metadata or {}
             except (OSError, pa.ArrowInvalid) as e:
-                raise ConfigError(f"out: {path} is unreadable ({type(e).__name__}); delete it and rerun", field="out") from None
+                raise ConfigError(f"out: {path} is unreadable ({type(e).__name__}); delete it and rerun",
+                                  field="out") from None
             found = meta.get(SWEEP_ID_KEY.encode(), b"").decode()
             if not found:
                 raise ConfigError(f"out: {path} carries no sweep id (written before swarm-farm 0.3): sweep.json "

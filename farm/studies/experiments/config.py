@@ -30,9 +30,11 @@ class ExperimentConfig(StrictFile):
     overrides: dict[str, Any] = {}  # dotted TrainConfig field -> value, set in every trial
     grid: dict[str, list[Any]] = {}  # dotted TrainConfig field -> values: the points, a cartesian product
     seeds: list[int]  # each (point, seed) is one trial, its TrainConfig.seed
-    episodes: int = Field(10, ge=1, le=100_000)  # evaluation episodes: each trial's model, the baselines and the planners
+    # evaluation episodes: each trial's model, the baselines and the planners
+    episodes: int = Field(10, ge=1, le=100_000)
     eval_seed: int = Field(1000, ge=0)  # evaluation episodes are seeded eval_seed .. eval_seed + episodes - 1
-    store: str | None = Field(None, min_length=1)  # the capture-time store every trial shares; None: default_store_path()
+    # the capture-time store every trial shares; None: default_store_path()
+    store: str | None = Field(None, min_length=1)
     tracking: TrackingParams = TrackingParams()  # MLflow: a run per trial (farm.core.tracking); not in the digest
 
     @field_validator("seeds")
@@ -101,7 +103,8 @@ def field_problem(path: str) -> str | None:
         fields = model.model_fields
         if part not in fields:
             where = ".".join(parts[:depth]) or "a training config"
-            return f"not a field of {where} (choose from {', '.join(f for f in fields if depth or f not in RESERVED_FIELDS)})"
+            choices = ", ".join(f for f in fields if depth or f not in RESERVED_FIELDS)
+            return f"not a field of {where} (choose from {choices})"
         model = fields[part].annotation
         if typing.get_origin(model) in (typing.Union, types.UnionType):  # an optional section (pretrain)
             models = [a for a in typing.get_args(model) if isinstance(a, type) and issubclass(a, BaseModel)]

@@ -52,15 +52,31 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
     ConfigError (one line) for bad input before Ray starts; ExperimentError naming the first
     trial that failed (after the tables of the others are written).
     """
-    from farm.runtime import check_workers, starts_local_ray
-    from farm.service.client import open_client
+    the_plan, storage, tracker, before = _prepare(config, out, source, workers, warm)
+    info: dict = {"trials": len(the_plan.trials), "finished_before": len(before), "warmed_cases": 0}
+    t0 = time.perf_counter()
+    results = _run_trials(the_plan, storage, tracker, before, info, address=address, workers=workers, warm=warm,
+                          show_progress=show_progress)
+    info["seconds"] = time.perf_counter() - t0
+    trials, summary = _write_results(the_plan, storage, info)
+    info["tune_finished"] = sum(1 for r in results if r.error is None and (r.metrics or {}).get("phase") == "done")
+    _raise_failures(results, len(trials), len(the_plan.trials))
+    return trials, summary, info
+
+
+def _prepare(config: ExperimentConfig, out, source: str, workers: int | None, warm: bool):
+    """(plan, storage, MLflow callback or None, keys of the trials finished before): the
+    experiment planned, its storage checked to hold this experiment or none (its digest) and its
+    manifest written; all before Ray starts, so that bad input (workers, a folder that cannot be
+    written, a store MLflow refuses) is one line. Without warm, no trial warms the lattice."""
+    from farm.runtime import check_workers
 
     check_workers(workers)
     if not is_uri(out):
         check_writable_folder(out, "out")  # before Ray, the lattice and the trials
     the_plan = plan(config, source)
     storage = ExperimentStorage(out)
-    tracker = _mlflow_callback(config, the_plan.name, storage)  # before Ray starts: a store MLflow refuses is one line
+    tracker = _mlflow_callback(config, the_plan.name, storage)
     if not warm:
         for t in the_plan.trials:
             t.config["service"]["warm_lattice"] = False
@@ -69,9 +85,21 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
                             "config": config.model_dump(mode="json", exclude_unset=True), "store": the_plan.store,
                             "fields": the_plan.fields, "trials": manifest_trials(the_plan)})
     before = [t.key for t in the_plan.trials if storage.finished(t.key)]
+    return the_plan, storage, tracker, before
+
+
+def _run_trials(the_plan: Plan, storage: ExperimentStorage, tracker, before: list, info: dict, *,
+                address: str | None, workers: int | None, warm: bool, show_progress: bool):
+    """The Tune experiment's ResultGrid, run (or resumed) on one capture-time service actor over
+    the plan's store: the lattice of every trial's maps warmed first while a trial is left to run
+    (unless warm is False), then the trials, `workers` at a time (default: the cluster's CPUs),
+    the CPUs shared between them (trial_cpus). Adds warmed_cases, warm_seconds, workers,
+    trial_cpus, cluster_cpus and started to info."""
+    from farm.runtime import starts_local_ray
+    from farm.service.client import open_client
+
     starts_ray = starts_local_ray(address)
     first = the_plan.trials[0].config["env"]
-    info: dict = {"trials": len(the_plan.trials), "finished_before": len(before), "warmed_cases": 0}
     t0 = time.perf_counter()
     with open_client(AllocConfig(**first).game_settings(), mode="ray", store=the_plan.store, address=address,
                      num_cpus=max(2, workers or 2) if starts_ray else None) as client:
@@ -94,7 +122,13 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
             PROGRESS.pop("display", None)
             display.close()
         info["started"] = len(display.started_keys)
-    info["seconds"] = time.perf_counter() - t0
+    return results
+
+
+def _write_results(the_plan: Plan, storage: ExperimentStorage, info: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(trials, summary): the finished trials' tables, the claims over the seeds and the learning
+    curves, written into a stage and published to the storage together. Adds claims,
+    learning_curves and written (where they are in the storage) to info."""
     with storage.staged() as stage:
         storage.stage_results(stage, [t.key for t in the_plan.trials])
         trials = trials_table(the_plan, stage)
@@ -106,16 +140,20 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
     info["claims"] = [storage.where(p.name) for p in found["claims"]]
     info["learning_curves"] = None if found["learning_curves"] is None else storage.where(found["learning_curves"].name)
     info["written"] = [storage.where(name) for name in files]
+    return trials, summary
+
+
+def _raise_failures(results, finished: int, planned: int) -> None:
+    """ExperimentError naming the first trial that failed, or, when fewer than planned trials
+    finished (Tune was stopped, Ctrl+C; its state is saved), how many are left."""
     errors = [(r.error, r.path) for r in results if r.error is not None]
-    info["tune_finished"] = sum(1 for r in results if r.error is None and (r.metrics or {}).get("phase") == "done")
     if errors:
         error, path = errors[0]
         problem = (str(error).strip().splitlines() or [type(error).__name__])[-1]
         raise ExperimentError(f"trial {Path(path).name} failed ({len(errors)} of {len(results)} failed): {problem}")
-    if len(trials) < len(the_plan.trials):  # Tune was stopped (Ctrl+C): its state is saved
-        raise ExperimentError(f"{len(the_plan.trials) - len(trials)} of {len(the_plan.trials)} trials unfinished "
+    if finished < planned:
+        raise ExperimentError(f"{planned - finished} of {planned} trials unfinished "
                               f"(interrupted); run the same command again to go on")
-    return trials, summary, info
 
 
 def _write_claims_and_curves(out: Path) -> dict:
@@ -180,8 +218,8 @@ def _tuner(tune, trainable, plan: Plan, storage: ExperimentStorage, path: str, r
         tuner = tune.Tuner(
             trainable,
             param_space={"spec": tune.grid_search(specs)},
-            tune_config=tune.TuneConfig(max_concurrent_trials=workers, reuse_actors=True, trial_dirname_creator=trial_dirname,
-                                        trial_name_creator=trial_dirname),
+            tune_config=tune.TuneConfig(max_concurrent_trials=workers, reuse_actors=True,
+                                        trial_dirname_creator=trial_dirname, trial_name_creator=trial_dirname),
             run_config=tune.RunConfig(name=TUNE_DIR, storage_path=root, storage_filesystem=filesystem,
                                       failure_config=tune.FailureConfig(max_failures=MAX_FAILURES),
                                       checkpoint_config=tune.CheckpointConfig(num_to_keep=2),

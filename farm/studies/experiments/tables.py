@@ -11,8 +11,8 @@ from farm.core.stats import ci_columns, format_ci
 from farm.studies.experiments.folder import ExperimentFolder
 from farm.studies.experiments.plan import Plan
 
-__all__ = ["LEARNED", "trials_table", "summary_table", "summary_view", "format_summary", "manifest_trials", "TIMING_COLUMNS",
-           "METRICS_COLUMNS"]
+__all__ = ["LEARNED", "trials_table", "summary_table", "summary_view", "format_summary", "manifest_trials",
+           "TIMING_COLUMNS", "METRICS_COLUMNS"]
 
 TIMING_COLUMNS = ("wall_seconds", "steps_per_second", "update_seconds", "outside_update_share", "train_seconds",
                   "evaluate_seconds")
@@ -60,7 +60,6 @@ def summary_view(summary: pd.DataFrame) -> pd.DataFrame:
     """summary.csv as shown (format_summary, farm report): point, the point's fields, seeds,
     the learner's return and eliminated as `mean ± CI` strings, and the baseline or planner eliminating
     the most (`name value`); an empty frame for an empty summary."""
-
     if summary.empty:
         return pd.DataFrame()
     fields = list(summary.columns[1: list(summary.columns).index("seeds") + 1])
@@ -71,7 +70,8 @@ def summary_view(summary: pd.DataFrame) -> pd.DataFrame:
     others = [c[: -len("_eliminated")] for c in summary.columns if c.endswith("_eliminated")]
     if others:
         best = [max(others, key=lambda n: r[f"{n}_eliminated"]) for _, r in summary.iterrows()]
-        view["best other (eliminated)"] = [f"{n} {r[f'{n}_eliminated']:.3f}" for n, (_, r) in zip(best, summary.iterrows())]
+        view["best other (eliminated)"] = [f"{n} {r[f'{n}_eliminated']:.3f}"
+                                           for n, (_, r) in zip(best, summary.iterrows())]
     return view
 
 

@@ -33,8 +33,8 @@ _MAX_METRICS = 1000  # and most metrics
 def report_metrics(result: dict) -> dict[str, float]:
     """A Tune report's numbers as MLflow metrics: flattened by "/", bools as 0/1, its config
     and what is not a real number (text, None, lists) left out."""
-    return {key: float(value) for key, value in flattened({k: v for k, v in result.items() if k != "config"}, "/").items()
-            if isinstance(value, (numbers.Real, np.bool_))}
+    values = flattened({k: v for k, v in result.items() if k != "config"}, "/")
+    return {key: float(value) for key, value in values.items() if isinstance(value, (numbers.Real, np.bool_))}
 
 
 class TrialRuns(LoggerCallback):
@@ -83,7 +83,8 @@ class TrialRuns(LoggerCallback):
         again). Trial names are the plan's keys (p0_s1) and the instance is hex: safe in a filter;
         the storage is compared here."""
         runs = self.client.search_runs(
-            [self._experiment_id], filter_string=f"tags.`farm.trial` = '{name}' and tags.`farm.instance` = '{self.instance}'",
+            [self._experiment_id],
+            filter_string=f"tags.`farm.trial` = '{name}' and tags.`farm.instance` = '{self.instance}'",
             order_by=["attributes.start_time DESC"])
         mine = [r for r in runs if r.data.tags.get("farm.storage") == self.storage]
         return mine[0] if mine else None

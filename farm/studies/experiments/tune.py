@@ -33,6 +33,8 @@ class PretrainReport:
         self.run_dir = Path(run_dir)
 
     def __call__(self, episodes: int, total: int, saved: int | None) -> None:
+        """Report the pretraining's progress to Tune: episodes of total labelled so far, and when
+        iteration `saved` is saved (saved not None), a checkpoint of the run folder with it."""
         from farm.studies.experiments.storage import checkpoint_run
 
         metrics = {"phase": "pretrain", "pretrain_episodes": episodes, "pretrain_episodes_total": total,

@@ -100,7 +100,9 @@ class SuiteConfig(StrictFile):
 
     def policy_names(self) -> list[str]:
         """The baselines and planners run, in order (all of them when the config names none)."""
-        return list(self.policies) if self.policies is not None else policy_names(("baseline", "planner"), references=True)
+        if self.policies is not None:
+            return list(self.policies)
+        return policy_names(("baseline", "planner"), references=True)
 
     def env_of(self, scenario: str) -> AllocConfig:
         """The env settings of one scenario in this suite: the scenario's, `env` replacing them.

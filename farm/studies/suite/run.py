@@ -16,6 +16,7 @@ from farm.alloc.lattice import lattice_groups, warm_lattices
 from farm.alloc.policies import PolicySpec, make_policy, policy_entry
 from farm.alloc.runs import RunFolder
 from farm.alloc.scenarios import SCENARIOS
+from farm.core.checks import whole
 from farm.core.errors import ConfigError
 from farm.core.output import check_writable_folder
 from farm.studies.suite.config import SuiteConfig
@@ -85,30 +86,58 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
     check them). A project error raised in a task (e.g. a planner's InputError) is raised
     here as the same class, one line naming the scenario and the policy.
     """
-    from farm.core.output import write_table
-    from farm.core.progress import GameProgress
-    from farm.runtime import bounded, check_workers, starts_local_ray, tasks_in_flight
-    from farm.service.client import open_client
     from farm.service.store import default_store_path
 
-    if episodes is not None:
-        if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-            raise ConfigError(f"episodes: must be a whole number >= 1, got {episodes!r}", field="episodes")
-        config = config.model_copy(update={"episodes": episodes})
-    check_workers(workers)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"out: {out} exists and is not a folder", field="out")
-    check_writable_folder(out, "out")  # before the lattice and the episodes, not after them
+    config, out = _checked(config, out, episodes, workers)
     envs, jobs, skipped = _plan(config)
     _check_planners(jobs, envs)
     for scenario, path in skipped.items():
         print(f"farm suite: runs.{scenario}: {path} holds no trained model yet; skipped", file=sys.stderr)
     store = Path(config.store or default_store_path())
-    first = next(iter(envs.values()))
-    starts_ray = starts_local_ray(address)
     tasks = matchup_tasks([_cost(envs[scenario]) for scenario, _ in jobs], config.episodes)
     info: dict = {"tasks": len(tasks), "cells": len(jobs), "skipped_runs": skipped, "warmed_cases": 0}
+    t0 = time.perf_counter()
+    results = _play_matchups(config, envs, jobs, tasks, store, info, address=address, workers=workers, warm=warm,
+                             show_progress=show_progress)
+    rows = [{"scenario": jobs[j][0], "policy": jobs[j][1].name, **row}
+            for j, first, _ in sorted(tasks) for row in results[j, first]]
+    per = pd.DataFrame(rows)
+    board = leaderboard(per)
+    info["seconds"] = time.perf_counter() - t0
+    _write_suite(config, out, board, per, envs, jobs, skipped, store, info)
+    return board, info
+
+
+def _checked(config: SuiteConfig, out, episodes: int | None, workers: int | None) -> tuple[SuiteConfig, Path]:
+    """(config, out as a Path), config's episodes replaced by episodes when given, once episodes,
+    workers and out are checked: ConfigError naming the field, before the lattice and the
+    episodes, not after them (out must be a folder that can be written, or not exist yet)."""
+    from farm.runtime import check_workers
+
+    if episodes is not None:
+        whole("episodes", episodes, 1)
+        config = config.model_copy(update={"episodes": episodes})
+    check_workers(workers)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"out: {out} exists and is not a folder", field="out")
+    check_writable_folder(out, "out")
+    return config, out
+
+
+def _play_matchups(config: SuiteConfig, envs: dict, jobs: list, tasks: list, store: Path, info: dict, *,
+                   address: str | None, workers: int | None, warm: bool, show_progress: bool) -> dict:
+    """Each task's episode rows, {(matchup, first episode): [row, ...]}, played by Ray tasks that
+    share one capture-time service actor over store: the lattice warmed first (unless warm is
+    False), then the tasks, the largest maps first so that the last to finish are short ones, at
+    most tasks_in_flight at a time. Adds warmed_cases, warm_seconds, workers and
+    evaluation_seconds to info."""
+    from farm.core.progress import GameProgress
+    from farm.runtime import bounded, starts_local_ray, tasks_in_flight
+    from farm.service.client import open_client
+
+    first = next(iter(envs.values()))
+    starts_ray = starts_local_ray(address)
     t0 = time.perf_counter()
     with open_client(first.game_settings(), mode="ray", store=store, address=address,
                      num_cpus=workers if starts_ray else None) as client:
@@ -123,7 +152,6 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         n = tasks_in_flight(workers, cpus, address)
         info["workers"] = n
-        # The largest maps first, so that the last tasks to finish are short ones.
         order = sorted(tasks, key=lambda t: -_cost(envs[jobs[t[0]][0]]))
         results: dict[tuple[int, int], list[dict]] = {}
         bar = GameProgress(len(jobs) * config.episodes, enabled=show_progress, desc="episodes", unit="episode")
@@ -141,18 +169,20 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
         finally:
             bar.close()
         info["evaluation_seconds"] = time.perf_counter() - t1
-    rows = [{"scenario": jobs[j][0], "policy": jobs[j][1].name, **row}
-            for j, first, _ in sorted(tasks) for row in results[j, first]]
-    per = pd.DataFrame(rows)
-    board = leaderboard(per)
-    info["seconds"] = time.perf_counter() - t0
+    return results
+
+
+def _write_suite(config: SuiteConfig, out: Path, board: pd.DataFrame, per: pd.DataFrame, envs: dict, jobs: list,
+                 skipped: dict, store: Path, info: dict) -> None:
+    """The suite's files in out: leaderboard.csv, episodes.csv, leaderboard.png and suite.json."""
+    from farm.core.output import write_table
+
     out.mkdir(parents=True, exist_ok=True)
     write_table(board, out / "leaderboard", "csv")
     write_table(per, out / "episodes", "csv")
     plot_leaderboard(board, out / "leaderboard.png", title=f"{config.name}: intruder mass eliminated "
                      f"(mean and 95% CI over {config.episodes} episodes)")
     _write_manifest(config, envs, jobs, skipped, store, info, out / "suite.json")
-    return board, info
 
 
 class _Unasked:

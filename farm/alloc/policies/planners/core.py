@@ -20,6 +20,7 @@ import numpy as np
 from farm.alloc.config import AllocConfig
 from farm.alloc.env import moves
 from farm.alloc.model import LATTICE, EngagementModel, advance_intruders, snap_many
+from farm.core.checks import is_positive, is_whole
 from farm.core.errors import ConfigError, InputError
 
 __all__ = ["Levels", "levels", "action_from_probabilities", "advance_matrix"]
@@ -119,15 +120,14 @@ def levels(config: AllocConfig) -> Levels:
 
 def _positive_number(owner: str, name: str, value) -> float:
     """value as a float if it is a positive finite number (not a bool), else ConfigError naming owner.name."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(value) or value <= 0:
+    if not is_positive(value):
         raise ConfigError(f"{owner}: {name} must be a positive number, got {value!r}")
     return float(value)
 
 
 def _count(owner: str, name: str, value) -> int:
     """value if it is an integer >= 1 (not a bool), else ConfigError naming owner.name."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+    if not is_whole(value) or value < 1:
         raise ConfigError(f"{owner}: {name} must be an integer >= 1, got {value!r}")
     return int(value)
 
@@ -195,7 +195,7 @@ class _Planner:
 
     # ----- the interface -----------------------------------------------------------
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        """The action for an observation, as a trained SB3 model's predict() returns it.
+        """The action for an observation, as a trained SB3 model's predict method returns it.
 
         obs: (2 N^2,) float32 [D, I] -> (action: (A,) float32 in [-1, 1], state). state is
         passed through; episode_start and deterministic are accepted and unused (the
@@ -205,7 +205,8 @@ class _Planner:
         obs = np.asarray(obs, dtype=np.float64)
         k = self.n * self.n
         if obs.shape != (2 * k,) or not np.all(np.isfinite(obs)):
-            raise InputError(f"obs: expected shape ({2 * k},) of finite numbers [D, I], got shape {obs.shape}", field="obs")
+            raise InputError(f"obs: expected shape ({2 * k},) of finite numbers [D, I], got shape {obs.shape}",
+                             field="obs")
         D, I = np.maximum(obs[:k], 0.0), np.maximum(obs[k:], 0.0)
         return action_from_probabilities(self.config, self.probabilities(D, I), self.start, self.src), state
 

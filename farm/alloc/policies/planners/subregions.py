@@ -89,8 +89,8 @@ class SubRegions(_Planner):
 
     name = "subregions"
 
-    def __init__(self, config: AllocConfig, client=None, *, regions: int | None = None, planner: str = "receding_horizon",
-                 options: dict | None = None, workers: int = 1, **unknown):
+    def __init__(self, config: AllocConfig, client=None, *, regions: int | None = None,
+                 planner: str = "receding_horizon", options: dict | None = None, workers: int = 1, **unknown):
         super().__init__(config, client, unknown)
         if regions is None:
             regions = -(-self.n // BAND_ROWS)

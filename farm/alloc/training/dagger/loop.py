@@ -115,7 +115,8 @@ class MoveMap:
         index = self.src.expand(a.shape[0], -1)
         if self.softmax:
             z = self.softmax_beta * a
-            top = torch.full((a.shape[0], self.cells), -torch.inf, dtype=a.dtype).scatter_reduce(1, index, z, reduce="amax")
+            top = torch.full((a.shape[0], self.cells), -torch.inf, dtype=a.dtype).scatter_reduce(1, index, z,
+                                                                                                  reduce="amax")
             z = z - top.gather(1, index)
             total = torch.zeros(a.shape[0], self.cells, dtype=a.dtype).scatter_add(1, index, torch.exp(z))
             return z - torch.log(total.gather(1, index))
