@@ -21,8 +21,18 @@ from gymnasium.error import ResetNeeded
 from pydantic import ValidationError
 
 from farm.alloc.config import AllocConfig
-from farm.alloc.dynamics import (Layout, check_actions, episode_end, move_probabilities, moves, n_actions, observe,
-                                 start_densities, step)
+from farm.alloc.dynamics import (
+    Layout,
+    check_actions,
+    episode_end,
+    move_probabilities,
+    moves,
+    n_actions,
+    observe,
+    start_densities,
+    step,
+)
+from farm.alloc.intruders.play import configured_intruders, intruder_move
 from farm.alloc.model import EngagementModel, row_sums
 from farm.core.config import error_field, first_line
 from farm.core.errors import ConfigError
@@ -225,6 +235,7 @@ class SwarmAllocationEnv(gym.Env):
         self._owns_client = client is None  # close() closes a client the env made, never one it was given
         self.client = env_client(self.config, store) if client is None else client
         self.model = EngagementModel(self.config, self.client, estimates)
+        self.intruders = configured_intruders(self.config)  # None: the drift law
         self.base = self.layout.base
         self.D = np.zeros(n * n)
         self.I = np.zeros(n * n)
@@ -287,7 +298,9 @@ class SwarmAllocationEnv(gym.Env):
         """
         if not self._reset_done:
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
-        r = step(self.layout, self.config, self.model, self.D[None], self.I[None], self.check_action(action)[None])
+        D, I = self.D[None], self.I[None]
+        intruders = intruder_move(self.intruders, self.config.information, D, I)
+        r = step(self.layout, self.config, self.model, D, I, self.check_action(action)[None], intruders)
         self.D, self.I = r.D[0], r.I[0]
         breach, eliminated = float(r.breach[0]), float(r.eliminated[0])
         engaged, estimates = int(r.engaged[0]), int(r.estimates[0])

@@ -26,8 +26,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from farm.alloc.dynamics import Layout, check_actions, episode_end, observe, start_densities, step
+from farm.alloc.dynamics import (
+    Layout,
+    check_actions,
+    episode_end,
+    observe,
+    start_densities,
+    step,
+)
 from farm.alloc.env import SwarmAllocationEnv
+from farm.alloc.intruders.play import configured_intruders, intruder_move
 from farm.alloc.model import EngagementModel
 from farm.alloc.plots import plot_episode
 from farm.core.stats import ci_columns
@@ -83,6 +91,7 @@ def play(config, policy, client, episodes: int, seed: int, record_first: bool = 
 
     layout = Layout(config.grid_size)
     model = EngagementModel(config, client, False)
+    side = configured_intruders(config)  # the intruders' policy, None for the drift law
     if record_first:
         model = _Recording(model)
     engaged_cells: list = []
@@ -103,7 +112,8 @@ def play(config, policy, client, episodes: int, seed: int, record_first: bool = 
             action, _ = policy.predict(obs[k], deterministic=True)
             seconds[k] += time.perf_counter() - t0
             actions[row] = check_actions(action, (A,))
-        r = step(layout, config, model, D[running], I[running], actions)
+        intruders = intruder_move(side, config.information, D[running], I[running])
+        r = step(layout, config, model, D[running], I[running], actions, intruders)
         D[running], I[running] = r.D, r.I
         obs[running] = observe(r.D, r.I)
         totals[running] += r.reward

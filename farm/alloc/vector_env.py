@@ -27,8 +27,16 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from farm.alloc.config import AllocConfig
-from farm.alloc.dynamics import Layout, check_actions, episode_end, observe, start_densities, step
+from farm.alloc.dynamics import (
+    Layout,
+    check_actions,
+    episode_end,
+    observe,
+    start_densities,
+    step,
+)
 from farm.alloc.env import check_env_arguments, env_client
+from farm.alloc.intruders.play import configured_intruders, intruder_move
 from farm.alloc.model import EngagementModel, row_sums
 from farm.core.errors import ConfigError
 
@@ -120,6 +128,7 @@ class SwarmAllocationVectorEnv(VectorEnv):
         self._owns_client = client is None  # close() closes a client the env made, never one it was given
         self.client = env_client(self.config, store) if client is None else client
         self.model = EngagementModel(self.config, self.client, estimates)
+        self.intruders = configured_intruders(self.config)  # None: the drift law
         cells = self.layout.cells
         self.D = np.zeros((B, cells))
         self.I = np.zeros((B, cells))
@@ -215,7 +224,8 @@ class SwarmAllocationVectorEnv(VectorEnv):
         if not self.started.all():
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         a = check_actions(actions, self.action_space.shape, "actions")
-        r = step(self.layout, self.config, self.model, self.D, self.I, a)
+        intruders = intruder_move(self.intruders, self.config.information, self.D, self.I)
+        r = step(self.layout, self.config, self.model, self.D, self.I, a, intruders)
         self.D, self.I = r.D, r.I
         self.breached = self.breached + r.breach
         self.eliminated = self.eliminated + r.eliminated

@@ -19,13 +19,11 @@ evaluated on the farm too.
 from __future__ import annotations
 
 import inspect
-import sys
-import sysconfig
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable
 
 from farm.core.errors import ConfigError
+from farm.core.pickling import dumps_by_value
 
 __all__ = ["PolicyEntry", "PolicySpec", "KINDS", "register_policy", "unregister_policy", "policy_entry",
            "policy_names", "make_policy"]
@@ -70,32 +68,7 @@ class PolicySpec:
         return self.entry.make(config, client, **self.options)
 
     def __reduce__(self):
-        return _spec_from_bytes, (_dumps((self.entry, self.options)),)
-
-
-def _users_module(name: str):
-    """The module `name` when it is the user's own code (see the module doc), else None."""
-    module = sys.modules.get(name)
-    path = getattr(module, "__file__", None)
-    if module is None or name == "__main__" or name.split(".")[0] in ("farm", "workers") or path is None:
-        return None
-    installed = {Path(sysconfig.get_paths()[k]).resolve() for k in ("purelib", "platlib", "stdlib")}
-    return None if any(parent in installed for parent in Path(path).resolve().parents) else module
-
-
-def _dumps(value) -> bytes:
-    """cloudpickle's bytes of value, the module of its maker by value when it is the user's own."""
-    import cloudpickle
-
-    entry = value[0]
-    module = _users_module(getattr(entry.make, "__module__", "") or "")
-    if module is None:
-        return cloudpickle.dumps(value)
-    cloudpickle.register_pickle_by_value(module)
-    try:
-        return cloudpickle.dumps(value)
-    finally:
-        cloudpickle.unregister_pickle_by_value(module)
+        return _spec_from_bytes, (dumps_by_value((self.entry, self.options)),)
 
 
 def _spec_from_bytes(data: bytes) -> "PolicySpec":
