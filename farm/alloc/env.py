@@ -32,7 +32,7 @@ from farm.alloc.dynamics import (
     start_densities,
     step,
 )
-from farm.alloc.intruders.play import configured_intruders, intruder_move
+from farm.alloc.intruders.play import configured_intruders, for_episode, intruder_move
 from farm.alloc.model import EngagementModel, row_sums
 from farm.core.config import error_field, first_line
 from farm.core.errors import ConfigError
@@ -236,6 +236,7 @@ class SwarmAllocationEnv(gym.Env):
         self.client = env_client(self.config, store) if client is None else client
         self.model = EngagementModel(self.config, self.client, estimates)
         self.intruders = configured_intruders(self.config)  # None: the drift law
+        self._episode_intruders = self.intruders  # the episode's draw of a policy that draws per episode
         self.base = self.layout.base
         self.D = np.zeros(n * n)
         self.I = np.zeros(n * n)
@@ -280,6 +281,7 @@ class SwarmAllocationEnv(gym.Env):
         """
         super().reset(seed=seed)
         D, I = start_densities(self.layout, self.np_random.dirichlet(np.ones(self.n))[None])
+        self._episode_intruders = for_episode(self.intruders, self.np_random)
         self.D, self.I = D[0], I[0]
         self.steps = 0
         self.breached = 0.0
@@ -299,7 +301,7 @@ class SwarmAllocationEnv(gym.Env):
         if not self._reset_done:
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         D, I = self.D[None], self.I[None]
-        intruders = intruder_move(self.intruders, self.config.information, D, I)
+        intruders = intruder_move(self._episode_intruders, self.config.information, D, I)
         r = step(self.layout, self.config, self.model, D, I, self.check_action(action)[None], intruders)
         self.D, self.I = r.D[0], r.I[0]
         breach, eliminated = float(r.breach[0]), float(r.eliminated[0])
@@ -324,7 +326,12 @@ class SwarmAllocationEnv(gym.Env):
         return {"D": self.D.copy(), "I": self.I.copy(), "steps": self.steps, "breached": self.breached,
                 "eliminated": self.eliminated, "started": self._reset_done,
                 "rng": self.np_random.bit_generator.state, "engagements": self.engagements,
-                "estimated": self.estimated}
+                "estimated": self.estimated, **self._draw_state()}
+
+    def _draw_state(self) -> dict:
+        """{"intruder_draw": the episode's draw's state} for intruders that draw per episode, else {}."""
+        saved = getattr(self._episode_intruders, "get_state", None)
+        return {} if saved is None else {"intruder_draw": saved()}
 
     def set_state(self, state: dict) -> None:
         """Take a state get_state() returned (of an env of the same grid): the episode goes on
@@ -353,6 +360,8 @@ class SwarmAllocationEnv(gym.Env):
         self.np_random.bit_generator.state = state["rng"]
         self.engagements = int(state["engagements"])
         self.estimated = int(state["estimated"])
+        if "intruder_draw" in state:
+            self._episode_intruders = self.intruders.resume_episode(state["intruder_draw"])
 
     def _obs(self) -> np.ndarray:
         """The observation: (2 N^2,) float32 [D, I] clipped to [0, 1]."""

@@ -36,7 +36,7 @@ from farm.alloc.dynamics import (
     step,
 )
 from farm.alloc.env import check_env_arguments, env_client
-from farm.alloc.intruders.play import configured_intruders, intruder_move
+from farm.alloc.intruders.play import EpisodeIntruders, configured_intruders, for_episode, intruder_move
 from farm.alloc.model import EngagementModel, row_sums
 from farm.core.errors import ConfigError
 
@@ -129,6 +129,7 @@ class SwarmAllocationVectorEnv(VectorEnv):
         self.client = env_client(self.config, store) if client is None else client
         self.model = EngagementModel(self.config, self.client, estimates)
         self.intruders = configured_intruders(self.config)  # None: the drift law
+        self._episode_intruders = [self.intruders] * B  # each episode's draw of a policy that draws per episode
         cells = self.layout.cells
         self.D = np.zeros((B, cells))
         self.I = np.zeros((B, cells))
@@ -178,6 +179,7 @@ class SwarmAllocationVectorEnv(VectorEnv):
             if rngs[k] is None or (seeds is not None and seeds[k] is not None):
                 rngs[k], _ = seeding.np_random(None if seeds is None else seeds[k])
             shares[row] = rngs[k].dirichlet(self._alpha)
+            self._episode_intruders[k] = for_episode(self.intruders, rngs[k])
         self.D[episodes], self.I[episodes] = start_densities(self.layout, shares)
         self.steps[episodes] = 0
         self.breached[episodes] = 0.0
@@ -224,7 +226,8 @@ class SwarmAllocationVectorEnv(VectorEnv):
         if not self.started.all():
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         a = check_actions(actions, self.action_space.shape, "actions")
-        intruders = intruder_move(self.intruders, self.config.information, self.D, self.I)
+        side = None if self.intruders is None else EpisodeIntruders(self._episode_intruders)
+        intruders = intruder_move(side, self.config.information, self.D, self.I)
         r = step(self.layout, self.config, self.model, self.D, self.I, a, intruders)
         self.D, self.I = r.D, r.I
         self.breached = self.breached + r.breach
@@ -268,7 +271,13 @@ class SwarmAllocationVectorEnv(VectorEnv):
                 "breached": self.breached.copy(), "eliminated": self.eliminated.copy(),
                 "started": self.started.copy(),
                 "rngs": [None if g is None else g.bit_generator.state for g in self._rngs],
-                "engagements": self.engagements, "estimated": self.estimated}
+                "engagements": self.engagements, "estimated": self.estimated, **self._draw_state()}
+
+    def _draw_state(self) -> dict:
+        """{"intruder_draws": each episode's draw's state} for intruders that draw per episode, else {}."""
+        if not any(hasattr(p, "get_state") for p in self._episode_intruders):
+            return {}
+        return {"intruder_draws": [p.get_state() if hasattr(p, "get_state") else None for p in self._episode_intruders]}
 
     def set_state(self, state: dict) -> None:
         """Take a state get_state() returned (of an env of the same grid and num_envs): every
@@ -299,6 +308,9 @@ class SwarmAllocationVectorEnv(VectorEnv):
         self._rngs = rngs
         self.engagements = int(state["engagements"])
         self.estimated = int(state["estimated"])
+        if "intruder_draws" in state:
+            self._episode_intruders = [self.intruders if d is None else self.intruders.resume_episode(d)
+                                       for d in state["intruder_draws"]]
 
     def render(self):
         """Nothing: the batched env has no render mode (render_mode None)."""

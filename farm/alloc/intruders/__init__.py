@@ -9,6 +9,7 @@ from farm.alloc.intruders.drift import Drift
 from farm.alloc.intruders.fewest_ahead import FewestAhead
 from farm.alloc.intruders.learned import LearnedIntruders
 from farm.alloc.intruders.least_defended import LeastDefended
+from farm.alloc.intruders.mixture import IntruderMixture
 from farm.alloc.intruders.play import configured_intruders, intruder_move
 from farm.alloc.intruders.registry import (
                                            KINDS,
@@ -30,3 +31,4 @@ register_intruders("fewest_ahead", FewestAhead.make, kind="heuristic")
 register_intruders("least_defended", LeastDefended.make, kind="heuristic")
 register_intruders("split_away", SplitAway.make, kind="heuristic")
 register_intruders("learned", LearnedIntruders.make, kind="learned")
+register_intruders("mixture", IntruderMixture.make, kind="mixture")

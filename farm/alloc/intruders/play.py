@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from farm.alloc.intruders.registry import make_intruders
 
-__all__ = ["configured_intruders", "intruder_move"]
+__all__ = ["configured_intruders", "intruder_move", "for_episode", "EpisodeIntruders"]
 
 
 def configured_intruders(config):
@@ -25,3 +25,38 @@ def intruder_move(policy, information: str, D, I):
         return policy.routing
     routing = policy.routing(D, I)
     return lambda moved, intruders: routing
+
+
+def for_episode(policy, rng):
+    """The policy one episode plays: policy.for_episode(rng) for a policy that draws its play per
+    episode (a mixture), from the episode's own generator rng, else the policy itself (None stays None)."""
+    draw = getattr(policy, "for_episode", None)
+    return policy if draw is None else draw(rng)
+
+
+class EpisodeIntruders:
+    """The intruder policies of B episodes, one each (for_episode's), as one policy: routing(D, I)
+    asks each distinct policy once for the rows of its episodes. policies: list of B policies."""
+
+    def __init__(self, policies: list):
+        self.policies = list(policies)
+
+    def subset(self, rows) -> "EpisodeIntruders":
+        """The policies of the episodes rows ((m,) int64 indices), in that order."""
+        return EpisodeIntruders([self.policies[k] for k in rows])
+
+    def routing(self, D, I):
+        """(up, down): (B, N^2) float64 each, row b from policy b."""
+        import numpy as np
+
+        first = self.policies[0]
+        if all(p is first for p in self.policies):
+            return first.routing(D, I)
+        up, down = np.zeros(np.shape(I)), np.zeros(np.shape(I))
+        groups: dict[int, list[int]] = {}
+        for b, policy in enumerate(self.policies):
+            groups.setdefault(id(policy), []).append(b)
+        for rows in groups.values():
+            rows = np.array(rows)
+            up[rows], down[rows] = self.policies[rows[0]].routing(D[rows], I[rows])
+        return up, down

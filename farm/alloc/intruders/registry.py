@@ -1,7 +1,7 @@
 """The intruder policies' registry, beside the allocators' (farm.alloc.policies.registry): every
 intruder policy listed once and made one way.
 
-An entry is a name, a kind (`law`, `heuristic` or `learned`) and a maker,
+An entry is a name, a kind (`law`, `heuristic`, `learned` or `mixture`) and a maker,
 `make(config, **options) -> policy`: config is the map's AllocConfig, options the policy's own
 keywords (a learned policy's `run`). A policy answers `routing(D, I) -> (up, down)`: D, I:
 (B, N^2) float64 the defenders it sees and the intruders; up, down: (B, N^2) float64 each
@@ -22,7 +22,7 @@ from farm.core.pickling import dumps_by_value
 __all__ = ["KINDS", "IntruderEntry", "IntruderSpec", "register_intruders", "unregister_intruders",
            "intruder_entry", "intruder_names", "make_intruders"]
 
-KINDS = ("law", "heuristic", "learned")
+KINDS = ("law", "heuristic", "learned", "mixture")
 _REGISTRY: dict[str, "IntruderEntry"] = {}
 
 

@@ -1,7 +1,7 @@
 """The allocators' registry: every allocator, heuristic, planner or learned, listed once and
 made one way.
 
-An entry is a name, a kind (`baseline`, `planner` or `learned`) and a maker,
+An entry is a name, a kind (`baseline`, `planner`, `learned` or `mixture`) and a maker,
 `make(config, client, **options) -> allocator`: config is the scenario's AllocConfig, client
 the CaptureTimeClient answering its engagements (a baseline ignores it), options the
 allocator's own keywords (a planner's `horizon`, a learned allocator's trained `policy`).
@@ -28,7 +28,7 @@ from farm.core.pickling import dumps_by_value
 __all__ = ["PolicyEntry", "PolicySpec", "KINDS", "register_policy", "unregister_policy", "policy_entry",
            "policy_names", "make_policy"]
 
-KINDS = ("baseline", "planner", "learned")
+KINDS = ("baseline", "planner", "learned", "mixture")
 _REGISTRY: dict[str, "PolicyEntry"] = {}
 
 
