@@ -63,7 +63,7 @@ class _AllocFields(Strict):
     capture_score: Literal["expected", "conditional"] | None = None  # v2: expected, v1: conditional
     games: int = Field(_SERVICE.games, ge=2, le=100_000)  # games per case in the capture-time service
     seed: int = Field(_SERVICE.seed, ge=0)  # the service's seed of those games
-    # The intruders as a player (docs/model.md section 6): their policy (farm.alloc.intruders' registry),
+    # The intruders as a player (docs/model.md section 8): their policy (farm.alloc.intruders' registry),
     # its options, and what they see when they route: the defenders after their move (follower) or the
     # state both sides choose from (simultaneous).
     intruders: str = "drift"

@@ -5,7 +5,7 @@ The env (farm.alloc.env) steps through these functions, and the planners
 step is the env's step and never a copy that could drift from it:
 
 - advance_intruders (advance_intruders_many for B episodes): the intruders' move under the
-  drift law, known in advance; route_intruders_many under any routing (docs/model.md section 6);
+  drift law, known in advance; route_intruders_many under any routing (docs/model.md section 8);
 - team_sizes: a cell's game, (n_p, n_e) from its densities (rounding, the lattice);
 - EngagementModel: a cell's expected outcome from the capture-time client's statistics
   (docs/model.md section 5); engage_many answers B episodes' engaged cells in one lookup.
