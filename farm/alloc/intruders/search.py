@@ -125,10 +125,10 @@ def check_search(config: AllocConfig, I: np.ndarray, *, objective: str = "elimin
     bound, per_step = tree_bound(config, I, shares, limit=max_nodes)
     if bound > max_nodes:
         episode = "" if seed is None else f" of episode seed {seed}"
+        coarser = ", or a coarser share grid" if shares > 1 else ""
         raise ConfigError(f"max_nodes: the search{episode} could expand more than {max_nodes:,} states on this "
                           f"{config.grid_size}x{config.grid_size} map ({per_step[0]:,} routings at its first step, "
-                          f"shares {shares}); raise max_nodes, or search a smaller map or a coarser share grid",
-                          field="max_nodes")
+                          f"shares {shares}); raise max_nodes, or search a smaller map{coarser}", field="max_nodes")
     return bound
 
 
