@@ -288,7 +288,7 @@ def exact_response(config: AllocConfig, policy, client, seed: int, *, objective:
     while key is not None:
         _, up, down, cells, reward, eliminated, breach, key = search.memo[key]
         totals += (reward, eliminated, breach)
-        routings.append((up, down))
+        routings.append((up.copy(), down.copy()))
         routed.append(cells)
         length += 1
     summary = {"return": float(totals[0]), "eliminated": float(totals[1]), "breached": float(totals[2]),
