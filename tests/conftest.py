@@ -58,7 +58,7 @@ WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "tes
 # Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests
 # start no Ray, and run beside the Ray group as a group of their own (the Ray group is the
 # suite's critical path).
-MIXED = {"test_refuses_store", "test_service", "test_suite", "test_sweep_ray", "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
+MIXED = {"test_exact_search", "test_refuses_store", "test_service", "test_suite", "test_sweep_ray", "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
 
 
 # Modules whose Ray tests start Rays of their own only (`ray start` clusters and `farm`
