@@ -29,6 +29,7 @@ from gymnasium.vector.utils import batch_space
 from farm.alloc.config import AllocConfig
 from farm.alloc.dynamics import (
     Layout,
+    StepResult,
     check_actions,
     episode_end,
     observe,
@@ -40,7 +41,7 @@ from farm.alloc.intruders.play import configured_intruders, intruder_move
 from farm.alloc.model import EngagementModel, row_sums
 from farm.core.errors import ConfigError
 
-__all__ = ["SwarmAllocationVectorEnv", "INFO_KEYS"]
+__all__ = ["GridVectorEnv", "SwarmAllocationVectorEnv", "INFO_KEYS"]
 
 # The single env's info entries, in its order, with the dtype gymnasium batches each one as.
 INFO_KEYS = (("breached_step", np.float64), ("breached", np.float64), ("eliminated_step", np.float64),
@@ -60,44 +61,14 @@ def _num_envs(value) -> int:
     return int(value)
 
 
-class SwarmAllocationVectorEnv(VectorEnv):
-    """B = num_envs episodes of the grid allocation MDP, stepped together (gymnasium VectorEnv).
-
-    Each episode is SwarmAllocationEnv's MDP (farm.alloc.env, its docstring); this class
-    batches it. Spaces: single_observation_space Box(0, 1, (2 N^2,), float32) and
-    single_action_space Box(-1, 1, (A,), float32) as the single env's; observation_space
-    (B, 2 N^2) float32 and action_space (B, A) float32 their batches.
-
-    reset(seed=None, options=None): seed an int s (episode k seeded s + k, gymnasium's
-    convention), a list of B ints or None, or None (each episode keeps its generator; one
-    never seeded gets OS entropy, as the single env's np_random); episode k's generator is
-    gymnasium.utils.seeding.np_random of its seed, the single env's. options may hold
-    "reset_mask": (B,) bool, the episodes to reset (the others go on); no other option is
-    read. Returns (obs: (B, 2 N^2) float32, infos).
-
-    step(actions): actions (B, A) finite numbers (ActionError otherwise, before anything
-    changes; ResetNeeded before every episode has been reset). Returns (obs: (B, 2 N^2)
-    float32, rewards: (B,) float64, terminated: (B,) bool, truncated: (B,) bool, infos).
-    Autoreset: SAME_STEP (metadata["autoreset_mode"]), as gymnasium's SyncVectorEnv does it:
-    an episode that ends is reset in the same step with its own generator; obs[k] is then the
-    new episode's first observation and infos[key][k] its reset's values, and the ended
-    episode's last observation and info are in infos["final_obs"]: (B,) object (None for the
-    others) and infos["final_info"] (a dict of arrays like infos), masked by
-    infos["_final_obs"] and infos["_final_info"]: (B,) bool; the two keys are present only
-    in a step where some episode ended.
-
-    infos: gymnasium's dict of arrays, every INFO_KEYS entry of the single env's info as a
-    (B,) array (float64 or int64), with its mask `_key`: (B,) bool, all True (every episode
-    reports every key; after a reset with a reset_mask only the reset episodes are in it).
-
-    Arguments: those of SwarmAllocationEnv (config or AllocConfig keyword arguments, client,
-    store, estimates) and num_envs: int >= 1 (else a one-line ConfigError naming `num_envs`);
-    render_mode: None only (no rendering). A client is shared by the B episodes; close()
-    closes it only when the env made it.
-
-    get_state() and set_state() save and restore all B episodes (densities, counters, started
-    flags, every generator's bit_generator.state) and the lifetime counters, for the exact
-    resume of a training.
+class GridVectorEnv(VectorEnv):
+    """B episodes of the grid MDP stepped together, whichever side acts in them: the part the
+    defenders' batched env (SwarmAllocationVectorEnv, whose docstring describes each piece) and
+    the intruders' (farm.alloc.intruder_env.SwarmIntruderVectorEnv) share: the arguments, the
+    observation spaces, the starts and their seeds, a step's accounting, infos and SAME_STEP
+    autoreset (_record of the step's StepResult), get_state and set_state, close. A subclass
+    sets the action spaces and step(); its hooks are _prepare (before the agent sees the
+    episodes' states), _observations (what it sees) and _reward (what it gets).
 
     Attributes: config: AllocConfig; client; model: EngagementModel; layout:
     farm.alloc.dynamics.Layout; num_envs: int, B; D, I: (B, N^2) float64 the densities;
@@ -107,12 +78,14 @@ class SwarmAllocationVectorEnv(VectorEnv):
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    STATE_FIELDS = _STATE_FIELDS  # get_state's keys
 
-    def __init__(self, config: AllocConfig | None = None, num_envs: int = 1, *, client=None,
-                 store: str | None = None, render_mode: str | None = None, estimates: bool | str = False, **kwargs):
-        """Make the env; the class docstring's Arguments describe each argument."""
+    def __init__(self, name: str, config: AllocConfig | None, num_envs, client, store, render_mode: str | None,
+                 estimates: bool | str, kwargs: dict):
+        """Make the env's shared part. name: the env class's name, for check_env_arguments'
+        message; the other arguments are SwarmAllocationVectorEnv's (its class docstring's Arguments)."""
         B = _num_envs(num_envs)
-        self.config = check_env_arguments("SwarmAllocationVectorEnv", config, estimates, kwargs)
+        self.config = check_env_arguments(name, config, estimates, kwargs)
         if render_mode is not None:
             raise ConfigError(f"render_mode: the batched env renders nothing (None only), got {render_mode!r}",
                               field="render_mode")
@@ -121,14 +94,11 @@ class SwarmAllocationVectorEnv(VectorEnv):
         self.num_envs = B
         n = self.config.grid_size
         self.layout = Layout(n)
-        self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.layout.src),), dtype=np.float32)
         self.single_observation_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
-        self.action_space = batch_space(self.single_action_space, B)
         self.observation_space = batch_space(self.single_observation_space, B)
         self._owns_client = client is None  # close() closes a client the env made, never one it was given
         self.client = env_client(self.config, store) if client is None else client
         self.model = EngagementModel(self.config, self.client, estimates)
-        self.intruders = configured_intruders(self.config)  # None: the drift law
         cells = self.layout.cells
         self.D = np.zeros((B, cells))
         self.I = np.zeros((B, cells))
@@ -140,6 +110,7 @@ class SwarmAllocationVectorEnv(VectorEnv):
         self.engagements = 0
         self.estimated = 0
         self._all = np.ones(B, dtype=bool)
+        self._indices = np.arange(B)
         self._alpha = np.ones(n)  # the flat Dirichlet of the intruders' start
 
     # ----- the MDP ------------------------------------------------------------------
@@ -203,29 +174,23 @@ class SwarmAllocationVectorEnv(VectorEnv):
         return self._infos(floats, np.zeros((len(_INTS), self.num_envs), dtype=np.int64), mask)
 
     def reset(self, *, seed=None, options=None):
-        """Start the episodes (see the class docstring); returns (obs: (B, 2 N^2) float32, infos).
+        """Start the episodes (see SwarmAllocationVectorEnv's docstring); returns (obs: (B, 2 N^2) float32, infos).
 
         ConfigError (one line) for a seed that is no int >= 0, None or list of B of them, or a bad
         options["reset_mask"]; nothing is changed then.
         """
         seeds = self._seeds(seed)
         mask = self._reset_mask(options)
-        self._start(np.flatnonzero(mask), seeds)
-        return observe(self.D, self.I), self._reset_info(mask)
+        episodes = np.flatnonzero(mask)
+        self._start(episodes, seeds)
+        self._prepare(episodes)
+        return self._observations(), self._reset_info(mask)
 
-    def step(self, actions):
-        """One step of every episode, with SAME_STEP autoreset (see the class docstring).
-
-        actions: (B, A) finite numbers, clipped to [-1, 1]. Returns (obs, rewards,
-        terminated, truncated, infos). ResetNeeded before every episode has been reset;
-        ActionError (farm.alloc.dynamics.check_actions) for actions of another shape, not
-        numbers or not finite, leaving the env as it was.
-        """
-        if not self.started.all():
-            raise ResetNeeded("Cannot call env.step() before calling env.reset()")
-        a = check_actions(actions, self.action_space.shape, "actions")
-        intruders = intruder_move(self.intruders, self.config.information, self.D, self.I)
-        r = step(self.layout, self.config, self.model, self.D, self.I, a, intruders)
+    def _record(self, r: StepResult):
+        """Take a step's outcome, r: a StepResult of the B episodes: the densities, the counters,
+        the episodes' ends, the SAME_STEP autoreset of those that ended; then _prepare of every
+        episode. Returns step()'s (obs, rewards: (B,) float64 (_reward), terminated, truncated:
+        (B,) bool, infos)."""
         self.D, self.I = r.D, r.I
         self.breached = self.breached + r.breach
         self.eliminated = self.eliminated + r.eliminated
@@ -233,7 +198,7 @@ class SwarmAllocationVectorEnv(VectorEnv):
         self.estimated += int(r.estimates.sum())
         self.steps = self.steps + 1
         terminated, truncated = episode_end(self.config, self.steps, r.remaining)
-        obs = observe(self.D, self.I)
+        rewards = self._reward(r)
         values = {"breached_step": r.breach, "breached": self.breached, "eliminated_step": r.eliminated,
                   "eliminated": self.eliminated, "intruder_mass": r.remaining, "coverage": r.coverage,
                   "defenders_per_engaged": r.per_engaged, "engaged_cells": r.engaged, "estimates": r.estimates}
@@ -241,26 +206,39 @@ class SwarmAllocationVectorEnv(VectorEnv):
         ints = np.array([values[key] for key in _INTS], dtype=np.int64)
         done = terminated | truncated
         if not done.any():
-            return obs, r.reward, terminated, truncated, self._infos(floats, ints, self._all)
+            self._prepare(self._indices)
+            return self._observations(), rewards, terminated, truncated, self._infos(floats, ints, self._all)
         ended = np.flatnonzero(done)
         final_obs = np.full(self.num_envs, None, dtype=object)
-        for k in ended.tolist():
-            final_obs[k] = obs[k].copy()
+        for k, last in zip(ended.tolist(), observe(self.D[ended], self.I[ended])):
+            final_obs[k] = last.copy()
         final_info = self._infos(np.where(done, floats, 0.0), np.where(done, ints, 0), done)
         self._start(ended)
-        obs[ended] = observe(self.D[ended], self.I[ended])
+        self._prepare(self._indices)
         floats[:, ended] = 0.0  # the new episodes' reset info
         floats[_MASS, ended] = row_sums(self.I[ended])
         ints[:, ended] = 0
         infos = self._infos(floats, ints, self._all)
         infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
         infos["final_info"], infos["_final_info"] = final_info, done.copy()
-        return obs, r.reward, terminated, truncated, infos
+        return self._observations(), rewards, terminated, truncated, infos
+
+    def _prepare(self, episodes: np.ndarray) -> None:
+        """What happens before the agent sees the states of the episodes (their indices, (m,)
+        int64: after their start, and after every step): nothing here."""
+
+    def _observations(self) -> np.ndarray:
+        """What the agent sees of every episode: (B, 2 N^2) float32 [D, I] (observe)."""
+        return observe(self.D, self.I)
+
+    def _reward(self, r: StepResult) -> np.ndarray:
+        """The agent's rewards of the step r: (B,) float64, the defenders' (r.reward) here."""
+        return r.reward
 
     # ----- saving and restoring ---------------------------------------------------
     def get_state(self) -> dict:
         """All B episodes' state, for set_state() to continue them later: a picklable dict of
-        copies. num_envs: int; D, I: (B, N^2) float64; steps: (B,) int64; breached,
+        copies (STATE_FIELDS). num_envs: int; D, I: (B, N^2) float64; steps: (B,) int64; breached,
         eliminated: (B,) float64; started: (B,) bool; rngs: list of B bit_generator.state
         dicts (None for an episode never reset); engagements, estimated: int. The client is
         no part of it (see SwarmAllocationEnv.get_state)."""
@@ -274,7 +252,7 @@ class SwarmAllocationVectorEnv(VectorEnv):
         """Take a state get_state() returned (of an env of the same grid and num_envs): every
         episode goes on from there, each generator draws what the saved one would have.
         ConfigError (one line) for a state of another grid or batch size or a field missing."""
-        missing = [name for name in _STATE_FIELDS if name not in state]
+        missing = [name for name in self.STATE_FIELDS if name not in state]
         if missing:
             raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
         B, cells = self.num_envs, self.layout.cells
@@ -310,3 +288,72 @@ class SwarmAllocationVectorEnv(VectorEnv):
         if self._owns_client:
             self._owns_client = False
             self.client.close()
+
+
+class SwarmAllocationVectorEnv(GridVectorEnv):
+    """B = num_envs episodes of the grid allocation MDP, stepped together (gymnasium VectorEnv).
+
+    Each episode is SwarmAllocationEnv's MDP (farm.alloc.env, its docstring); this class
+    batches it. Spaces: single_observation_space Box(0, 1, (2 N^2,), float32) and
+    single_action_space Box(-1, 1, (A,), float32) as the single env's; observation_space
+    (B, 2 N^2) float32 and action_space (B, A) float32 their batches.
+
+    reset(seed=None, options=None): seed an int s (episode k seeded s + k, gymnasium's
+    convention), a list of B ints or None, or None (each episode keeps its generator; one
+    never seeded gets OS entropy, as the single env's np_random); episode k's generator is
+    gymnasium.utils.seeding.np_random of its seed, the single env's. options may hold
+    "reset_mask": (B,) bool, the episodes to reset (the others go on); no other option is
+    read. Returns (obs: (B, 2 N^2) float32, infos).
+
+    step(actions): actions (B, A) finite numbers (ActionError otherwise, before anything
+    changes; ResetNeeded before every episode has been reset). Returns (obs: (B, 2 N^2)
+    float32, rewards: (B,) float64, terminated: (B,) bool, truncated: (B,) bool, infos).
+    Autoreset: SAME_STEP (metadata["autoreset_mode"]), as gymnasium's SyncVectorEnv does it:
+    an episode that ends is reset in the same step with its own generator; obs[k] is then the
+    new episode's first observation and infos[key][k] its reset's values, and the ended
+    episode's last observation and info are in infos["final_obs"]: (B,) object (None for the
+    others) and infos["final_info"] (a dict of arrays like infos), masked by
+    infos["_final_obs"] and infos["_final_info"]: (B,) bool; the two keys are present only
+    in a step where some episode ended.
+
+    infos: gymnasium's dict of arrays, every INFO_KEYS entry of the single env's info as a
+    (B,) array (float64 or int64), with its mask `_key`: (B,) bool, all True (every episode
+    reports every key; after a reset with a reset_mask only the reset episodes are in it).
+
+    Arguments: those of SwarmAllocationEnv (config or AllocConfig keyword arguments, client,
+    store, estimates) and num_envs: int >= 1 (else a one-line ConfigError naming `num_envs`);
+    render_mode: None only (no rendering). A client is shared by the B episodes; close()
+    closes it only when the env made it.
+
+    get_state() and set_state() save and restore all B episodes (densities, counters, started
+    flags, every generator's bit_generator.state) and the lifetime counters, for the exact
+    resume of a training.
+
+    Attributes: config: AllocConfig; client; model: EngagementModel; layout:
+    farm.alloc.dynamics.Layout; num_envs: int, B; D, I: (B, N^2) float64 the densities;
+    steps: (B,) int64; breached, eliminated: (B,) float64 the episodes' counters; started:
+    (B,) bool, the episodes reset at least once; engagements, estimated: int, the engaged
+    cells answered over the env's lifetime and of them the interpolated ones.
+    """
+
+    def __init__(self, config: AllocConfig | None = None, num_envs: int = 1, *, client=None,
+                 store: str | None = None, render_mode: str | None = None, estimates: bool | str = False, **kwargs):
+        """Make the env; the class docstring's Arguments describe each argument."""
+        super().__init__("SwarmAllocationVectorEnv", config, num_envs, client, store, render_mode, estimates, kwargs)
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.layout.src),), dtype=np.float32)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.intruders = configured_intruders(self.config)  # None: the drift law
+
+    def step(self, actions):
+        """One step of every episode, with SAME_STEP autoreset (see the class docstring).
+
+        actions: (B, A) finite numbers, clipped to [-1, 1]. Returns (obs, rewards,
+        terminated, truncated, infos). ResetNeeded before every episode has been reset;
+        ActionError (farm.alloc.dynamics.check_actions) for actions of another shape, not
+        numbers or not finite, leaving the env as it was.
+        """
+        if not self.started.all():
+            raise ResetNeeded("Cannot call env.step() before calling env.reset()")
+        a = check_actions(actions, self.action_space.shape, "actions")
+        intruders = intruder_move(self.intruders, self.config.information, self.D, self.I)
+        return self._record(step(self.layout, self.config, self.model, self.D, self.I, a, intruders))
