@@ -23,6 +23,11 @@ caller may override as RL Zoo's `env_kwargs` do:
     envs = gymnasium.make_vec("farm/outnumbered_3x3-v0", num_envs=16,  # 16 episodes batched
                               vectorization_mode="vector_entry_point")
 
+and its intruders' env (farm.alloc.intruder_env) as `farm/<name>-intruders-v0`, the same settings
+with the intruders as the agent against a frozen allocator:
+
+    env = gymnasium.make("farm/outnumbered_3x3-intruders-v0", opponent="stay_at_base")
+
 The harder scenarios were chosen by measuring the policies on them (`farm suite`, 10 episodes,
 seeds 1000..1009, the service's 64 games a case, when the scenarios were chosen). A cell's
 capture fraction grows with its defenders and hardly falls with its intruders (pure pursuit
@@ -54,9 +59,12 @@ from typing import Any, Mapping
 
 from farm.alloc.config import AllocConfig
 
-__all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "THEATRES", "VECTOR_ENTRY_POINT", "gym_id", "register_scenarios"]
+__all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "THEATRES", "VECTOR_ENTRY_POINT", "INTRUDER_ENTRY_POINT",
+           "INTRUDER_VECTOR_ENTRY_POINT", "gym_id", "intruder_gym_id", "register_scenarios"]
 
 VECTOR_ENTRY_POINT = "farm.alloc.vector_env:SwarmAllocationVectorEnv"  # the batched env of every id
+INTRUDER_ENTRY_POINT = "farm.alloc.intruder_env:SwarmIntruderEnv"  # the intruders' env of every intruders' id
+INTRUDER_VECTOR_ENTRY_POINT = "farm.alloc.intruder_env:SwarmIntruderVectorEnv"  # and its batched form
 
 
 @dataclass(frozen=True)
@@ -86,10 +94,21 @@ class Scenario:
         """The scenario's gymnasium id, `farm/<name>-v0`."""
         return gym_id(self.name)
 
+    @property
+    def intruder_gym_id(self) -> str:
+        """The gymnasium id of the scenario played by the intruders, `farm/<name>-intruders-v0`."""
+        return intruder_gym_id(self.name)
+
 
 def gym_id(name: str) -> str:
     """The gymnasium id of the scenario named name: `farm/<name>-v0`."""
     return f"farm/{name}-v0"
+
+
+def intruder_gym_id(name: str) -> str:
+    """The gymnasium id of the intruders' env (farm.alloc.intruder_env) of the scenario named name:
+    `farm/<name>-intruders-v0`."""
+    return f"farm/{name}-intruders-v0"
 
 
 _LATTICE = {"team_sizes": "lattice"}
@@ -142,22 +161,26 @@ THEATRES = ("theatre_8x8", "theatre_16x16", "theatre_32x32")  # the size-free le
 
 
 def register_scenarios() -> list[str]:
-    """Register every scenario as the gymnasium id `farm/<name>-v0` (once; registering again
-    does nothing); returns the ids.
+    """Register every scenario as the gymnasium id `farm/<name>-v0`, and as `farm/<name>-intruders-v0`
+    the intruders' env of it (once; registering again does nothing); returns the ids, each
+    scenario's two in turn.
 
     Each id makes farm.alloc.env.SwarmAllocationEnv with the scenario's settings as keyword
     arguments; gymnasium.make's own keyword arguments replace them, one by one, and may add
     the env's other arguments (client, store, render_mode, estimates). Its vector entry point
     (VECTOR_ENTRY_POINT) is farm.alloc.vector_env.SwarmAllocationVectorEnv, which
     gymnasium.make_vec(id, num_envs=B, vectorization_mode="vector_entry_point") makes with the
-    same settings and keyword arguments.
+    same settings and keyword arguments. The intruders' id makes
+    farm.alloc.intruder_env.SwarmIntruderEnv (its vector entry point SwarmIntruderVectorEnv) so,
+    the frozen allocator its `opponent` argument.
     """
     import gymnasium
 
     ids = []
     for scenario in SCENARIOS.values():
-        if scenario.gym_id not in gymnasium.registry:
-            gymnasium.register(scenario.gym_id, entry_point="farm.alloc.env:SwarmAllocationEnv",
-                               vector_entry_point=VECTOR_ENTRY_POINT, kwargs=dict(scenario.env))
-        ids.append(scenario.gym_id)
+        for env_id, entry, vector in ((scenario.gym_id, "farm.alloc.env:SwarmAllocationEnv", VECTOR_ENTRY_POINT),
+                                      (scenario.intruder_gym_id, INTRUDER_ENTRY_POINT, INTRUDER_VECTOR_ENTRY_POINT)):
+            if env_id not in gymnasium.registry:
+                gymnasium.register(env_id, entry_point=entry, vector_entry_point=vector, kwargs=dict(scenario.env))
+            ids.append(env_id)
     return ids
