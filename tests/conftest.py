@@ -53,6 +53,7 @@ WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "tes
                "test_planners", "test_policy_registry", "test_reference_selfcheck", "test_refuses_cli", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
                "test_refuses_training", "test_refuses_workers", "test_repair", "test_resume_damaged", "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
                "test_workers_layout"}
+WITHOUT_RAY |= {"test_intruder_env"}
 
 
 # Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests
