@@ -1,7 +1,7 @@
 """The allocation MDP as a zero-sum game of two learners, in PettingZoo's two APIs.
 
 Two agents, `defenders` and `intruders`, play the grid MDP of farm.alloc.env (docs/model.md
-sections 5 and 6): the defenders move their density D as the single env's action moves it, and
+section 5): the defenders move their density D as the single env's action moves it, and
 the intruders route theirs, each cell's mass sent up-left, left or down-left (the intruder action
 of farm.alloc.dynamics.routes), instead of following the drift law. The defenders are paid the
 single env's reward R, the intruders -R.
