@@ -1,27 +1,14 @@
-"""The allocation MDP as a zero-sum game of two learners, in PettingZoo's two APIs.
+"""The allocation MDP as a zero-sum game of two learners, `defenders` and `intruders`, in
+PettingZoo's two APIs (docs/engine.md shows their use).
 
-Two agents, `defenders` and `intruders`, play the grid MDP of farm.alloc.env (docs/model.md
-section 5): the defenders move their density D as the single env's action moves it, and
-the intruders route theirs, each cell's mass sent up-left, left or down-left (the intruder action
-of farm.alloc.dynamics.routes), instead of following the drift law. The defenders are paid the
-single env's reward R, the intruders -R.
-
-- raw_env(...): SwarmAllocationAECEnv, the AEC env: each step the defenders act, then the
-  intruders, who under `information: follower` (the default) see the defenders after their move;
-- env(...): raw_env wrapped in PettingZoo's OrderEnforcingWrapper, as PettingZoo's own envs are;
-- parallel_env(...): SwarmAllocationParallelEnv, both sides acting at once from the same state.
-
-Usage, as any PettingZoo env:
-
-    from farm.alloc.pettingzoo_env import env, parallel_env
-    game = env(grid_size=3, n_defenders=100, n_intruders=50)       # AEC: the defenders, then the intruders
-    game = parallel_env(grid_size=3, n_defenders=4, n_intruders=100)  # both at once
-
-A step is farm.alloc.dynamics' pieces: move_probabilities and move_defenders for the defenders'
-move, route_probabilities and routing_of for the intruders' action, resolve for the rest, so an
-episode whose intruders route by the drift law is the single env's episode to the bit. reset(seed=s)
-draws the start the single env's reset(seed=s) draws. This module needs pettingzoo (the extra
-`marl`); nothing else in farm imports it.
+The defenders move their density D as the single env's action moves it; the intruders route
+theirs, each cell's mass sent up-left, left or down-left (farm.alloc.dynamics.routes). The
+defenders are paid the single env's reward R, the intruders -R. raw_env(...) is the AEC env
+(the defenders act, then the intruders, who under `information: follower` see the defenders
+after their move), env(...) the same in PettingZoo's OrderEnforcingWrapper, parallel_env(...)
+both sides at once from the same state. A step is farm.alloc.dynamics' pieces, so an episode
+whose intruders route by the drift law is the single env's episode to the bit, and
+reset(seed=s) draws the single env's start. Needs pettingzoo (the extra `marl`).
 """
 
 from __future__ import annotations
