@@ -1,4 +1,4 @@
-"""The intruders' side (docs/model.md section 6): the defenders' env with an intruder policy through
+"""The intruders' side (docs/model.md section 8): the defenders' env with an intruder policy through
 gymnasium's ids; the intruders' env against a frozen allocator (farm.alloc.intruder_env), its step
 the dynamics' pieces composed, single and batched to the bit, follower against simultaneous,
 gymnasium's checker, exact save and restore; training the intruders (`side: intruders`) and its

@@ -1,19 +1,18 @@
 """Where the compiled kernels are cached on disk, and filling that cache ahead of time.
 
-numba caches each compiled function (``cache=True``) and reuses it while the one
-source file that defines it is unchanged; it does not notice a change in another
-file whose functions were inlined into it, and the engine inlines the policies and
-the geometry. So the kernels' cache folder is named after a hash of all their
-sources: any change to any of them starts a fresh folder, and a folder is never
-read by code other than the code that wrote it (no deletion, so no race between
-processes). The folder is ``numba-<hash>`` under the package's ``__pycache__`` when
-that is writable (shared by every process of a checkout: the test suite, each Ray
-worker), else under ``$NUMBA_CACHE_DIR`` or the user cache (``~/.cache/swarm-farm``).
-`kernel_cache` points numba there only while the package's kernels are being
-defined (numba reads the setting then), and puts the user's setting back after.
+numba caches each compiled function (``cache=True``) and reuses it while the one source file
+that defines it is unchanged; it does not notice a change in another file whose functions were
+inlined into it, and the engine inlines the policies and the geometry. So the kernels' cache
+folder is named after a hash of all their sources: any change to any of them starts a fresh
+folder, and a folder is never read by code other than the code that wrote it (no deletion, so
+no race between processes). The folder is ``numba-<hash>`` under the package's ``__pycache__``
+when that is writable (shared by every process of a checkout: the test suite, each Ray worker),
+else under ``$NUMBA_CACHE_DIR`` or the user cache (``~/.cache/swarm-farm``). `kernel_cache`
+points numba there only while the package's kernels are being defined (numba reads the setting
+then), and puts the user's setting back after.
 
-`precompile` compiles every kernel once (about a minute), so that neither the test
-suite nor each Ray worker pays the first call: `make install` runs it.
+`precompile` compiles every kernel once, so that neither the test suite nor each Ray worker
+pays the first call: `make install` runs it.
 """
 
 from __future__ import annotations

@@ -1,14 +1,12 @@
 """The pursuit-evasion engine, compiled (numba): each game stepped to its end on its own.
 
-Semantics (docs/model.md sections 1-2): explicit Euler with fixed dt; at step k the
-controls of every agent come from the state at k, then all agents move, then
-positions are projected onto the arena. After the move, evader i is captured at
-t = (k+1) dt when its distance to the nearest pursuer is below r_c (strictly);
-then, when the game has an exit point, a live evader closer than r_c to it
-escapes at that time. Both are checked at t = 0 on the initial positions too.
-A captured or escaped evader leaves the game at once (no motion, no cell, no
-longer a target). A game ends when no evader is left, or after
-floor(t_max / dt) steps.
+Semantics (docs/model.md sections 1-2): explicit Euler with fixed dt; at step k the controls
+of every agent come from the state at k, then all agents move, then positions are projected
+onto the arena. After the move, evader i is captured at t = (k+1) dt when its distance to the
+nearest pursuer is below r_c (strictly); then, when the game has an exit point, a live evader
+closer than r_c to it escapes at that time. Both are checked at t = 0 on the initial positions
+too. A captured or escaped evader leaves the game at once (no motion, no cell, no longer a
+target). A game ends when no evader is left, or after floor(t_max / dt) steps.
 
 Why one game at a time: a game's cost is then its own (a single game costs what
 one game of a batch costs), its numbers cannot depend on what else shares the
@@ -353,10 +351,11 @@ def estimated_game_seconds(n_pursuers: int, n_evaders: int, pursuer_policy: str,
                            t_max: float, dt: float, pursuer_speed: float = V_MAX, evader_speed: float = V_MAX) -> float:
     """A rough single-core cost of one game, for sizing work (good to a factor of 2-3).
 
-    The engine's measured cost per game-step (benchmarks/engine.py): about 0.2 us a step,
-    0.6 us a cell plus 3 ns per agent in the game, 2 ns a pursuer-evader pair, 20 ns an
-    agent. The game's length: about 700 steps at equal speeds, longer with more evaders than
-    pursuers (caught one after another) and with slower pursuers, at most t_max / dt."""
+    The cost of a game-step: a constant, plus one per evader cell growing with the agents in
+    the game, one per pursuer-evader pair and one per agent, the coefficients below fitted to
+    the engine's timings (benchmarks/engine.py). The game's length: about 700 steps at equal
+    speeds, longer with more evaders than pursuers (caught one after another) and with slower
+    pursuers, at most t_max / dt."""
     cells = get_pursuer_policy(pursuer_policy).needs_cells or get_evader_policy(evader_policy).needs_cells
     agents = n_pursuers + n_evaders
     per_step = 0.2e-6 + cells * n_evaders * (0.6e-6 + 3e-9 * agents) + 2e-9 * n_pursuers * n_evaders + 20e-9 * agents
@@ -400,8 +399,8 @@ def coarse_step_ratio(speed: float, dt: float, capture_radius: float) -> float:
 def warn_coarse_step(speed: float, dt: float, capture_radius: float, stacklevel: int = 1) -> None:
     """A CoarseStepWarning when an agent moves more than the capture radius in one step
     (speed x dt > capture_radius): a pursuer may then pass an evader between two steps, so
-    captures come late or never (at dt 5 a 5v1 game lasts 40 s instead of 7.4 s). The
-    paper's setting (speeds 1, dt 0.01, capture radius 0.25) moves 0.04 radii a step.
+    captures come late or never (docs/results.md has an example). The paper's setting
+    (speeds 1, dt 0.01, capture radius 0.25) moves 0.04 radii a step.
     stacklevel 1 attributes the warning to the line calling this function, 2 to its caller's."""
     ratio = coarse_step_ratio(speed, dt, capture_radius)
     if ratio > 1.0:

@@ -1,23 +1,8 @@
 """Bounded Voronoi cells, compiled (numba), one cell at a time.
 
 The cell of site p is the arena clipped by the bisector half-planes
-{x : |x - p| <= |x - q|} of the other live agents q. Candidates q come from a
-uniform grid over the live agents' bounding box (about two agents per grid
-cell), visited ring by ring around the site's grid cell; within a ring they are
-clipped nearest first. A candidate farther than twice the cell's radius R (the
-largest distance from p to a vertex) cannot cut the cell: its bisector lies
-beyond R. The search stops once every agent not yet visited is that far: after
-ring r, an unvisited agent lies outside the block of rings 0..r, so at least as
-far from p as the nearest side of that block that is not the grid's own edge.
-So the cost of a cell is that of its few nearby agents, whatever the team sizes;
-with few agents the grid is one cell and this is plain nearest-first clipping.
-
-Clipping a convex polygon by a half-plane keeps the vertices inside (signed
-distance s <= 1e-12 to the bisector) and inserts the two crossing points, the
-entry point taking the label of the edge it lies on and the exit point the label
-of the clipping agent. Every edge carries the label of the agent whose bisector
-it lies on (-1 - e for edge e of the arena), so the edges shared with neighbours
-come for free. Agents closer than 1e-12 to the site are ignored for its cell.
+{x : |x - p| <= |x - q|} of the other live agents q. build_cell finds them (its docstring:
+why its search may stop early) and clip clips by each (how edges are labelled).
 
 Sums over a cell's vertices run in vertex order, so a cell's numbers depend only
 on its own game.
@@ -99,7 +84,14 @@ def clip(px, py, pl, m, sx, sy, qx, qy, label, wx, wy, wl, s):
     """Clip the polygon (px, py, pl)[:m] by the half-plane nearer to (sx, sy) than to (qx, qy).
 
     In place; the new edge takes `label`; wx, wy, wl, s are scratch of the same
-    capacity. Returns (the new vertex count, whether anything was cut)."""
+    capacity. Returns (the new vertex count, whether anything was cut).
+
+    Clipping a convex polygon by a half-plane keeps the vertices inside (signed distance s <=
+    1e-12 to the bisector) and inserts the two crossing points, the entry point taking the label
+    of the edge it lies on and the exit point the label of the clipping agent. Every edge
+    carries the label of the agent whose bisector it lies on (-1 - e for edge e of the arena),
+    so the edges shared with neighbours come for free.
+    """
     nx, ny = qx - sx, qy - sy
     norm = math.hypot(nx, ny)
     nx, ny = nx / norm, ny / norm
@@ -173,6 +165,17 @@ def build_cell(site, xs, ys, n, grid, cell_of, start, items, av, px, py, pl, wx,
     the cell's vertices and edge labels (label of edge v, from vertex v to v+1:
     the point index across it, or -1 - e for arena edge e); wx, wy, wl, s: (M,)
     scratch; cand: (n,) int64 and cd2: (n,) float64 scratch. Returns the vertex count.
+
+    The cell of site p is the arena clipped by the bisector half-planes of the other live agents
+    q (clip; agents closer than 1e-12 to the site are ignored). Candidates q come from a uniform
+    grid over the live agents' bounding box (about two agents per grid cell), visited ring by
+    ring around the site's grid cell; within a ring they are clipped nearest first. A candidate
+    farther than twice the cell's radius R (the largest distance from p to a vertex) cannot cut
+    the cell: its bisector lies beyond R. The search stops once every agent not yet visited is
+    that far: after ring r, an unvisited agent lies outside the block of rings 0..r, so at least
+    as far from p as the nearest side of that block that is not the grid's own edge. So the cost
+    of a cell is that of its few nearby agents, whatever the team sizes; with few agents the
+    grid is one cell and this is plain nearest-first clipping.
     """
     g, x0, y0, inv_h, h = grid
     k = av.shape[0]

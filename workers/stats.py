@@ -212,10 +212,10 @@ class CaptureStats:
 
     @classmethod
     def from_flat(cls, row: dict, estimate: str | None = None) -> "CaptureStats":
-        """The inverse of flat(); also reads the store's rows written before CaptureStats.
+        """The inverse of flat(); also reads the store's rows of older formats (_FORMER_KEYS ignored).
 
-        A row without a field of flat() (written before that field existed, e.g. the
-        capture score of version 0.4) raises KeyError naming it: it is never read with a
+        A row without a field of flat() (an older format's, e.g. without capture_score_tau_mean,
+        the expected capture score) raises KeyError naming it: it is never read with a
         guessed value (the store leaves such rows out and recomputes them)."""
         unknown = set(row) - set(cls.flat_names()) - _FORMER_KEYS
         if unknown:

@@ -6,18 +6,6 @@ densities set) and may be named here too, e.g. `evader_speed: 0.5` or
 `law: {kind: uniform}`; they are not declared again: AllocConfig's game fields
 are made from Case's, and a field left out takes its engagement's value, else
 Case's default.
-
-Engagement model v2 (the default) ties the layers together: one MDP step lasts the
-time an intruder needs to cross a cell (step_seconds = cell side / the intruders'
-speed `evader_speed` = 10 s), the engagement window is that step (tau = step_seconds),
-the cell's games run no longer (t_max = tau) and are the paper's Table 1 setting,
-pure pursuit against intruders heading for the exit (0, 5) that escape through it,
-and the capture score is an expectation over all of a cell's games, normalised by the
-window (`capture_score: expected`, capture_time_norm = tau). v1 (`engagement: v1`) is
-the earlier model, for comparison: area_min against centroid, tau 5 s, t_max 10 s, no
-exit, capture_time_norm 10 and the earlier score (`capture_score: conditional`: the mean
-capture time of the games that caught someone). A value that contradicts the
-engagement's coupling is one clear error.
 """
 
 from __future__ import annotations
@@ -75,7 +63,7 @@ class _AllocFields(Strict):
     capture_score: Literal["expected", "conditional"] | None = None  # v2: expected, v1: conditional
     games: int = Field(_SERVICE.games, ge=2, le=100_000)  # games per case in the capture-time service
     seed: int = Field(_SERVICE.seed, ge=0)  # the service's seed of those games
-    # The intruders as a player (docs/model.md section 6): their policy (farm.alloc.intruders' registry),
+    # The intruders as a player (docs/model.md section 8): their policy (farm.alloc.intruders' registry),
     # its options, and what they see when they route: the defenders after their move (follower) or the
     # state both sides choose from (simultaneous).
     intruders: str = "drift"
@@ -96,6 +84,19 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
     The MDP's fields are _AllocFields' (above); the games' are every workers.Case setting
     but the team sizes, each None by default, which means the engagement's value
     (ENGAGEMENT_DEFAULTS, and under v2 the window tied to the step), else Case's default.
+
+    Engagement model v2 (the default) ties the layers together: one MDP step lasts the
+    time an intruder needs to cross a cell (step_seconds = cell side / the intruders'
+    speed `evader_speed` = 10 s), the engagement window is that step (tau = step_seconds),
+    the cell's games run no longer (t_max = tau) and are the paper's Table 1 setting,
+    pure pursuit against intruders heading for the exit (0, 5) that escape through it,
+    and the capture score is an expectation over all of a cell's games, normalised by the
+    window (`capture_score: expected`, capture_time_norm = tau). v1 (`engagement: v1`) is
+    the earlier model, for comparison: area_min against centroid, tau 5 s, t_max 10 s, no
+    exit, capture_time_norm 10 and the earlier score (`capture_score: conditional`: the mean
+    capture time of the games that caught someone). A value that contradicts the
+    engagement's coupling is one clear error.
+
     A bad or contradictory value raises pydantic's ValidationError naming the field.
     """
 
@@ -105,7 +106,7 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
         if not isinstance(data, dict):
             return data
         data = dict(data)
-        if "intruder_speed" in data:  # the spellings of run folders written before version 0.2
+        if "intruder_speed" in data:  # a run folder's old field name intruder_speed
             data.setdefault("evader_speed", data.pop("intruder_speed"))
         if isinstance(data.get("law"), str):
             data["law"] = {"kind": data["law"]}

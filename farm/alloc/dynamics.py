@@ -1,24 +1,17 @@
 """One step of the allocation MDP for B episodes at once: the one definition of a step.
 
-The single env (farm.alloc.env.SwarmAllocationEnv) steps through step() with B = 1 and the
-batched one (farm.alloc.vector_env.SwarmAllocationVectorEnv) with B episodes, so episode k
-of a batch gets, to the last bit, the numbers it would get alone: every operation here is
-elementwise, or a sum over one episode's entries that does not depend on the other episodes
-(np.add.reduceat over each cell's moves, np.bincount in entry order, and farm.alloc.model's
-row_sums and segment_sums, which sum as numpy sums one episode's 1-D array), and the
-engagements of all B episodes are answered by one lookup (EngagementModel.engage_many).
+The single env steps through step() with B = 1 and the batched one with B episodes, so episode
+k of a batch gets, to the last bit, the numbers it would get alone: every operation here is
+elementwise, or a sum over one episode's entries alone (np.add.reduceat over each cell's moves,
+np.bincount in entry order, farm.alloc.model's row_sums and segment_sums), and the engagements
+of all B episodes are answered by one lookup (EngagementModel.engage_many).
 
-- moves, n_actions, Layout: the action layout of an N x N grid; routes: the intruders';
-- check_actions: the action refusal rule (ActionError);
-- move_probabilities, move_defenders: the defenders' move (the `action_map` and D' = T D), and
-  defenders_move both from an action; route_probabilities, routing_of: the intruders' action
-  mapped to their routing, and intruder_routing both;
-- start_densities: an episode's start; observe: the observation; episode_end: termination
-  and truncation;
-- step: a whole step (StepResult), defenders_move then resolve: the part after the defenders'
-  move. The intruders' env (farm.alloc.intruder_env) composes the same pieces with an
-  intruder action: defenders_move of its frozen allocator's action, intruder_routing, resolve.
-
+Its parts: moves, n_actions, Layout (the action layout of an N x N grid; routes, the intruders');
+check_actions (the refusal rule, ActionError); move_probabilities, move_defenders (the
+`action_map`, D' = T D) and defenders_move (both); route_probabilities, routing_of (the
+intruders' action as a routing) and intruder_routing (both); start_densities, observe,
+episode_end (termination, truncation); step (StepResult: defenders_move, then resolve, the part
+after the defenders' move), the pieces the intruders' env composes too.
 Densities are (B, N^2) float64, one episode a row, cells in cell order c = row * N + col.
 """
 

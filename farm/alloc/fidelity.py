@@ -27,10 +27,10 @@ from farm.service.lookup import Lookup
 __all__ = ["TASK_SECONDS", "MIN_TASK_SECONDS", "TASKS_PER_CPU", "CALL_SECONDS", "FreshGames", "pack_games", "task_seconds", "evaluate_fidelity"]
 
 TASK_SECONDS = 0.5  # a live-engagement task's work by the engine's cost model, at most
-MIN_TASK_SECONDS = 0.05  # and at least (a task well over Ray's ~1 ms overhead)
+MIN_TASK_SECONDS = 0.05  # and at least (a task well over Ray's per-task overhead)
 TASKS_PER_CPU = 4  # a small step's tasks per CPU: the last task of a step waits on the slowest
 # what playing one game as play_outcomes does costs above the engine's cost model (its rows and
-# statistics in pandas): 2-3 ms, measured on 1 v 5 to 8 v 300 games, where the model says 0.3-11 ms
+# statistics in pandas), as measured (docs/results.md, "Measurements behind the code's constants")
 CALL_SECONDS = 2.5e-3
 
 

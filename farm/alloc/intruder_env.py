@@ -1,20 +1,16 @@
-"""The intruders' side of the grid MDP as a gymnasium env, against a frozen allocator (docs/model.md section 6).
+"""The intruders' side of the grid MDP as a gymnasium env, against a frozen allocator (docs/model.md section 8).
 
-SwarmIntruderEnv is one episode, registered as `farm/SwarmIntruders-v0` and, with each suite
-scenario's settings, as `farm/<name>-intruders-v0`; SwarmIntruderVectorEnv is its batched form,
-the ids' `vector_entry_point`, as farm.alloc.vector_env is to farm.alloc.env:
+SwarmIntruderEnv is one episode (the id `farm/SwarmIntruders-v0`, and `farm/<name>-intruders-v0`
+with each scenario's settings); SwarmIntruderVectorEnv, the ids' `vector_entry_point`, batches
+it as farm.alloc.vector_env batches farm.alloc.env:
 
-    import gymnasium, farm.alloc
     env = gymnasium.make("farm/outnumbered_3x3-intruders-v0", opponent="stay_at_base")
-    envs = gymnasium.make_vec("farm/outnumbered_3x3-intruders-v0", num_envs=16,
-                              vectorization_mode="vector_entry_point", opponent="intercept")
 
-The episodes are the defenders' env's (farm.alloc.env.SwarmAllocationEnv: the same start drawn
-from the same seeded generator, the same step, info and end), with the sides swapped: the agent
-routes the intruders, and a frozen allocator (Opponent) moves the defenders. A step is the
-pieces farm.alloc.dynamics.step is made of: defenders_move of the allocator's action,
-intruder_routing of the agent's, resolve. Episode k of a batch reset with seed s is, to the
-last bit, the single env reset with seed s + k (tests/test_intruder_env.py).
+The episodes are the defenders' env's (the same start from the same seeded generator, the same
+step, info and end) with the sides swapped: the agent routes the intruders and a frozen
+allocator (Opponent) moves the defenders. A step is the pieces farm.alloc.dynamics.step is made
+of: defenders_move of the allocator's action, intruder_routing of the agent's, resolve. Episode
+k of a batch reset with seed s is, to the last bit, the single env reset with seed s + k.
 """
 
 from __future__ import annotations

@@ -4,25 +4,15 @@ The env (farm.alloc.env) steps through these functions, and the planners
 (farm.alloc.policies.planners) call the same ones to look ahead, so a planner's model of a
 step is the env's step and never a copy that could drift from it:
 
-- advance_intruders: the intruders' vertical drift and one-column advance under the drift
-  law (known in advance: it does not depend on the defenders), advance_intruders_many the
-  same for B episodes at once; route_intruders_many the same move under any routing (the
-  intruders as a player, docs/model.md section 6), drift_routing the drift law as one;
+- advance_intruders (advance_intruders_many for B episodes): the intruders' move under the
+  drift law, known in advance; route_intruders_many under any routing (docs/model.md section 8);
 - team_sizes: a cell's game, (n_p, n_e) from its densities (rounding, the lattice);
-- EngagementModel: a cell's expected outcome from the capture-time client's
-  statistics, the share of its intruders removed and its capture score per unit of
-  intruder mass under the config's `capture_score` rule (docs/model.md section 5);
-  engage_many answers the engaged cells of B episodes with one lookup.
+- EngagementModel: a cell's expected outcome from the capture-time client's statistics
+  (docs/model.md section 5); engage_many answers B episodes' engaged cells in one lookup.
 
 Every density is a vector over the N x N cells in cell order, c = row * N + col; a batch of
-B episodes is a (B, N^2) array, one episode a row.
-
-Sums and batches. The batched functions give each episode the very numbers the same function
-gives it alone (B = 1), to the last bit: the single env (farm.alloc.env) and the batched one
-(farm.alloc.vector_env) step through them with B = 1 and B episodes. numpy sums a 1-D array
-pairwise (in blocks of 8 from 8 entries on), so a sum's last bit depends on how its entries are
-grouped; row_sums and segment_sums sum each episode's entries exactly as numpy sums that
-episode's entries alone as a 1-D array (tests/test_vector_env.py checks the property).
+B episodes is a (B, N^2) array, one episode a row. The batched functions give each episode, to
+the last bit, the numbers they give it alone (B = 1): see segment_sums.
 """
 
 from __future__ import annotations
@@ -77,6 +67,12 @@ def segment_sums(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
     by numpy (row_sums). Of several, those of fewer than 8 entries are summed one entry after
     another from 0, as numpy sums so few (np.bincount's order); longer ones by numpy, one
     (rows, length) array per distinct length, its rows summed as 1-D arrays (row_sums).
+
+    Why: numpy sums a 1-D array pairwise (in blocks of 8 from 8 entries on), so a sum's last
+    bit depends on how its entries are grouped. Summing each episode's entries exactly as numpy
+    sums them alone gives a batch of B episodes the very numbers each gets with B = 1: the
+    single env (farm.alloc.env) and the batched one (farm.alloc.vector_env) agree to the last
+    bit (tests/test_vector_env.py checks the property).
     """
     values = np.asarray(values, dtype=np.float64)
     counts = np.asarray(counts, dtype=np.int64)

@@ -7,8 +7,7 @@ runs several allocators so and measure_table turns the per-episode rows into a t
 `farm eval`, `farm suite` and the experiments' trials all evaluate through here.
 
 The measures of an episode (MEASURES; docs/model.md section 5):
-  return, eliminated, breached, length: the episode's reward sum, intruder mass eliminated
-            and breached, and its steps;
+  return, eliminated, breached, length: the reward sum, mass eliminated and breached, steps;
   coverage: the share of the intruder mass sharing a cell with defenders, per step
             (averaged over the episode's steps);
   engaged: engaged cells per step;

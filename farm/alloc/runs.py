@@ -1,4 +1,5 @@
-"""A training run's folder: the one reader and writer of its files.
+"""A training run's folder: the one reader and writer of its files (a damaged file is one line,
+ResultsError naming it, never a traceback).
 
     config.yaml        the TrainConfig it was trained with (plain values)
     model.zip          the trained model (stable-baselines3's file)
@@ -12,8 +13,6 @@
     eval_table.csv, eval_episodes.csv, eval_steps.csv          farm eval (and an experiment's trial)
     eval_table_games.csv, fidelity_differences.csv            farm eval --fidelity games
     behaviour_steps.png, density_<policy>.png                 farm eval's figures
-
-Readers of a damaged file get one line (ResultsError naming the file), never a traceback.
 """
 
 from __future__ import annotations
@@ -40,7 +39,7 @@ MODEL = "model.zip"
 METRICS = "metrics.json"
 EVALUATIONS = "evaluations.npz"
 DIVERGED = "DIVERGED"
-LEARNER = "td3"  # the learner of a run from before `algo` (RunFolder.learner)
+LEARNER = "td3"  # the learner of a run whose config has no `algo` (RunFolder.learner)
 DAMAGED = "damaged"  # checkpoints/damaged/, pretrain/damaged/: files a resume could not load (move_damaged)
 
 # What a damaged or unreadable evaluations.npz raises on np.load and reading its arrays:
@@ -52,13 +51,13 @@ _NPZ_DAMAGE = (OSError, EOFError, zipfile.BadZipFile, zlib.error, ValueError, Lo
 
 
 class RunMetrics(BaseModel):
-    """metrics.json: what a training run measured. Fields in the file's order; a file written
-    before a field existed reads it as None."""
+    """metrics.json: what a training run measured. Fields in the file's order; an older file
+    without a field reads it as None."""
 
     model_config = ConfigDict(extra="ignore")
 
     name: str | None = None
-    algo: str | None = None  # None: a run from before `algo` (td3)
+    algo: str | None = None  # None: a config without `algo` (td3)
     timesteps: int | None = None
     resumed_from: int | None = None
     wall_seconds: float | None = None
@@ -159,7 +158,7 @@ class RunFolder:
 
     def learner(self) -> str:
         """The policy name the run's trained model is evaluated under: its config's algo (td3 for a
-        run from before `algo`, or without a readable config)."""
+        config without `algo`, or without a readable config)."""
         values = self.read_config_values() if self.is_run() else None
         algo = values.get("algo") if isinstance(values, dict) else None
         return algo if isinstance(algo, str) else LEARNER

@@ -3,52 +3,15 @@
 A Scenario is a name, a one-line description and the allocation env's settings (AllocConfig
 keyword arguments). SCENARIOS holds them all: the paper's five runs, with the env settings of
 configs/train/paper_3x3_c1_0.yaml, paper_3x3_c1_1.5.yaml, paper_3x3_100v100.yaml,
-larger_5x5.yaml and larger_8x8.yaml, and harder scenarios built from the model's own levers
-(fewer defenders than intruders, faster intruders, vertical drift, a wide front).
-
-Every scenario uses `team_sizes: lattice`: each cell's team sizes are snapped to the 16 sizes of
-farm.alloc.env.LATTICE (1, 2, 3, 4, 6, 8, 12, ..., 192, 256; larger teams play as 256), so a
-scenario meets at most 16 x 16 = 256 distinct games, the whole lattice is computed once up
-front (farm.alloc.lattice.warm_lattices) and every policy, episode and run
-shares it. That is why the paper's runs here differ from their training configs, which use
-exact team sizes: configs/train/suite_<name>.yaml trains each scenario as it is defined here.
-
-Importing farm.alloc registers each scenario as the gymnasium id `farm/<name>-v0`
-(register_scenarios), with the scenario's settings as the env's keyword arguments, which the
-caller may override as RL Zoo's `env_kwargs` do:
-
-    import gymnasium, farm.alloc
-    env = gymnasium.make("farm/outnumbered_3x3-v0")              # the scenario as defined
-    env = gymnasium.make("farm/outnumbered_3x3-v0", c_capture=0.0)  # one setting changed
-    envs = gymnasium.make_vec("farm/outnumbered_3x3-v0", num_envs=16,  # 16 episodes batched
-                              vectorization_mode="vector_entry_point")
-
-and its intruders' env (farm.alloc.intruder_env) as `farm/<name>-intruders-v0`, the same settings
-with the intruders as the agent against a frozen allocator:
-
-    env = gymnasium.make("farm/outnumbered_3x3-intruders-v0", opponent="stay_at_base")
-
-The harder scenarios were chosen by measuring the policies on them (`farm suite`, 10 episodes,
-seeds 1000..1009, the service's 64 games a case, when the scenarios were chosen). A cell's
-capture fraction grows with its defenders and hardly falls with its intruders (pure pursuit
-at equal speeds: 1 defender catches 0.41 of 1 intruder and 0.39 of 32, 3 defenders 0.80 and
-0.68, 12 defenders 1.00 and 0.94), so "fewer defenders" means few in absolute numbers, about
-one a row. In outnumbered_3x3, outnumbered_5x5, fast_5x5 and wide_front_8x8 no heuristic
-(stay_at_base, greedy_nearest, spread_evenly, the intercept planner) eliminated more than 0.76
-of the intruder mass (the best, intercept: 0.74, 0.73, 0.69, 0.75; the mmr and
-receding_horizon planners 0.67 to 0.84); drift_5x5 tells the policies that anticipate the
-drift (intercept 0.99) from those that do not (spread_evenly 0.82, greedy_nearest 0.62).
-
-The theatres (THEATRES: theatre_8x8, theatre_16x16, theatre_32x32) are wide fronts of intruders
-drifting between rows (0.25 to each neighbour a step), with fewer defenders than rows (6 v 400,
-10 v 1,600, 16 v 5,000), an episode as long as the intruders take to cross (N steps). They were
-chosen the same way (10 episodes, seeds 1000..1009): the best heuristic, intercept, eliminates
-0.70, 0.76 and 0.71 (10 v 1,600 rather than 12, where intercept eliminated 0.81); mmr 0.65,
-0.75 and 0.86; receding_horizon 0.85, 0.93 (20 episodes) and 0.977 (10 episodes; 3.3 to 7.4 s a
-step on one core, by the machine); the transport planner, made later for such fronts, 0.74,
-0.84 and 0.89 (20 episodes). Their lattice is the suite's (team sizes up to 16 v 256).
-The size-free learner (configs/train/size_free.yaml) trains on the 8 x 8 one and acts on all
-three.
+larger_5x5.yaml and larger_8x8.yaml; harder scenarios built from the model's own levers (fewer
+defenders than intruders, faster intruders, vertical drift, a wide front); and the THEATRES,
+wide fronts of drifting intruders on 8 x 8 to 32 x 32 maps, an episode N steps long. Every
+scenario uses `team_sizes: lattice` (the 16 sizes of farm.alloc.env.LATTICE), so it meets at
+most 16 x 16 = 256 distinct games, computed once up front (farm.alloc.lattice.warm_lattices):
+that is why the paper's runs here differ from their training configs, which use exact team
+sizes (configs/train/suite_<name>.yaml trains each scenario as defined here). Each is a
+gymnasium id, its intruders' env (farm.alloc.intruder_env) another (register_scenarios). How
+the harder scenarios and the theatres were chosen: docs/results.md, "How the scenarios were chosen".
 """
 
 from __future__ import annotations
@@ -131,7 +94,7 @@ _ALL = [
     Scenario("larger_8x8", "beyond the paper: 8x8, 800 defenders v 400 intruders, C = (1, 1.5)",
              {"grid_size": 8, **_BIG, "n_defenders": 800, "n_intruders": 400, "c_distribution": 1.0,
               "c_capture": 1.5, **_LATTICE}),
-    # Harder: the model's own levers (measured on the baselines and planners, see the module doc).
+    # Harder: the model's own levers (chosen on the baselines and planners: docs/results.md).
     Scenario("outnumbered_3x3", "3x3, 4 defenders v 100 intruders: about one defender a row",
              {"grid_size": 3, "n_defenders": 4, "n_intruders": 100, "c_distribution": 1.0, "c_capture": 1.5,
               **_LATTICE}),
@@ -161,8 +124,8 @@ THEATRES = ("theatre_8x8", "theatre_16x16", "theatre_32x32")  # the size-free le
 
 
 def register_scenarios() -> list[str]:
-    """Register every scenario as the gymnasium id `farm/<name>-v0`, and as `farm/<name>-intruders-v0`
-    the intruders' env of it (once; registering again does nothing); returns the ids, each
+    """Register every scenario as the gymnasium id `farm/<name>-v0`, and its intruders' env as
+    `farm/<name>-intruders-v0` (once; registering again does nothing); returns the ids, each
     scenario's two in turn.
 
     Each id makes farm.alloc.env.SwarmAllocationEnv with the scenario's settings as keyword
@@ -170,9 +133,16 @@ def register_scenarios() -> list[str]:
     the env's other arguments (client, store, render_mode, estimates). Its vector entry point
     (VECTOR_ENTRY_POINT) is farm.alloc.vector_env.SwarmAllocationVectorEnv, which
     gymnasium.make_vec(id, num_envs=B, vectorization_mode="vector_entry_point") makes with the
-    same settings and keyword arguments. The intruders' id makes
+    same settings and keyword arguments, as RL Zoo's `env_kwargs` do. The intruders' id makes
     farm.alloc.intruder_env.SwarmIntruderEnv (its vector entry point SwarmIntruderVectorEnv) so,
-    the frozen allocator its `opponent` argument.
+    the frozen allocator its `opponent` argument. Importing farm.alloc calls it:
+
+        import gymnasium, farm.alloc
+        env = gymnasium.make("farm/outnumbered_3x3-v0")              # the scenario as defined
+        env = gymnasium.make("farm/outnumbered_3x3-v0", c_capture=0.0)  # one setting changed
+        envs = gymnasium.make_vec("farm/outnumbered_3x3-v0", num_envs=16,  # 16 episodes batched
+                                  vectorization_mode="vector_entry_point")
+        env = gymnasium.make("farm/outnumbered_3x3-intruders-v0", opponent="stay_at_base")
     """
     import gymnasium
 

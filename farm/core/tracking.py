@@ -1,8 +1,7 @@
 """Optional experiment tracking: the `tracking:` block of training and experiment configs
-(TrackingParams, its one tracker: MLflow, MlflowParams) and what both trackers share (the
-MLflow experiment a config logs into, a config flattened into MLflow params). TensorBoard
-(SB3's, in every run folder) stays on whatever this block says; MLflow is used only when
-`tracking.mlflow` is set, and imported only then (`import farm` never imports it).
+(TrackingParams; its one tracker, MLflow: MlflowParams) and what both share (the MLflow
+experiment a config logs into, a config flattened into MLflow params). TensorBoard (SB3's, in
+every run folder) stays on; MLflow is used, and imported, only when `tracking.mlflow` is set.
 
     tracking:
       mlflow:

@@ -30,7 +30,7 @@ MAX_SHARD_GAMES = 100_000
 def games_per_shard(case: Case) -> int:
     """Games per Ray task: about half a second of work on one core by the engine's cost
     model, so that the cost of a task beyond its games (Ray's dispatch and the shard's atomic
-    Parquet write, 10-20 ms measured by benchmarks/farm.py) stays under 5%."""
+    Parquet write, timed by benchmarks/farm.py: docs/results.md) stays under 5%."""
     seconds = estimated_game_seconds(case.n_pursuers, case.n_evaders, case.pursuer_policy, case.evader_policy,
                                      case.t_max, case.dt, case.pursuer_speed, case.evader_speed)
     return int(min(MAX_SHARD_GAMES, max(1, round(SHARD_SECONDS / seconds))))
@@ -124,8 +124,8 @@ def shard_problem(path: Path, sweep_id: str, point: int, number: int, start: int
     """(the shard's rows as a DataFrame, None) when the file at path is shard `number` of
     point `point` (games start..stop-1) of sweep sweep_id, whole; else (None, what is wrong:
     unreadable, of another sweep, failing its checksum, or rows of other games or another
-    shard, as when a shard was copied over another's name). Files written before the checksum
-    (no ROWS_SHA256_KEY) or before the sweep id are judged by their rows alone."""
+    shard, as when a shard was copied over another's name). Files without the checksum (no
+    ROWS_SHA256_KEY) or without the sweep id (older formats) are judged by their rows alone."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 

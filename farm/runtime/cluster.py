@@ -1,22 +1,7 @@
 """The one way swarm-farm starts or joins Ray, and the one way it submits many tasks.
 
-ray_cluster(): join a cluster (an address, or $RAY_ADDRESS) or start a real single-node
-Ray on this machine, its own: never one it finds on the machine (a `ray start` cluster, or
-the pointer file a killed one left behind). The local Ray it starts is quiet and safe:
-- loopback only: Ray's servers listen on every interface and advertise the machine's
-  address, whatever ray.init is given (it turns 127.0.0.1 into the machine's address on
-  purpose). Its one switch for a single-machine Ray is the environment variable
-  RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 (named for the systems where it is the default),
-  read when Ray is imported: every Ray process then binds 127.0.0.1. ray_cluster sets it
-  when it starts a local Ray in a process that has not imported Ray yet (the `farm`
-  commands; the test suite sets it before importing Ray). A process that imported Ray
-  before gets Ray's default binding.
-- token authentication on, as Ray 2.60 chooses for a new local cluster (unless
-  RAY_AUTH_MODE says otherwise), without Ray's warning that it chose it (that one Ray
-  logger's level is raised while Ray starts).
-A cluster you join keeps its own settings and Ray's own behaviour. The metrics port has no
-public ray.init argument, only the private `_metrics_export_port` (the public way is
-`ray start --metrics-export-port`, a separate process); it is used here and nowhere else.
+ray_cluster(): join a cluster (an address, or $RAY_ADDRESS) or start a real single-node Ray
+of its own, quiet and safe (loopback only, token authentication: its docstring says how).
 
 bounded(): submit tasks with at most a given number pending (ray.wait backpressure),
 shared by sweeps, the capture-time service and the games-fidelity evaluation.
@@ -142,12 +127,30 @@ def ray_cluster(address: str | None = None, *, num_cpus: int | None = None, metr
     """Be connected to Ray for the duration of the block; shut down only what was started here.
 
     address: a cluster to join ("auto", "host:port", "ray://..."); None falls back to
-    $RAY_ADDRESS, and without it a local single-node Ray is started (see the module doc)
+    $RAY_ADDRESS, and without it a local single-node Ray is started (below)
     with num_cpus CPUs (default 2), its Prometheus metrics on metrics_port (default: Ray's
     choice) and, with dashboard, its dashboard on 127.0.0.1. When this process is already
     connected to Ray, that Ray is used, and asking for an address, a CPU count or a metrics
     port it does not have is a ClusterError; a metrics port outside 1-65535 is a ConfigError,
     before Ray starts. Yields the `ray` module.
+
+    The local Ray is a real single-node Ray on this machine, its own: never one it finds on
+    the machine (a `ray start` cluster, or the pointer file a killed one left behind). It is
+    quiet and safe:
+    - loopback only: Ray's servers listen on every interface and advertise the machine's
+      address, whatever ray.init is given (it turns 127.0.0.1 into the machine's address on
+      purpose). Its one switch for a single-machine Ray is the environment variable
+      RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 (named for the systems where it is the default),
+      read when Ray is imported: every Ray process then binds 127.0.0.1. ray_cluster sets it
+      when it starts a local Ray in a process that has not imported Ray yet (the `farm`
+      commands; the test suite sets it before importing Ray). A process that imported Ray
+      before gets Ray's default binding.
+    - token authentication on, as Ray 2.60 chooses for a new local cluster (unless
+      RAY_AUTH_MODE says otherwise), without Ray's warning that it chose it (that one Ray
+      logger's level is raised while Ray starts).
+    A cluster you join keeps its own settings and Ray's own behaviour. The metrics port has no
+    public ray.init argument, only the private `_metrics_export_port` (the public way is
+    `ray start --metrics-export-port`, a separate process); it is used here and nowhere else.
     """
     if metrics_port is not None and (isinstance(metrics_port, bool) or not isinstance(metrics_port, int)
                                      or not 1 <= metrics_port <= 65535):

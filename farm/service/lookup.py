@@ -4,26 +4,14 @@ A caller (the allocation env, training's warm-up, `farm table`, the evaluators) 
 CaptureTimeClient and asks it for the statistics of (n_pursuers, n_evaders) games under the
 client's GameSettings. The lookup then goes, in order:
 
-1. CaptureTimeClient: its memo of exact answers, keyed by team sizes (a dict lookup, no Ray
-   round trip). What it misses goes, as one batch of StatsKeys, to its backend.
-2. The backend (StatsBackend): a Lookup in this process (`local`), or the named Ray actor
-   `CaptureTimeService` whose body is ServiceLookup below (`ray`; farm/service/actor.py
-   only deploys it), reached through RayBackend.
-3. Lookup.get_many, the one core: its memo (digest -> value), then the store
-   (farm/service/store.py, SQLite), then, if asked for, an estimate from computed
-   neighbours (NeighbourIndex, estimate), then compute: the key's games cut into shards
-   (farm/games/shards.py), in this process (compute_in_process) or as Ray tasks
-   (compute_on_ray: farm/games/tasks.py, a bounded number in flight by farm.runtime.bounded).
-   A computed value is stored and remembered. Concurrent asks for one missing key compute
-   it once (single flight). An estimated key is computed in the background where the
-   backend has one (the actor), else on its next exact ask.
-
-Without a store (the games-fidelity evaluation, farm.alloc.rollout), nothing is
-remembered or estimated: every ask is computed, once per position of the batch.
-
-The client side (CaptureTimeClient, RayBackend, open_client) is farm/service/client.py;
-open_client() decides "Ray or local" once and owns the cluster and the service for as long
-as the client is in use.
+1. CaptureTimeClient (farm/service/client.py, with RayBackend and open_client): its memo of
+   exact answers, keyed by team sizes; what it misses goes, as one batch of StatsKeys, to:
+2. the backend (StatsBackend): a Lookup in this process (`local`), or the named Ray actor
+   `CaptureTimeService` whose body is ServiceLookup below (`ray`; farm/service/actor.py);
+3. Lookup.get_many, the one core: its memo, then the store (farm/service/store.py), then, if
+   asked for, an estimate from computed neighbours (NeighbourIndex, estimate), then compute:
+   the key's games cut into shards (farm/games/shards.py), here or as Ray tasks
+   (compute_in_process, compute_on_ray). Lookup's docstring says the rest.
 """
 
 from __future__ import annotations
@@ -173,6 +161,13 @@ def estimate(key: StatsKey, neighbours: list[tuple[int, int, CaptureStats]]) -> 
 # ----------------------------------------------------------------------------- the core
 class Lookup:
     """memo, then store, then estimate, then compute; thread-safe, single flight.
+
+    A computed value is stored and remembered. Concurrent asks for one missing key compute it
+    once (single flight). An estimated key is computed in the background where the backend has
+    one (the actor), else on its next exact ask. Without a store (the games-fidelity
+    evaluation, farm.alloc.rollout) nothing is remembered or estimated. compute_on_ray keeps a
+    bounded number of tasks in flight (farm.runtime.bounded); open_client() (client.py) decides
+    "Ray or local" once and owns the cluster and the service while the client is in use.
 
     store: a StatsStore (values are remembered, stored and estimated from), or None (every
     ask is computed, once per position: nothing is remembered). compute: how missing keys

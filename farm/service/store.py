@@ -6,7 +6,7 @@ atomically (a crash mid-write leaves the last committed state), readers never
 block the writer in WAL mode, and it is one file in the standard library.
 
 Every row carries a SHA-256 of every column a reader uses: "v2:" + the hash of the key
-digest, settings digest, team sizes, key and value (rows written before issue 17 carry
+digest, settings digest, team sizes, key and value (v1 rows, without the prefix, carry
 the hash of the key digest, key and value only; they are served when their other columns
 agree with their key, see _columns_of). A row damaged on disk is reported and never
 served (it is recomputed); a file that is not a sound SQLite database stops the store with
@@ -53,7 +53,7 @@ def _lenient_text(data: bytes) -> str:
 
 
 def _checksum(key: str, key_json: str, value_json: str) -> str:
-    """A row's checksum as written before issue 17 (v1): key digest, key and value only."""
+    """A v1 row's checksum: key digest, key and value only."""
     return hashlib.sha256(f"{key}\n{key_json}\n{value_json}".encode()).hexdigest()
 
 
@@ -147,7 +147,7 @@ def default_store_path() -> Path:
 
 class StatsStore:
     """key digest -> CaptureStats, on disk. A row's value is CaptureStats.flat() as JSON
-    (rows written before CaptureStats, with a few more keys, read the same).
+    (older rows, with a few more keys, read the same).
 
     Opening refuses at once, in one line: a path that is a folder (ConfigError), a store
     that cannot be written unless read_only (ConfigError: the file or its folder is not
@@ -216,8 +216,8 @@ class StatsStore:
         """A row's value when every column a reader uses is verified, else None (a damaged
         row is reported in corrupt_rows, a row of an older engine's layout in older_rows).
 
-        v2 rows: the checksum covers every column. Rows written before (v1: the checksum
-        covers the key digest, key and value) also need their settings digest and team
+        v2 rows: the checksum covers every column. v1 rows (the checksum covers the key
+        digest, key and value) also need their settings digest and team
         sizes (and key digest) to be those of their key_json."""
         if isinstance(checksum, str) and checksum.startswith(CHECKSUM_V2):
             if _checksum_v2(key, settings, n_p, n_e, key_json, value_json) != checksum:

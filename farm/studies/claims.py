@@ -1,6 +1,5 @@
-"""The paper's three qualitative claims (docs/model.md section 5, (a)-(c)), measured on
-evaluated training runs (`farm eval` output, or an experiment's trials) and stated with
-their numbers:
+"""The paper's three qualitative claims (docs/model.md section 5, (a)-(c)), measured on evaluated
+training runs (`farm eval` output, or an experiment's trials) and stated with their numbers:
 
 (a) with C_capture = 0 the allocator spreads the defenders over the intruder cells,
     engaging them all in the same step: the trained policy's coverage at the first
@@ -11,23 +10,9 @@ their numbers:
 (c) training plateaus within minutes: the wall time at which the evaluation return
     first comes within 5% (of the range of the evaluations) of its best.
 
-On one run per setting (claims), each verdict compares 95% confidence intervals over
-evaluation episodes; none is assumed, and the thresholds are stated with them.
-
-Over seeds (claims_over_seeds, on a `farm experiments` folder): the same per-run measures
-(measure_a, measure_b, plateau_minutes) and per-run verdicts, for every seed whose
-C_capture = 0 and 1.5 trials are both finished ((a), (b)) and for every finished trial
-((c)); then a verdict per claim by a count rule: confirmed when every seed (for (c): every
-trial) confirms, not confirmed when none does, else mixed. (b) counts its two halves (fewer
-engaged cells; more defenders per engaged cell) so each, and is confirmed or not confirmed
-when both halves are, partly confirmed when one half is confirmed in every seed and the other
-in none, else mixed. The spread across seeds: each measure's per-seed values and their mean
-± 95% CI over seeds (farm.core.stats.mean_ci95; no CI for one seed), and for (b) the
-per-seed differences C_capture 1.5 - 0.
-
-    farm claims results/runs     (reads <run>/eval_steps.csv, eval_table.csv,
-                                  evaluations.npz and metrics.json)
-    farm claims results/experiments/paper     (an experiment: its trials' run folders)
+claims() states them on one run per setting (`farm claims results/runs`: each run's
+eval_steps.csv, eval_table.csv, evaluations.npz and metrics.json), claims_over_seeds() over an
+experiment's seeds (`farm claims results/experiments/paper`: its trials' run folders).
 """
 
 from __future__ import annotations
@@ -150,6 +135,9 @@ def claims(runs_dir: Path, c0: str = "paper_3x3_c1_0", c15: str = "paper_3x3_c1_
     episode, step, coverage, engaged_cells, defenders_per_engaged) and are left out
     without it; (c) takes every run in runs_dir with its evaluations. Each row's values
     are strings.
+
+    Each verdict compares 95% confidence intervals over evaluation episodes; none is
+    assumed, and the thresholds are stated with them.
     """
     out = []
     a = measure_a(runs_dir / c0, policy)
@@ -360,7 +348,17 @@ def _pair_note(pairs: list[tuple[int, int]]) -> str:
 
 
 def claims_over_seeds(folder, points: tuple[int, int] | None = None, policy: str | None = None) -> SeedClaims:
-    """The paper's claims over an experiment's seeds (see the module doc): SeedClaims.
+    """The paper's claims over an experiment's seeds: SeedClaims.
+
+    The same per-run measures (measure_a, measure_b, plateau_minutes) and per-run verdicts, for
+    every seed whose C_capture = 0 and 1.5 trials are both finished ((a), (b)) and for every
+    finished trial ((c)); then a verdict per claim by a count rule: confirmed when every seed
+    (for (c): every trial) confirms, not confirmed when none does, else mixed. (b) counts its
+    two halves (fewer engaged cells; more defenders per engaged cell) so each, and is confirmed
+    or not confirmed when both halves are, partly confirmed when one half is confirmed in every
+    seed and the other in none, else mixed. The spread across seeds: each measure's per-seed
+    values and their mean ± 95% CI over seeds (farm.core.stats.mean_ci95; no CI for one seed),
+    and for (b) the per-seed differences C_capture 1.5 - 0.
 
     folder: a `farm experiments` folder (experiment.json, trials/<trial>/run); only finished
     trials count (their result.json). points: the (C_capture 0, C_capture 1.5) points of (a)

@@ -2,24 +2,17 @@
 
 Adding a policy is one new file and one line here:
 
-1. write ``workers/policies/<name>.py`` holding a compiled function named ``<name>``
-   of (agent index, Step) returning that agent's velocity (ux, uy), of speed at most
-   its team's (see workers.policies.context), and ``NEEDS_CELLS``: whether it reads
-   the Step's cell fields (the engine builds the cells only for games that need them);
+1. write ``workers/policies/<name>.py`` holding a compiled function named ``<name>`` of
+   (agent index, Step) returning that agent's velocity (ux, uy), of speed at most its team's
+   (workers.policies.context), and ``NEEDS_CELLS``: whether it reads the Step's cell fields
+   (the engine builds the cells only for games that need them);
 2. add ``"<name>"`` at the end of PURSUERS or EVADERS below.
 
-Nothing else: a policy's kind (the number the compiled engine is given) is its position
-in its team's list, and the dispatch the engine inlines (`pursuer_velocity`,
-`evader_velocity`: call policy number `kind`) is generated from the lists, with an
-error for a kind no policy has. Its file is part of the kernels' cache digest by being
-in this folder (workers.compiled). Keep the existing names in place, so that the
-existing kinds keep their numbers.
-
-A policy defined outside the package (a test, a notebook) is added at run time with
-`register_policy`. The compiled kernels hold the built-in dispatch, inlined, so games
-that use such a policy are played by fresh copies of the engine's kernels compiled for
-the registry as it then is (not cached on disk: compiled once per process, in tens of
-seconds); games of built-in policies keep the cached kernels, and their numbers.
+Nothing else: a policy's kind (the number the compiled engine is given) is its position in its
+team's list, and the dispatch the engine inlines (`pursuer_velocity`, `evader_velocity`: call
+policy number `kind`) is generated from the lists, with an error for a kind no policy has. Its
+file is part of the kernels' cache digest by being in this folder (workers.compiled). Keep the
+existing names in place, so that the existing kinds keep their numbers (others: register_policy).
 """
 
 from __future__ import annotations
@@ -119,8 +112,12 @@ def register_policy(team: str, fn, *, needs_cells: bool, name: str | None = None
     fn: a numba-compiled function (agent index, Step) -> (ux, uy), as the built-ins
     (its __name__ is the policy's name unless `name` is given); needs_cells: whether it
     reads the Step's cell fields. Its kind is the next number. Every function that takes
-    a policy name (simulate_games, Case, ...) then accepts it; games that use it are
-    played by uncached kernels compiled for the registry as it is then (module doc).
+    a policy name (simulate_games, Case, ...) then accepts it.
+
+    The compiled kernels hold the built-in dispatch, inlined, so games that use such a
+    policy are played by fresh copies of the engine's kernels compiled for the registry as
+    it then is (not cached on disk: compiled once per process, in tens of seconds); games of
+    built-in policies keep the cached kernels, and their numbers.
     """
     table = _table(team)
     name = getattr(fn, "__name__", None) if name is None else name

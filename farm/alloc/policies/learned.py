@@ -12,7 +12,7 @@ from farm.core.errors import ConfigError
 __all__ = ["ALGORITHMS", "algorithm_class", "load_model", "learned", "td3", "ppo", "sac"]
 
 def _run_repair(run) -> str:
-    """The `repair` of a run folder's config.yaml (none for a run from before it, or without one)."""
+    """The `repair` of a run folder's config.yaml (none for a config without it, or a run without one)."""
     import yaml
 
     path = Path(run) / "config.yaml" if run is not None else None  # farm.alloc.runs.CONFIG, a layer above

@@ -6,14 +6,13 @@ An entry is a name, a kind (`baseline`, `planner` or `learned`) and a maker,
 the CaptureTimeClient answering its engagements (a baseline ignores it), options the
 allocator's own keywords (a planner's `horizon`, a learned allocator's trained `policy`).
 An allocator answers SB3's `predict(obs, state=None, episode_start=None, deterministic=True)
--> (action, state)`. `farm eval`, `farm suite`, `farm experiments`, the benchmarks and the
-report take their lists from here (policy_names), in registration order.
+-> (action, state)`. The commands, the benchmarks and the report take their lists from here
+(policy_names), in registration order.
 
-Entries travel to Ray workers inside the tasks that use them (a PolicySpec holds its entry).
-A spec pickles its entry with cloudpickle, the maker's module by value when it is the user's
-own code (not farm's, not an installed package: a script, a notebook, a test file), which a
-worker could not import by name; so an allocator registered in a driver's own module is
-evaluated on the farm too.
+Entries travel to Ray workers inside the tasks that use them (a PolicySpec holds its entry),
+pickled with cloudpickle, the maker's module by value when it is the user's own code (not
+farm's, not an installed package: a script, a notebook, a test file, which a worker could not
+import by name): an allocator registered in a driver's own module is evaluated on the farm too.
 """
 
 from __future__ import annotations

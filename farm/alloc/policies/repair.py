@@ -1,45 +1,14 @@
 """The level repair: a learned allocator's action moved onto the games it almost plays.
 
-Why. Under `team_sizes: lattice` a target cell's game is a step function of its defender
-count (docs/model.md section 5, "Levels"): 27.5 defenders play a 24-defender game, 27.7 play
-32. receding_horizon plans each target at the least count of the level it wants (its window's
-low end, `levels().lo`, 0.1 defender inside the rounding threshold), so an allocator that
-imitates it to within 1% of a cell's mass lands on the wrong side of the threshold about half
-the time and plays the smaller game with the defenders of the larger. That, not the choice of
-targets, is most of what separated the learned allocators from the planner: receding_horizon's
-own action with Gaussian noise of 0.02 added (a 10% change of a move's probability at the
-softmax's beta = 5) returns 1.2276 against 1.2344 on paper_3x3_c1_1.5 and -0.352 against -0.286
-on outnumbered_3x3; repaired, 1.2342 and -0.286 (20 episodes, seeds 1000-1019).
-
-What. LevelRepair(config)(obs, action) -> action. With the action's move probabilities p (the
-env's own map, farm.alloc.dynamics.move_probabilities) the defenders' flows along each move
-are f = p D[src] n_defenders, and each cell's count after the move is x = the inflow. The
-targets are the cells that hold intruders after their advance (the env's own advance). For
-each target, the most intruder mass first, whose count lies within `tol` below the low end of
-the next level's window, lo - x <= max(tol, rel lo), the defect is filled from free defenders
-of the target's neighbours (the cells with a move into it): those whose move goes to a cell
-that is no target, or that plays no game, or to a target above its own window's low end (the
-surplus beyond it), in move order. A target is filled whole or not at all: when the free
-defenders are short, nothing moves. The new flows are turned back into the action with the
-planners' own action_from_probabilities.
-
-Why it is right (and what it does not do). It moves defenders only along feasible moves of
-their own cell, so every source keeps its mass (each cell's slice of probabilities sums to
-1) and the realised action is a legal one; it never takes a defender from a target below its
-window's low end, so no game it did not aim at gets smaller, and a target it fills plays the
-next level's game (the window's margin absorbs the softmax's leak, as for the planners). It
-never raises a count by more than the tolerance, so the learner's choice of targets and
-levels stands: the repair only decides the side of a threshold the learner came within a
-tolerance of. It knows the config (levels, advance) and nothing of the capture-time
-statistics. With no target near a threshold it returns an action whose move probabilities
-equal the learner's (to the softmax's floor of exp(-2 beta) p_max on unwanted moves).
-
-Cost: the counts and the targets near a threshold are found with numpy; the fill is a loop in
-Python over those targets only (on Python floats: the same float64 arithmetic, a few times
-faster than numpy scalars) and their neighbours' moves. About 1 ms a step on 8 x 8 and 2.5 ms on
-32 x 32 on random states (benchmarks/learners.py and benchmarks/theatre.py time it on the maps,
-against receding_horizon's 44-73 ms on 8 x 8). tests/test_repair.py checks it equals the plain
-loop over every target.
+Under `team_sizes: lattice` a target cell's game is a step function of its defender count
+(docs/model.md section 5, "Levels"): 27.5 defenders play a 24-defender game, 27.7 play 32.
+receding_horizon plans each target at the least count of the level it wants (its window's low
+end, `levels().lo`, 0.1 defender inside the rounding threshold), so an allocator that imitates
+it to within 1% of a cell's mass lands on the wrong side of the threshold about half the time
+and plays the smaller game with the defenders of the larger. LevelRepair moves such a count
+over the threshold, from defenders that play no game or have some to spare; Repaired and
+RepairedActions put it behind a learned allocator and a gymnasium env. What it changes in the
+learners' returns, and its cost a step: docs/results.md, "The level repair".
 """
 
 from __future__ import annotations
@@ -70,7 +39,36 @@ def check_repair(value, field: str = "repair") -> str:
 
 
 class LevelRepair:
-    """The level repair of a config's actions (the module doc): LevelRepair(config)(obs, action).
+    """The level repair of a config's actions: LevelRepair(config)(obs, action) -> action.
+
+    With the action's move probabilities p (the env's own map,
+    farm.alloc.dynamics.move_probabilities) the defenders' flows along each move are
+    f = p D[src] n_defenders, and each cell's count after the move is x = the inflow. The
+    targets are the cells that hold intruders after their advance (the env's own advance). For
+    each target, the most intruder mass first, whose count lies within `tol` below the low end
+    of the next level's window, lo - x <= max(tol, rel lo), the defect is filled from free
+    defenders of the target's neighbours (the cells with a move into it): those whose move goes
+    to a cell that is no target, or that plays no game, or to a target above its own window's
+    low end (the surplus beyond it), in move order. A target is filled whole or not at all:
+    when the free defenders are short, nothing moves. The new flows are turned back into the
+    action with the planners' own action_from_probabilities.
+
+    Why it is right (and what it does not do). It moves defenders only along feasible moves of
+    their own cell, so every source keeps its mass (each cell's slice of probabilities sums to
+    1) and the realised action is a legal one; it never takes a defender from a target below
+    its window's low end, so no game it did not aim at gets smaller, and a target it fills
+    plays the next level's game (the window's margin absorbs the softmax's leak, as for the
+    planners). It never raises a count by more than the tolerance, so the learner's choice of
+    targets and levels stands: the repair only decides the side of a threshold the learner came
+    within a tolerance of. It knows the config (levels, advance) and nothing of the
+    capture-time statistics. With no target near a threshold it returns an action whose move
+    probabilities equal the learner's (to the softmax's floor of exp(-2 beta) p_max on unwanted
+    moves).
+
+    Cost: the counts and the targets near a threshold are found with numpy; the fill is a loop
+    in Python over those targets only (on Python floats: the same float64 arithmetic, faster
+    than numpy scalars) and their neighbours' moves. tests/test_repair.py checks it equals the
+    plain loop over every target; benchmarks/learners.py and benchmarks/theatre.py time it.
 
     config: AllocConfig; tol: defenders, rel: a share of the next window's low end (the gap
     filled is at most max(tol, rel lo)).

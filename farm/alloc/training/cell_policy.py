@@ -1,48 +1,8 @@
 """CellPolicy: PPO's actor-critic as one small network shared by every cell of the map, of
 any size.
 
-The allocation action is, for each cell, a score for each of its feasible moves (stay or one of
-its 8 neighbours: farm.alloc.dynamics.moves; the env turns a cell's scores into its move
-probabilities). An MLP over the flat observation learns each cell's scores separately, with a
-parameter count that grows with N^2, and must learn the same rule once per cell. CellPolicy
-computes them the way they are defined, per cell, with weights that do not depend on N:
-
-- the observation (B, 2 N^2) float32, [D, I] in cell order, is read as a (B, 7, N, N) image of
-  what is the same on any map: the cell's defenders and intruders as team counts (D_c
-  n_defenders, I_c n_intruders, the engagement's own inputs) and its row's totals, each
-  log1p-scaled by log1p(256) (the lattice's largest team); a channel of ones (so that the zero
-  padding beyond the map's edge is seen as outside, unlike an empty cell inside it); the cell's
-  column and row scaled to [0, 1], unless `positions` is false; with `balance`, four more: the
-  shares of the intruder mass in the rows above the cell's and in the rows below it (of the mass
-  left on the map) and the shares of the defenders there (the transport balance: a cell whose
-  rows above hold more of the intruders than of the defenders sends defenders up, however far;
-  shares, so the same on any map);
-- `layers` 3 x 3 convolutions of `channels` channels, each followed by adding linear maps of
-  four summaries and a ReLU: the maximum over the cell's row (what its row holds, however far),
-  the maximum over the rows above it and over the rows below it (where to send defenders, up or
-  down, on a map of any height), and the maximum over the map. Maxima, not means: a mean over a
-  row of N cells dilutes one cell's signal by N, so what a network learnt on an 8 x 8 map would
-  read four times weaker on a 32 x 32 one; a maximum reads the same on any map. With `lateral`,
-  two more: the maximum over the cells to the left of the cell in its row and over those to its
-  right (where to send defenders along the row, however far: without them the three 3 x 3
-  layers see 3 cells to each side, most of an 8 x 8 row but a tenth of a 32 x 32 one);
-- the actor: a 1 x 1 convolution to 9 scores per cell, one per move (d_row, d_col) in row-major
-  order, of which each cell's feasible moves are gathered in the action vector's order: the
-  moves off the map are masked by never being in the action;
-- the critic: the same trunk (a second copy: the value's gradients do not move the actor's
-  features) pooled by mean and max over the cells into the value head.
-
-The teams' sizes (`teams`: n_defenders, n_intruders) are the env's, given by the trainer
-(farm.alloc.training.train.make_model), not learned. Every weight is the same tensor on any
-map but PPO's state-independent log_std, one per action entry (SB3's
-DiagGaussianDistribution), which only the exploration noise uses: resized() makes the policy
-for another map (another N, other teams) with the same weights and log_std at its mean, which
-`farm eval RUN --scenario NAME` evaluates deterministically. It plugs into stable-baselines3
-through the documented route for custom networks, a policy class overriding
-`_build_mlp_extractor`: the extractor's latent_dim_pi is the action's length, and the action
-net that SB3 puts after it is an identity (the scores are the Gaussian's means), the optimizer
-built again over the parameters that remain. config: `ppo: {policy: CellPolicy, policy_kwargs:
-{channels: 32, layers: 3}}`.
+CellPolicy's docstring says what it computes and why its weights fit any map; MapGeometry,
+CellNet and resized are its parts.
 """
 
 from __future__ import annotations
@@ -103,7 +63,7 @@ def balance_shares(densities: torch.Tensor) -> torch.Tensor:
 
 class _Trunk(nn.Module):
     """(B, 2 N^2) observations of a map (its MapGeometry) -> (B, channels, N, N) per-cell
-    features (the module doc)."""
+    features (CellPolicy's doc)."""
 
     def __init__(self, channels: int, layers: int, positions: bool = True, lateral: bool = False,
                  balance: bool = False):
@@ -182,9 +142,54 @@ class CellNet(nn.Module):
 
 
 class CellPolicy(ActorCriticPolicy):
-    """PPO's policy of per-cell shared weights (the module doc). channels: int >= 1, layers:
-    int >= 1; teams: (n_defenders, n_intruders) of the env; positions, lateral, balance: the module doc's
-    options; the other arguments are ActorCriticPolicy's."""
+    """PPO's policy of per-cell shared weights.
+
+    The allocation action is, for each cell, a score for each of its feasible moves (stay or one of
+    its 8 neighbours: farm.alloc.dynamics.moves; the env turns a cell's scores into its move
+    probabilities). An MLP over the flat observation learns each cell's scores separately, with a
+    parameter count that grows with N^2, and must learn the same rule once per cell. CellPolicy
+    computes them the way they are defined, per cell, with weights that do not depend on N:
+
+    - the observation (B, 2 N^2) float32, [D, I] in cell order, is read as a (B, 7, N, N) image of
+      what is the same on any map: the cell's defenders and intruders as team counts (D_c
+      n_defenders, I_c n_intruders, the engagement's own inputs) and its row's totals, each
+      log1p-scaled by log1p(256) (the lattice's largest team); a channel of ones (so that the zero
+      padding beyond the map's edge is seen as outside, unlike an empty cell inside it); the cell's
+      column and row scaled to [0, 1], unless `positions` is false; with `balance`, four more: the
+      shares of the intruder mass in the rows above the cell's and in the rows below it (of the mass
+      left on the map) and the shares of the defenders there (the transport balance: a cell whose
+      rows above hold more of the intruders than of the defenders sends defenders up, however far;
+      shares, so the same on any map);
+    - `layers` 3 x 3 convolutions of `channels` channels, each followed by adding linear maps of
+      four summaries and a ReLU: the maximum over the cell's row (what its row holds, however far),
+      the maximum over the rows above it and over the rows below it (where to send defenders, up or
+      down, on a map of any height), and the maximum over the map. Maxima, not means: a mean over a
+      row of N cells dilutes one cell's signal by N, so what a network learnt on an 8 x 8 map would
+      read four times weaker on a 32 x 32 one; a maximum reads the same on any map. With `lateral`,
+      two more: the maximum over the cells to the left of the cell in its row and over those to its
+      right (where to send defenders along the row, however far: without them the three 3 x 3
+      layers see 3 cells to each side, most of an 8 x 8 row but a tenth of a 32 x 32 one);
+    - the actor: a 1 x 1 convolution to 9 scores per cell, one per move (d_row, d_col) in row-major
+      order, of which each cell's feasible moves are gathered in the action vector's order: the
+      moves off the map are masked by never being in the action;
+    - the critic: the same trunk (a second copy: the value's gradients do not move the actor's
+      features) pooled by mean and max over the cells into the value head.
+
+    The teams' sizes (`teams`: n_defenders, n_intruders) are the env's, given by the trainer
+    (farm.alloc.training.train.make_model), not learned. Every weight is the same tensor on any
+    map but PPO's state-independent log_std, one per action entry (SB3's
+    DiagGaussianDistribution), which only the exploration noise uses: resized() makes the policy
+    for another map (another N, other teams) with the same weights and log_std at its mean, which
+    `farm eval RUN --scenario NAME` evaluates deterministically. It plugs into stable-baselines3
+    through the documented route for custom networks, a policy class overriding
+    `_build_mlp_extractor`: the extractor's latent_dim_pi is the action's length, and the action
+    net that SB3 puts after it is an identity (the scores are the Gaussian's means), the optimizer
+    built again over the parameters that remain. config: `ppo: {policy: CellPolicy, policy_kwargs:
+    {channels: 32, layers: 3}}`.
+
+    channels: int >= 1, layers: int >= 1; teams: (n_defenders, n_intruders) of the env;
+    positions, lateral, balance: the options above; the other arguments are
+    ActorCriticPolicy's."""
 
     def __init__(self, observation_space, action_space, lr_schedule, channels: int = 32, layers: int = 3,
                  teams: tuple[int, int] = (1, 1), positions: bool = True, lateral: bool = False,
@@ -205,7 +210,7 @@ class CellPolicy(ActorCriticPolicy):
 
 def resized(policy: CellPolicy, config) -> CellPolicy:
     """policy's weights as a CellPolicy for the map of config (an AllocConfig: its grid_size and
-    teams), log_std at the mean of policy's (the module doc); policy itself if it fits already.
+    teams), log_std at the mean of policy's (CellPolicy's doc); policy itself if it fits already.
     The result acts in evaluation mode, deterministic actions being the policy's means."""
     import gymnasium as gym
 
@@ -219,7 +224,7 @@ def resized(policy: CellPolicy, config) -> CellPolicy:
     act_space = gym.spaces.Box(-1.0, 1.0, shape=(n_actions(n),), dtype=np.float32)
     # The other constructor arguments (initialisation, optimizer) are of no use to loaded weights:
     # no orthogonal initialisation, whose QR of SB3's (A, A) action net (replaced by the identity)
-    # took 6 s on 32 x 32 (A = 8,836).
+    # takes seconds on 32 x 32 (A = 8,836).
     other = CellPolicy(obs_space, act_space, lambda _: 0.0, channels=policy.channels, layers=policy.layers,
                        teams=teams, positions=policy.positions, lateral=policy.lateral,
                        balance=policy.balance,

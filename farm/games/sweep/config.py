@@ -1,20 +1,6 @@
 """Typed sweep configs (YAML): unknown keys and bad values are rejected with one
 line naming the field. A sweep names workers.Case's fields and takes its defaults.
-
-    name: team-sizes
-    seed: 0
-    games_per_point: 50
-    shard_games: null          # games per Ray task; null: chosen from the team size
-    base:                      # the game every point starts from: workers.Case fields
-      n_pursuers: 3
-      n_evaders: 1
-      pursuer_policy: area_min
-      evader_policy: centroid
-      exit_point: null         # [x, y]: evaders escape there (model v2); null: no escapes
-    vary:                      # each block present is one axis of a cartesian product
-      grid: {n_pursuers: [1, 2, 3], evader_policy: [centroid, constant_area]}
-      zip: {capture_radius: [0.2, 0.3], dt: [0.01, 0.005]}     # lists in step
-      random: {n: 8, ranges: {capture_radius: [0.1, 0.5]}}     # n uniform draws
+SweepConfig's docstring is an example.
 """
 
 from __future__ import annotations
@@ -107,7 +93,23 @@ def varied_names(vary: dict) -> list[str]:
 
 
 class SweepConfig(Strict):
-    """A sweep config (see the module doc): name, seed, games per point, shard size, the base game and what varies."""
+    """A sweep config: name, seed, games per point, shard size, the base game and what varies.
+
+        name: team-sizes
+        seed: 0
+        games_per_point: 50
+        shard_games: null          # games per Ray task; null: chosen from the team size
+        base:                      # the game every point starts from: workers.Case fields
+          n_pursuers: 3
+          n_evaders: 1
+          pursuer_policy: area_min
+          evader_policy: centroid
+          exit_point: null         # [x, y]: evaders escape there (model v2); null: no escapes
+        vary:                      # each block present is one axis of a cartesian product
+          grid: {n_pursuers: [1, 2, 3], evader_policy: [centroid, constant_area]}
+          zip: {capture_radius: [0.2, 0.3], dt: [0.01, 0.005]}     # lists in step
+          random: {n: 8, ranges: {capture_radius: [0.1, 0.5]}}     # n uniform draws
+    """
     # the sweep's name: its metrics' label and the default output folder, results/sweeps/NAME
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
     seed: int = Field(0, ge=0)  # game g of every point is seeded (seed, g); also seeds vary.random

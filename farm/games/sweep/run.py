@@ -7,9 +7,8 @@ Layout of a sweep's folder:
     summary.parquet, summary.csv     one row per point
 
 Game g of a point is game g of its case with the sweep's seed, default_rng([seed, g])
-(docs/model.md section 6), as in run_case and the capture-time service: the numbers do
-not depend on the number of workers, on shard boundaries, on interruptions, or on where
-the point stands in the config.
+(docs/model.md section 6), as in run_case and the capture-time service: the numbers depend
+on neither the workers, the shard boundaries, interruptions nor the point's place in the config.
 
 A worker or node that dies mid-shard is Ray's to handle: the shard task (farm.games.tasks) is
 retried, and Ray's `ray_tasks{IsRetry!="0"}` metric shows the retries. A shard's own
@@ -76,7 +75,7 @@ class SweepRun:
         self.config = config
         self.out = Path(out)
         self.points: list[Point] = config.points()
-        self.sweep_id = config.sweep_id(self.points)  # the points once: a large grid costs ~0.3 ms a point
+        self.sweep_id = config.sweep_id(self.points)  # the points planned once: planning a large grid is slow
         self.shard_dir = self.out / "shards"
         self.damaged: list[str] = []  # one line per shard file found damaged and played again (missing_shards)
 
@@ -253,7 +252,7 @@ class SweepRun:
             row = {"point": point.index}
             row.update({k: (json.dumps(v) if isinstance(v, (list, dict)) or v is None else v) for k, v in case.items()})
             row["case_key"] = point.case.key()
-            if "capture_score_tau" not in per.columns:  # shards written before the score (0.3): from their times
+            if "capture_score_tau" not in per.columns:  # an older shard, without the score: from its times
                 per = per.assign(capture_score_tau=game_statistics(
                     np.stack(per["capture_times"].to_numpy()), point.case.tau)["capture_score_tau"].to_numpy())
             row.update(CaptureStats.from_games(per).flat())

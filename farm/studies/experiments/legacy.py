@@ -1,8 +1,8 @@
 """Names under which Ray Tune's saved state of older experiment folders pickles swarm-farm's
 objects, mapped to today's objects so that such a folder still resumes.
 
-Tune pickles an experiment's trial-folder namer and its callbacks by module path. Folders
-written by swarm-farm 0.5 name `farm.experiments._trial_dirname` and
+Tune pickles an experiment's trial-folder namer and its callbacks by module path. Older
+folders' state names `farm.experiments._trial_dirname` and
 `farm.experiments_tune.Progress`; old_names() makes those paths importable for the block in
 which run_experiment restores and runs an experiment, and for no longer. Kept until 0.7.
 """

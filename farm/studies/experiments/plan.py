@@ -63,7 +63,7 @@ def _set(raw: dict, path: str, value) -> None:
 
 
 def _added_defaults() -> dict:
-    """The training config's fields added since 0.5 (the learners, tracking), at their defaults, as
+    """The training config's fields older trial configs lack (the learners, tracking), at their defaults, as
     plain values: a trial's config holding one at its default decides what it did before."""
     from farm.alloc.training import TrainConfig
 
@@ -123,7 +123,7 @@ def plan(config: ExperimentConfig, source: str = "experiments") -> Plan:
                "eval_seed": config.eval_seed}
     for t in decided["trials"]:  # the store's place does not change a result
         t["config"]["service"] = {k: v for k, v in t["config"]["service"].items() if k != "store"}
-        for name, default in _added_defaults().items():  # an experiment from before them keeps its digest
+        for name, default in _added_defaults().items():  # at its default: as an older config without it
             if t["config"].get(name) == default:
                 del t["config"][name]
     digest = hashlib.sha256(json.dumps(decided, sort_keys=True).encode()).hexdigest()[:16]

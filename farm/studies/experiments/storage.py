@@ -2,21 +2,8 @@
 (``s3://bucket/path``, ``gs://bucket/path``, ``hdfs://…``), the storage Ray Tune itself writes
 its experiment state and checkpoints to.
 
-With a local folder nothing is staged: the driver reads and writes ExperimentFolder(out) and
-every trial trains in its run folder there (a cluster then needs that folder on a shared file
-system). With a URI the experiment needs no shared file system:
-
-- a trial trains in a run folder in its node's temporary space (ExperimentStorage.run_dir);
-  everything its resume needs travels in its Tune checkpoints, which Tune uploads
-  to the storage (farm.studies.experiments.tune.TuneReport, and PretrainReport for each saved
-  pretraining iteration), and a restarted trial, on whatever node, writes its run folder again
-  from its last one (restore_run);
-- a finished trial uploads its run folder (without checkpoints/ and pretrain/: the state
-  lives in Tune's checkpoints) and then its result.json to trials/<key>/, and removes its
-  local folder;
-- the driver stages the experiment in a temporary local folder: it downloads the manifest and
-  the finished trials, writes the tables, claims and figures there with the same code as for a
-  local folder, and uploads them.
+ExperimentStorage says what is staged where: a local folder needs a shared file system on a
+cluster, a URI none.
 
 Credentials and endpoints are pyarrow's (and so Tune's): the standard environment variables
 (AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY, AWS_ENDPOINT_URL, …, set on every node) or the URI's
@@ -47,8 +34,25 @@ def is_uri(out) -> bool:
 
 
 class ExperimentStorage:
-    """An experiment's storage (see the module doc). out: a local folder (str or Path) or a URI.
-    ConfigError (one line, field out) for a URI pyarrow cannot open."""
+    """An experiment's storage: out, a local folder (str or Path) or a URI. ConfigError (one
+    line, field out) for a URI pyarrow cannot open.
+
+    With a local folder nothing is staged: the driver reads and writes ExperimentFolder(out) and
+    every trial trains in its run folder there (a cluster then needs that folder on a shared file
+    system). With a URI the experiment needs no shared file system:
+
+    - a trial trains in a run folder in its node's temporary space (ExperimentStorage.run_dir);
+      everything its resume needs travels in its Tune checkpoints, which Tune uploads
+      to the storage (farm.studies.experiments.tune.TuneReport, and PretrainReport for each saved
+      pretraining iteration), and a restarted trial, on whatever node, writes its run folder again
+      from its last one (restore_run);
+    - a finished trial uploads its run folder (without checkpoints/ and pretrain/: the state
+      lives in Tune's checkpoints) and then its result.json to trials/<key>/, and removes its
+      local folder;
+    - the driver stages the experiment in a temporary local folder: it downloads the manifest and
+      the finished trials, writes the tables, claims and figures there with the same code as for a
+      local folder, and uploads them.
+    """
 
     def __init__(self, out):
         # a local folder by its absolute path: trials run in Tune's own working folders, where a
@@ -268,8 +272,8 @@ def restore_run(checkpoint, run: Path, replay_buffer: bool) -> int | None:
     {"timesteps": n}) or a pretraining iteration's ({"timesteps": 0, "pretrain_iteration": i},
     before any of training's). Returns the steps the run goes on from (0 within the
     pretraining, None: from the start). checkpoint: tune.get_checkpoint()'s (None: the trial's
-    first start); one of before 0.6 (a marker, progress.json alone) leaves the run folder as it
-    is."""
+    first start); a marker checkpoint (progress.json alone, no run folder) leaves the run folder
+    as it is."""
     here = _progress_here(run, replay_buffer)
     if checkpoint is None:
         return _steps(here)

@@ -17,7 +17,7 @@ __all__ = ["LEARNED", "trials_table", "summary_table", "summary_view", "format_s
 TIMING_COLUMNS = ("wall_seconds", "steps_per_second", "update_seconds", "outside_update_share", "train_seconds",
                   "evaluate_seconds")
 LEARNED = "learned"  # trials.csv's prefix of the trained allocator's columns (its algo in column `algo`)
-OLD_LEARNED = "td3"  # the prefix of trials finished before `algo`
+OLD_LEARNED = "td3"  # the prefix of an older trial's columns, without `algo`
 METRICS_COLUMNS = ("timesteps", "resumed_from", "engagements", "estimated_share", *TIMING_COLUMNS[:4],
                    "pretrain_states", "pretrain_seconds")
 

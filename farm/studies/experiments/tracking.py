@@ -9,16 +9,7 @@ config flattened by "/" (`spec/trial/seed`, `spec/trial/config/env/c_capture`, .
 metrics each report's numbers (bools as 0/1, the config left out: it is in the params) at
 step = the report's `timesteps_total`, else its `training_iteration`.
 
-Why not Ray's MLflowLoggerCallback: it writes every param and every metric of a report in a
-call of its own, which on an SQLite store is a transaction each, about 1 s a report of some
-60 numbers, spent in Tune's controller loop while the trials wait for it; TrialRuns writes a
-report in one `log_batch`. It also finds a trial's run again: a trial that runs again after
-the driver was restarted (`farm experiments` run again on the same folder) goes on logging
-into the run it had, found by its tags, whatever that run's status (a trial that had finished
-when the driver was killed, before Tune saved its state, is started again by Tune's restore and
-returns its result at once: it reopens its run, it does not open a second), where Ray's logger, whose trial-to-run map lives only
-in the driver's memory, opened a second one. It changes no process-wide MLflow setting.
-Tune saves its callbacks with the experiment's state, so TrialRuns pickles without its client.
+Why not Ray's MLflowLoggerCallback: TrialRuns' docstring.
 """
 
 from __future__ import annotations
@@ -53,7 +44,20 @@ class TrialRuns(LoggerCallback):
     experiment's runs from another's of the same trial names; tags: added to every run. Its
     instance (a random hex id, the `farm.instance` tag) tells this experiment's runs from those of
     an earlier one made in the same storage and since deleted; a restored experiment has it back
-    with this callback from Tune's state."""
+    with this callback from Tune's state.
+
+    Why not Ray's MLflowLoggerCallback: it writes every param and every metric of a report in a
+    call of its own, which on an SQLite store is a transaction each, spent in Tune's controller
+    loop while the trials wait for it (docs/results.md times both); TrialRuns writes a report in
+    one `log_batch`. It also finds a trial's run again: a trial that runs again after the driver
+    was restarted (`farm experiments` run again on the same folder) goes on logging into the run
+    it had, found by its tags, whatever that run's status (a trial that had finished when the
+    driver was killed, before Tune saved its state, is started again by Tune's restore and
+    returns its result at once: it reopens its run, it does not open a second), where Ray's
+    logger, whose trial-to-run map lives only in the driver's memory, opened a second one. It
+    changes no process-wide MLflow setting. Tune saves its callbacks with the experiment's
+    state, so TrialRuns pickles without its client.
+    """
 
     def __init__(self, params: MlflowParams, experiment: str, storage: str, tags: dict[str, str]):
         self.params, self.experiment, self.storage = params, experiment, storage

@@ -29,7 +29,7 @@ def _evaluate(config, run: RunFolder, episodes: int, seed: int, specs):
 
 def run_trial(params: dict) -> None:
     """The Tune trainable. params: {"spec": {"trial": Trial as plain values, "storage": the
-    experiment's folder or URI (ExperimentStorage; before 0.6 "dir", the trial's folder in a
+    experiment's folder or URI (ExperimentStorage; an older spec's "dir" instead: the trial's folder in a
     local experiment), "episodes", "eval_seed", "policies": the PolicySpecs to compare with
     (default: the registry's baselines and planners)}}. The trial trains in its run folder
     (ExperimentStorage.run_dir), written again from its Tune checkpoint first when it lacks
@@ -70,8 +70,8 @@ def run_trial(params: dict) -> None:
     tune.report({**result, "phase": "done", "timesteps_total": metrics.get("timesteps")})  # Tune's step (MLflow's)
 
 
-# Tune knows a function trainable by its __name__, and Tuner.restore refuses another name: the
-# experiments saved since 0.5 were saved with this one.
+# Tune knows a function trainable by its __name__, and Tuner.restore refuses another name: saved
+# experiments name this one.
 run_trial.__name__ = "_run_trial"
 
 

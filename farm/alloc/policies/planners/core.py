@@ -97,7 +97,10 @@ def levels(config: AllocConfig) -> Levels:
     narrowed by the margin. `exact`: the lattice sizes up to n_defenders, each priced as
     its own game and ranging up to the next level's size, so that a planner wanting no
     more than a level's game sends exactly its size. The margin is 0.1 defender plus,
-    under the softmax map, the share 8 exp(-2 beta) of the count that may leak away.
+    under the softmax map, the share 8 exp(-2 beta) of the count that may leak away: each
+    range is kept that margin inside the rounding thresholds, so that the action the softmax
+    map realises (which leaks a share exp(-2 beta) of a cell's mass to each move it does not
+    want) still plays the planned game.
     """
     lattice = config.team_sizes == "lattice"
     top = int(snap_many(np.array([config.n_defenders]))[0]) if lattice else config.n_defenders

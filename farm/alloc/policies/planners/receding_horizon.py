@@ -39,9 +39,9 @@ class RecedingHorizon(_Planner):
     its planned inflow fills, the others may only go up, and the LP is solved again;
     after `rounds` rounds every target is fixed (a fix that leaves no feasible plan is
     undone and the target capped there instead). Why not branch and bound throughout: on
-    8x8 (800 v 400) the first steps' programs have 544 level variables and HiGHS's branch
-    and bound took 10 to 17 s on each, while an LP takes about 10 ms; relax-and-fix came
-    within 0.001% of the integer optimum (docs/model.md section 7).
+    8x8 (800 v 400) the first steps' programs have 544 level variables, and HiGHS's branch
+    and bound takes seconds on each where an LP takes milliseconds; relax-and-fix comes near
+    the integer optimum (docs/model.md section 7 has the timings and the gap).
 
     Only what can matter is in the program: nodes reachable from the defenders that can
     still reach a target; mass may leave the program only through a move to a cell

@@ -1,43 +1,5 @@
 """The `subregions` planner (SubRegions): the paper's second route to larger maps, a map cut
 into bands of rows, each planned on its own by another planner, in parallel on Ray.
-
-Why bands of rows: the intruders advance along the rows, one column a step, towards the
-defenders' side (docs/model.md section 5); a band's intruders stay in the band, but for
-drift across its edges. The defenders start at one base cell, so the bands cannot each keep
-the defenders they hold; instead every band gets a share of the force, in proportion to
-its intruder mass, taken from every cell alike.
-
-One call, for defenders D and intruders I over the N x N cells:
-1. bands: rows cut into `regions` contiguous bands of N / regions rows (numpy.array_split);
-   m_b the intruder mass of band b's rows, w_b = m_b / sum(m) its share of the force.
-2. sub-map b: intruders I_b (I on band b's rows, nothing elsewhere), defenders w_b D; the
-   inner planner plans it alone, with the whole grid's moves and the env's advance (so
-   intruders that drift out of the band stay its own), as if the other bands were empty.
-   The sub-maps do not depend on each other, so they are planned at once: with `workers`
-   >= 2, by that many Ray actors (each holding its own inner planner and client), else one
-   after another here.
-3. the plans joined: band b holds the share w_b of every cell's defenders, so cell c's move
-   probabilities are sum_b w_b p_b[c] (each p_b[c] sums to 1 and so does sum_b w_b). This is
-   exact as mass: every band's defenders go where its plan sends them.
-
-What it gives up against planning the whole map: a band's plan does not know the others', so
-two bands may meet intruders in the same cell (near a band's edge, under drift), where the
-joint game is not the one either priced; and the force is split by intruder mass, not by
-what the defenders can reach. What it was meant to gain, smaller programs run in parallel,
-it does not: every band holds a share of every cell's defenders, so its program still has
-every node they can reach. Measured against receding_horizon on the whole map by
-benchmarks/theatre.py --subregions (docs/model.md section 7): worse and slower.
-
-config: AllocConfig; client: a CaptureTimeClient of config.game_settings() (the inner
-planner's); regions: int >= 1 bands, at most grid_size (default None: bands of at most
-BAND_ROWS rows, so one band, the inner planner itself, up to 8 x 8); planner: the inner
-planner, a registry planner other than subregions (default receding_horizon); options:
-dict, the inner planner's options; workers: int >= 1, the Ray actors that plan the bands
-(default 1: in this process; >= 2 needs a running Ray, and a client whose backend is the
-capture-time service actor or a local store every actor can open). A bad value is a
-ConfigError naming the option.
-
-Attribute last: the last call's dict, shares (per band, its w_b).
 """
 
 from __future__ import annotations
@@ -84,7 +46,46 @@ def _client_recipe(client):
 
 
 class SubRegions(_Planner):
-    """The map planned as independent bands of rows, in parallel (see the module doc)."""
+    """The map planned as independent bands of rows, in parallel.
+
+    Why bands of rows: the intruders advance along the rows, one column a step, towards the
+    defenders' side (docs/model.md section 5); a band's intruders stay in the band, but for
+    drift across its edges. The defenders start at one base cell, so the bands cannot each keep
+    the defenders they hold; instead every band gets a share of the force, in proportion to
+    its intruder mass, taken from every cell alike.
+
+    One call, for defenders D and intruders I over the N x N cells:
+    1. bands: rows cut into `regions` contiguous bands of N / regions rows (numpy.array_split);
+       m_b the intruder mass of band b's rows, w_b = m_b / sum(m) its share of the force.
+    2. sub-map b: intruders I_b (I on band b's rows, nothing elsewhere), defenders w_b D; the
+       inner planner plans it alone, with the whole grid's moves and the env's advance (so
+       intruders that drift out of the band stay its own), as if the other bands were empty.
+       The sub-maps do not depend on each other, so they are planned at once: with `workers`
+       >= 2, by that many Ray actors (each holding its own inner planner and client), else one
+       after another here.
+    3. the plans joined: band b holds the share w_b of every cell's defenders, so cell c's move
+       probabilities are sum_b w_b p_b[c] (each p_b[c] sums to 1 and so does sum_b w_b). This is
+       exact as mass: every band's defenders go where its plan sends them.
+
+    What it gives up against planning the whole map: a band's plan does not know the others', so
+    two bands may meet intruders in the same cell (near a band's edge, under drift), where the
+    joint game is not the one either priced; and the force is split by intruder mass, not by
+    what the defenders can reach. What it was meant to gain, smaller programs run in parallel,
+    it does not: every band holds a share of every cell's defenders, so its program still has
+    every node they can reach. How it compares with receding_horizon on the whole map
+    (benchmarks/theatre.py --subregions): docs/model.md section 7.
+
+    config: AllocConfig; client: a CaptureTimeClient of config.game_settings() (the inner
+    planner's); regions: int >= 1 bands, at most grid_size (default None: bands of at most
+    BAND_ROWS rows, so one band, the inner planner itself, up to 8 x 8); planner: the inner
+    planner, a registry planner other than subregions (default receding_horizon); options:
+    dict, the inner planner's options; workers: int >= 1, the Ray actors that plan the bands
+    (default 1: in this process; >= 2 needs a running Ray, and a client whose backend is the
+    capture-time service actor or a local store every actor can open). A bad value is a
+    ConfigError naming the option.
+
+    Attribute last: the last call's dict, shares (per band, its w_b).
+    """
 
     name = "subregions"
 
@@ -115,7 +116,7 @@ class SubRegions(_Planner):
         return mass / total if total > 0 else np.zeros(self.regions)
 
     def probabilities(self, D, I):
-        """The bands' plans joined (see the module doc)."""
+        """The bands' plans joined (see the class doc)."""
         w = self.shares(I)
         bands = np.flatnonzero(w > 0)
         if len(bands) == 0:

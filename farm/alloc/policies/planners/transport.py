@@ -32,7 +32,7 @@ class Transport(_Planner):
     can be met at the same step, so each part of the mass is split again at the next step
     among the rows still reachable as early: the defenders spread by diffusion, about
     sqrt(t) rows in t steps, and the outer rows of a wide front are never met (intercept
-    eliminates 0.71 on theatre_32x32 where receding_horizon eliminates 0.98).
+    against receding_horizon on theatre_32x32: docs/results.md, "A theatre at scale").
 
     Transport fixes where each defender goes instead:
     1. the defenders are counted in whole units (density times n_defenders, rounded), and

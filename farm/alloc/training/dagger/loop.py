@@ -1,49 +1,8 @@
 """Planner-guided pretraining: DAgger (Ross, Gordon and Bagnell 2011) on stable-baselines3's
 public API, before RL fine-tunes the learner (a config's `pretrain:` section, PretrainParams).
 
-The algorithm, and why it is right:
-
-- Iteration i plays `episodes` episodes with a mixture policy: at each step the expert drives
-  with probability s_i (`expert_share`'s schedule, s_0 = 1: the first iteration is the expert's
-  alone), else the learner (its deterministic action). Every visited state is labelled with
-  the expert's action, whoever drove: the learner is taught what to do in the states its own
-  mistakes lead to, which is what plain behaviour cloning misses (its errors compound over the
-  episode; DAgger's do not).
-- The labels are the expert's predict() on the state's observation, exactly the action the
-  expert would take there (the planners read only the observation), so a label is a pure
-  function of the observation and the expert's settings.
-- After each iteration the learner's actor is fitted with Adam to every label gathered so
-  far (the aggregated data set): TD3's and SAC's actor (SAC's deterministic, squashed action)
-  and PPO's mean action (its distribution's mode), PPO's value function to the episodes'
-  discounted returns beside it. The loss (`loss`) is either the mean squared error to the
-  expert's action vector (`actions`) or, by default, what the action does (`flows`): the
-  env turns each cell's slice of the action into the probabilities of its moves (the
-  `action_map`) and only the cells holding defenders move anything, so the loss is the
-  cross-entropy from the expert's move probabilities to the learner's, each cell weighted by
-  its defenders' density (plus FLOW_FLOOR, so that empty cells are learnt a little too).
-  Mean squared error spends the network on the action components of empty cells, which
-  change nothing, and treats a small error in a cell holding all the defenders as small. TD3's target actor is set to
-  the fitted actor. After the last iteration the visited transitions enter an off-policy
-  learner's replay buffer, so that its critics start from the expert's kind of play.
-- Labels cost the expert's time a step (10 to 70 ms for a planner), so episodes are played in
-  tasks of `episodes_per_task` each: on the farm (service.mode ray) each task is one Ray task
-  (farm.alloc.training.dagger.tasks) and at most one per CPU of the cluster runs at once;
-  locally, and in an experiment's trial (a Ray actor that holds its CPU, so that tasks of its
-  own could wait for CPUs the trials hold), they run one after another in this process. An episode and its coin flips are seeded by the run's
-  seed, the iteration and the episode's index alone, and results are put together in task
-  order, so the data set is the same whatever the number of workers.
-- A curriculum of maps (`maps`, for CellPolicy, whose weights fit any map): each iteration
-  plays its episodes on the run's own map and on each named scenario (the learner driving
-  there through its weights moved to that map, cell_policy.resized), and the fit goes over
-  all the maps' labels, minibatches of one map each, in an order drawn from the fit's
-  generator (fit_maps), so the one network learns what the expert does on every map.
-- Exact resume: after each iteration the data set, the learner's parameters and the fit's
-  generator are written whole (pretrain/iteration_<i>.pkl, atomically). A run resumed after a
-  stop loads the last one and goes on; nothing else is random (the fit draws its minibatches
-  from its own generator, the networks have no dropout), so the pretrained policy is
-  bit-identical to an uninterrupted run's. A last one that does not load (a damaged file) is
-  moved to pretrain/damaged/, said in one line, and the one before goes on (or, with none,
-  the pretraining starts again), as exact.
+pretrain() runs it; its docstring is the algorithm and why it is right. The labels are
+played by farm.alloc.training.dagger.labels, on Ray by farm.alloc.training.dagger.tasks.
 """
 
 from __future__ import annotations
@@ -166,7 +125,7 @@ class MoveMap:
 
 
 def imitation_loss(kind: str, moves: MoveMap, action, labels, obs):
-    """The pretraining loss of a batch (the module doc): `actions`, mean squared error of action
+    """The pretraining loss of a batch (pretrain's doc): `actions`, mean squared error of action
     to labels; `flows`, the density-weighted cross-entropy of the move probabilities. action,
     labels: (S, A) tensors; obs: (S, 2 N^2) the observations (their first N^2 entries, the
     defenders' density, weigh the cells)."""
@@ -325,14 +284,61 @@ class Pretrained:
 
 
 def pretrain(model, config, client, run_dir, *, show_progress: bool = True, on_progress=None) -> Pretrained:
-    """DAgger (the module doc) on a new model of config (a TrainConfig with `pretrain:`), its
+    """DAgger on a new model of config (a TrainConfig with `pretrain:`), its
     episodes answered by client, resuming from run_dir's last saved iteration when there is one;
     then the replay buffer of an off-policy model is filled with the visited transitions.
     on_progress(episodes, total, saved): called with the episodes labelled so far (a resumed
     run's saved iterations counted) once a map's episodes of an iteration are labelled (saved
     None), and once an iteration is fitted and saved in run_dir (saved: the iteration); farm
     experiments reports a trial's pretraining to Tune so, with a Tune checkpoint of each saved
-    iteration (farm.studies.experiments.tune.PretrainReport)."""
+    iteration (farm.studies.experiments.tune.PretrainReport).
+
+    The algorithm, and why it is right:
+
+    - Iteration i plays `episodes` episodes with a mixture policy: at each step the expert drives
+      with probability s_i (`expert_share`'s schedule, s_0 = 1: the first iteration is the expert's
+      alone), else the learner (its deterministic action). Every visited state is labelled with
+      the expert's action, whoever drove: the learner is taught what to do in the states its own
+      mistakes lead to, which is what plain behaviour cloning misses (its errors compound over the
+      episode; DAgger's do not).
+    - The labels are the expert's predict() on the state's observation, exactly the action the
+      expert would take there (the planners read only the observation), so a label is a pure
+      function of the observation and the expert's settings.
+    - After each iteration the learner's actor is fitted with Adam to every label gathered so
+      far (the aggregated data set): TD3's and SAC's actor (SAC's deterministic, squashed
+      action) and PPO's mean action (its distribution's mode), PPO's value function to the
+      episodes' discounted returns beside it. The loss (`loss`) is either the mean squared error
+      to the expert's action vector (`actions`) or, by default, what the action does (`flows`):
+      the env turns each cell's slice of the action into the probabilities of its moves (the
+      `action_map`) and only the cells holding defenders move anything, so the loss is the
+      cross-entropy from the expert's move probabilities to the learner's, each cell weighted by
+      its defenders' density (plus FLOW_FLOOR, so that empty cells are learnt a little too).
+      Mean squared error spends the network on the action components of empty cells, which
+      change nothing, and treats a small error in a cell holding all the defenders as small.
+      TD3's target actor is set to the fitted actor. After the last iteration the visited
+      transitions enter an off-policy learner's replay buffer, so that its critics start from
+      the expert's kind of play.
+    - Labels cost the expert's time a step (a planner's: docs/results.md), so episodes are
+      played in tasks of `episodes_per_task` each: on the farm (service.mode ray) each task is
+      one Ray task (farm.alloc.training.dagger.tasks) and at most one per CPU of the cluster
+      runs at once; locally, and in an experiment's trial (a Ray actor that holds its CPU, so
+      that tasks of its own could wait for CPUs the trials hold), they run one after another in
+      this process. An episode and its coin flips are seeded by the run's seed, the iteration
+      and the episode's index alone, and results are put together in task order, so the data set
+      is the same whatever the number of workers.
+    - A curriculum of maps (`maps`, for CellPolicy, whose weights fit any map): each iteration
+      plays its episodes on the run's own map and on each named scenario (the learner driving
+      there through its weights moved to that map, cell_policy.resized), and the fit goes over
+      all the maps' labels, minibatches of one map each, in an order drawn from the fit's
+      generator (fit_maps), so the one network learns what the expert does on every map.
+    - Exact resume: after each iteration the data set, the learner's parameters and the fit's
+      generator are written whole (pretrain/iteration_<i>.pkl, atomically). A run resumed after a
+      stop loads the last one and goes on; nothing else is random (the fit draws its minibatches
+      from its own generator, the networks have no dropout), so the pretrained policy is
+      bit-identical to an uninterrupted run's. A last one that does not load (a damaged file) is
+      moved to pretrain/damaged/, said in one line, and the one before goes on (or, with none,
+      the pretraining starts again), as exact.
+    """
     import torch
 
     from farm.core.output import atomic_write_bytes
