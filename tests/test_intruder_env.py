@@ -6,6 +6,7 @@ exact resume; a learned intruder that routes around a static base; bad settings 
 In process (an in-process client, `service.mode: local`), no Ray."""
 
 import json
+import os
 import pickle
 import shutil
 from pathlib import Path
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from conftest import farm_main
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from stable_baselines3.common.callbacks import BaseCallback
@@ -39,14 +41,13 @@ from farm.alloc.vector_env import SwarmAllocationVectorEnv
 from farm.core.errors import ActionError, ConfigError
 from farm.service import CaptureTimeClient
 
-from conftest import farm_main
-
 ROOT = Path(__file__).resolve().parent.parent
 GAME = dict(team_sizes="lattice", games=4)
 C3 = dict(grid_size=3, n_defenders=20, n_intruders=10, c_capture=1.5, **GAME)
 C5 = dict(grid_size=5, n_defenders=30, n_intruders=20, c_capture=1.5, max_steps=16, vertical_drift=0.25, **GAME)
 OUT = SCENARIOS["outnumbered_3x3"]
-WARM_STORE = Path("/work/stores/alloc.sqlite")  # outnumbered_3x3's lattice at the scenario's own games, if here
+# a store holding outnumbered_3x3's lattice at the scenario's own games, if one is named (copied: the client writes)
+WARM_STORE = os.environ.get("SWARM_FARM_WARM_STORE")
 
 
 @pytest.fixture(scope="module")
@@ -391,7 +392,7 @@ def test_a_resumed_intruders_run_is_bit_identical(intruders_run, tmp_path):
 def test_an_intruders_run_is_a_learned_intruder_policy(intruders_run):
     from farm.alloc.intruders import make_intruders
 
-    run, config = intruders_run
+    run, _ = intruders_run
     written = yaml.safe_load((run / "config.yaml").read_text())
     assert written["side"] == "intruders" and written["opponent"] == {"name": "intercept", "options": {},
                                                                      "reward": "eliminated"}
@@ -452,7 +453,7 @@ def test_a_learned_intruder_routes_around_a_static_base(tmp_path):
     from farm.alloc.training import TrainConfig, train
 
     store = tmp_path / "store.sqlite"
-    if WARM_STORE.exists():  # the scenario's lattice computed already; copied, as the client writes to it
+    if WARM_STORE and Path(WARM_STORE).is_file():
         shutil.copyfile(WARM_STORE, store)
     config = TrainConfig(name="around-the-base", scenario="outnumbered_3x3", algo="ppo", side="intruders",
                          opponent={"name": "stay_at_base"}, n_envs=8,
