@@ -131,3 +131,32 @@ def test_a_bad_intruder_mixture_names_intruder_options():
     with pytest.raises(ConfigError, match=r"intruder_options.weights"):
         SwarmAllocationEnv(config(intruders="mixture", intruder_options={"members": ["drift"], "weights": [0]}),
                            client=Answers())
+
+
+def test_the_intruders_env_draws_its_mixture_opponent_per_episode():
+    """Against a mixture drawn per episode, the follower's first observation is the drawn member's move."""
+    from farm.alloc.dynamics import Layout, defenders_move, observe
+    from farm.alloc.intruder_env import SwarmIntruderEnv, SwarmIntruderVectorEnv
+
+    cfg, client = config(), Answers()
+    members, weights = ["stay_at_base", "spread_evenly", "intercept"], [0.3, 0.3, 0.4]
+    options = {"members": members, "weights": weights}
+    env = SwarmIntruderEnv(cfg, opponent="mixture", opponent_options=options, client=client)
+    venv = SwarmIntruderVectorEnv(cfg, num_envs=EPISODES, opponent="mixture", opponent_options=options, client=client)
+    batch, _ = venv.reset(seed=SEED)
+    layout = Layout(3)
+    for k, j in enumerate(drawn(weights)):
+        obs, _ = env.reset(seed=SEED + k)
+        start = seeding.np_random(SEED + k)[0].dirichlet(np.ones(3))
+        D, I = np.zeros(9), np.zeros(9)
+        D[layout.base], I[layout.right] = 1.0, start
+        action = make_policy(members[j], cfg, client).predict(observe(D[None], I[None])[0])[0]
+        moved = defenders_move(layout, cfg, D[None], np.asarray(action, dtype=np.float64)[None])[0]
+        assert np.array_equal(obs, observe(moved[None], I[None])[0]) and np.array_equal(batch[k], obs)
+    state = env.get_state()
+    assert "opponent_draw" in state
+    again = SwarmIntruderEnv(cfg, opponent="mixture", opponent_options=options, client=client)
+    again.reset(seed=0)
+    again.set_state(state)
+    action = np.zeros(env.action_space.shape)
+    assert env.step(action)[1] == again.step(action)[1]

@@ -67,8 +67,8 @@ class _AllocFields(Strict):
     # its options, and what they see when they route: the defenders after their move (follower) or the
     # state both sides choose from (simultaneous).
     intruders: str = "drift"
-    intruder_options: dict[str, Any] = Field(default_factory=dict)
-    information: Literal["follower", "simultaneous"] = "follower"
+    intruder_options: dict[str, Any] = Field(default_factory=dict)  # the intruder policy's options (learned: run)
+    information: Literal["follower", "simultaneous"] = "follower"  # follower: the intruders see D'; simultaneous: D
 
 
 INTRUDER_FIELDS = ("intruders", "intruder_options", "information")  # written out only when not at their defaults

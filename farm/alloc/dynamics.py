@@ -8,9 +8,10 @@ of all B episodes are answered by one lookup (EngagementModel.engage_many).
 
 Its parts: moves, n_actions, Layout (the action layout of an N x N grid; routes, the intruders');
 check_actions (the refusal rule, ActionError); move_probabilities, move_defenders (the
-`action_map`, D' = T D); route_probabilities, routing_of (the intruders' action as a routing);
-start_densities, observe, episode_end (termination, truncation); step (StepResult) and resolve
-(the part after the defenders' move).
+`action_map`, D' = T D) and defenders_move (both); route_probabilities, routing_of (the
+intruders' action as a routing) and intruder_routing (both); start_densities, observe,
+episode_end (termination, truncation); step (StepResult: defenders_move, then resolve, the part
+after the defenders' move), the pieces the intruders' env composes too.
 Densities are (B, N^2) float64, one episode a row, cells in cell order c = row * N + col.
 """
 
@@ -25,8 +26,8 @@ from farm.alloc.model import EngagementModel, advance_intruders_many, route_intr
 from farm.core.errors import ActionError
 
 __all__ = ["moves", "routes", "n_actions", "Layout", "check_actions", "move_probabilities", "route_probabilities",
-           "routing_of", "move_defenders", "start_densities", "observe", "episode_end", "StepResult", "step",
-           "resolve"]
+           "routing_of", "intruder_routing", "move_defenders", "defenders_move", "start_densities", "observe",
+           "episode_end", "StepResult", "step", "resolve"]
 
 
 def moves(n: int):
@@ -198,6 +199,12 @@ def routing_of(layout: Layout, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return up, down
 
 
+def intruder_routing(layout: Layout, config: AllocConfig, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The intruders' routing of their actions: action: (B, R) float, clipped to [-1, 1] ->
+    (up, down): (B, N^2) float64 (route_probabilities, then routing_of)."""
+    return routing_of(layout, route_probabilities(layout, config, action))
+
+
 def move_defenders(layout: Layout, D: np.ndarray, p: np.ndarray) -> np.ndarray:
     """The defenders after their move, D' = T D: D: (B, N^2) float64, p: (B, A) float64 the
     move probabilities -> (B, N^2) float64 (each destination's inflow summed in move order)."""
@@ -205,6 +212,12 @@ def move_defenders(layout: Layout, D: np.ndarray, p: np.ndarray) -> np.ndarray:
     _, dst = layout.offsets(B)
     flow = p * D[:, layout.src]
     return np.bincount(dst, weights=flow.reshape(-1), minlength=B * layout.cells).reshape(B, layout.cells)
+
+
+def defenders_move(layout: Layout, config: AllocConfig, D: np.ndarray, action: np.ndarray) -> np.ndarray:
+    """The defenders after the move of their actions: D: (B, N^2) float64, action: (B, A) float,
+    clipped to [-1, 1] -> (B, N^2) float64 (move_probabilities, then move_defenders)."""
+    return move_defenders(layout, D, move_probabilities(layout, config, action))
 
 
 def start_densities(layout: Layout, shares: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -269,8 +282,7 @@ def step(layout: Layout, config: AllocConfig, model: EngagementModel, D: np.ndar
     from the defenders after their move D': (B, N^2) float64. Returns the StepResult; the
     caller keeps the episodes' counters.
     """
-    p = move_probabilities(layout, config, action)
-    D = move_defenders(layout, D, p)
+    D = defenders_move(layout, config, D, action)
     return resolve(layout, config, model, D, I, None if intruders is None else intruders(D, I))
 
 

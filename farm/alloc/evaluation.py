@@ -70,6 +70,16 @@ def evaluate_trained(run: RunFolder, config, policies: dict, client, episodes: i
     return table, per, steps
 
 
+def _allocator_config(run: RunFolder, run_dir):
+    """The run's TrainConfig; ConfigError (one line naming run) for a run that trained the intruders."""
+    config = run.read_config()
+    if config.side == "intruders":
+        raise ConfigError(f"run: {run_dir} trained the intruders (side: intruders), not an allocator; play it as the "
+                          f"intruders of a config (intruders: learned, intruder_options: {{run: {run_dir}}})",
+                          field="run")
+    return config
+
+
 def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str = "service",
                  scenario: str | None = None, references: list[str] | None = None,
                  animate=None, show_progress: bool = True, repair: str | None = None) -> RunEvaluation:
@@ -80,7 +90,8 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     seed stay the run's), the tables and figures
     then written into the run's scenarios/<name>/. references: the baselines and planners to
     compare with, by name (default: every one; [] none). ConfigError (one line naming the
-    field) for bad input, before any episode: not a run, episodes or seed not whole numbers
+    field) for bad input, before any episode: not a run, a run of the intruders (side:
+    intruders), episodes or seed not whole numbers
     >= 1 (>= 0), an unknown fidelity, scenario or reference, a model that cannot act on the
     scenario's map, a run folder the tables cannot be written into, an animate path that is not
     a .gif or .mp4. animate: also write an animation of the trained allocator's first episode
@@ -95,7 +106,7 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     from farm.service.client import open_client
 
     run = RunFolder(run_dir)
-    config = run.read_config()
+    config = _allocator_config(run, run_dir)
     if scenario is not None:
         if scenario not in SCENARIOS:
             raise ConfigError(f"scenario: unknown scenario {scenario!r} (choose from {', '.join(SCENARIOS)})",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from farm.alloc.intruders.registry import make_intruders
 
-__all__ = ["configured_intruders", "intruder_move", "for_episode", "EpisodeIntruders"]
+__all__ = ["configured_intruders", "intruder_move", "for_episode", "draw_state", "EpisodeIntruders"]
 
 
 def configured_intruders(config):
@@ -32,6 +32,12 @@ def for_episode(policy, rng):
     episode (a mixture), from the episode's own generator rng, else the policy itself (None stays None)."""
     draw = getattr(policy, "for_episode", None)
     return policy if draw is None else draw(rng)
+
+
+def draw_state(played):
+    """The saved state of an episode's draw (for_episode's result), None for a policy that draws nothing."""
+    saved = getattr(played, "get_state", None)
+    return None if saved is None else saved()
 
 
 class EpisodeIntruders:
