@@ -33,8 +33,12 @@ class TrainingParams(Strict):
     """The trained oracles: dotted TrainConfig settings of each side's best response (the loop sets
     the scenario, the seed, the side, the opponent mixture and the name)."""
 
-    defenders: dict[str, Any] = {"algo": "ppo", "ppo.n_timesteps": 20000, "n_envs": 8}
-    intruders: dict[str, Any] = {"algo": "ppo", "ppo.n_timesteps": 20000, "n_envs": 8}
+    defenders: dict[str, Any] = {
+        "algo": "ppo", "ppo.n_timesteps": 20000, "ppo.n_steps": 256, "ppo.batch_size": 256, "n_envs": 8,
+        "pretrain": {"expert": "receding_horizon", "iterations": 2, "episodes": 32, "expert_share": 0.5},
+        "repair": "levels", "keep": "best", "eval.freq": 5000}
+    intruders: dict[str, Any] = {"algo": "ppo", "ppo.n_timesteps": 20000, "ppo.n_steps": 256, "ppo.batch_size": 256,
+                                 "n_envs": 8, "eval.freq": 5000}
 
 
 class RobustConfig(StrictFile):
