@@ -11,9 +11,17 @@
    updates, batch_size 64 and n_epochs 10, with lighter ones, n_epochs 1, and with the
    learners' recipe (configs/train/best_<scenario>.yaml: 400-300 tanh networks, n_steps 256,
    batch_size 512, n_epochs 10; 4 rollouts of 4,096 steps).                       target >= 2x
+3. two-sided env steps, B = 16 episodes, random actions, the configs of 1: a batched step whose
+   intruders' routing comes from an intruder action inside the step, against today's batched
+   step (SwarmAllocationVectorEnv, the drift law): the defenders' batched env with a heuristic
+   intruder policy (fewest_ahead, follower: routed from the defenders after their move), and the
+   intruders' batched env (farm.alloc.intruder_env.SwarmIntruderVectorEnv, follower) against a
+   cheap frozen allocator (stay_at_base) and against intercept. Cost ratio = CPU time of the
+   two-sided step / the drift step's.                               target <= 1.5x
 Rates are of this process's CPU time (time.process_time: other load on the machine does not
 count), the best of --repeats runs, the two sides of a row run in turn.
-Usage: python benchmarks/vector_env.py [--steps 1500] [--ppo-steps 8192] [--repeats 3]   (about 4 min)
+Usage: python benchmarks/vector_env.py [--steps 1500] [--ppo-steps 8192] [--repeats 3] [--skip-ppo]
+(about 4 min; --skip-ppo: sections 1 and 3 alone, about 1 min)
 """
 
 from __future__ import annotations
@@ -84,6 +92,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=1500, help="vector steps per env run (x16 env steps)")
     ap.add_argument("--ppo-steps", type=int, default=8192, help="PPO.learn steps per PPO run")
     ap.add_argument("--repeats", type=int, default=3, help="runs of each side, the best counted")
+    ap.add_argument("--skip-ppo", action="store_true", help="skip the PPO section (2)")
     a = ap.parse_args()
     import gymnasium
     import torch
@@ -92,6 +101,7 @@ def main() -> None:
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from farm.alloc import AllocConfig, SwarmAllocationEnv
+    from farm.alloc.intruder_env import SwarmIntruderVectorEnv
     from farm.alloc.lattice import lattice_groups, warm_lattices
     from farm.alloc.sb3_vec import make_vec_env
     from farm.alloc.vector_env import SwarmAllocationVectorEnv
@@ -104,7 +114,7 @@ def main() -> None:
         "5x5, 100 v 50": AllocConfig(grid_size=5, n_defenders=100, n_intruders=50, c_capture=1.5, max_steps=16,
                                      team_sizes="lattice", games=4),
     }
-    env_rows, ppo_rows = [], []
+    env_rows, ppo_rows, two_sided_rows = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         first = next(iter(configs.values()))
         client = CaptureTimeClient(first.game_settings(), local_store=Path(tmp) / "s.sqlite")
@@ -121,6 +131,22 @@ def main() -> None:
             best = best_of(a.repeats, {"batched": lambda env=batched, x=actions: env_seconds(env, x, a.steps),
                                        "sync": lambda env=sync, x=actions: env_seconds(env, x, a.steps)})
             env_rows.append((label, a.steps * ENVS / best["batched"], a.steps * ENVS / best["sync"]))
+            rng = np.random.default_rng(1)
+            intruder_actions = rng.uniform(-1, 1, (512, ENVS, config.grid_size * (3 * config.grid_size - 2)))
+            intruder_actions = intruder_actions.astype(np.float32)
+            two_sided = {
+                "drift": (batched, actions),
+                "defenders' env, fewest_ahead": (SwarmAllocationVectorEnv(
+                    config.model_copy(update={"intruders": "fewest_ahead"}), num_envs=ENVS, client=client), actions),
+                "intruders' env v stay_at_base": (SwarmIntruderVectorEnv(
+                    config, num_envs=ENVS, opponent="stay_at_base", client=client), intruder_actions),
+                "intruders' env v intercept": (SwarmIntruderVectorEnv(
+                    config, num_envs=ENVS, opponent="intercept", client=client), intruder_actions),
+            }
+            best = best_of(a.repeats, {name: (lambda env=env, acts=acts: env_seconds(env, acts, a.steps))
+                                       for name, (env, acts) in two_sided.items()})
+            two_sided_rows += [(f"{label}, {name}", a.steps * ENVS / best[name], best[name] / best["drift"])
+                               for name in two_sided]
         label, config = next(iter(configs.items()))
 
         def dummy():
@@ -129,7 +155,7 @@ def main() -> None:
         settings = {"n_epochs 10": dict(n_steps=64, batch_size=64, n_epochs=10),
                     "n_epochs 1": dict(n_steps=64, batch_size=64, n_epochs=1),
                     "learners' recipe": RECIPE}
-        for name, ppo in settings.items():
+        for name, ppo in ({} if a.skip_ppo else settings).items():
             steps = a.ppo_steps if ppo["n_steps"] * ENVS <= a.ppo_steps else 4 * ppo["n_steps"] * ENVS
             best = best_of(a.repeats, {
                 "batched": lambda n=steps, kw=ppo: ppo_seconds(lambda: make_vec_env(config, ENVS, client, seed=0),
@@ -151,6 +177,10 @@ def main() -> None:
               f"{steps / (other - other_train):>15.0f}{(other - other_train) / (ours - ours_train):>7.1f}x")
         print(f"{'  updates, s of learn s':<40}{f'{ours_train:.1f}/{ours:.1f}':>9}"
               f"{f'{other_train:.1f}/{other:.1f}':>15}")
+    print(f"{'two-sided env steps/s, 16 envs (drift: today)':<48}{'steps/s':>9}{'cost v drift':>14}"
+          f"   (target <= 1.5x)")
+    for label, rate, ratio in two_sided_rows:
+        print(f"{label:<48}{rate:>9.0f}{ratio:>13.2f}x")
 
 
 if __name__ == "__main__":

@@ -173,3 +173,19 @@ def test_the_env_goes_on_from_its_state(reference):
         with pytest.raises(ConfigError, match="set_state: the state's densities are of shape") as e:
             other.set_state(state)
     assert "\n" not in str(e.value)
+
+
+def test_a_resumed_intruders_run_equals_an_uninterrupted_one(reference, tmp_path):
+    """The same for the intruders' side (side: intruders, the intruders' env against a frozen
+    allocator): stopped at step 260, after the checkpoint of step 210, and resumed."""
+    from farm.alloc.training import train
+
+    _, defenders = reference  # its store holds the lattice's cases
+    config = defenders.model_copy(update={"side": "intruders", "opponent": defenders.opponent.model_copy(
+        update={"name": "greedy_nearest", "reward": "zero_sum"})})
+    train(config, tmp_path / "uninterrupted", show_progress=False)
+    with pytest.raises(Stop):
+        train(config, tmp_path / "run", show_progress=False, callbacks=[StopAt(260)])
+    assert train(config, tmp_path / "run", resume=True, show_progress=False)["resumed_from"] == 210
+    assert_same_run(tmp_path / "uninterrupted", tmp_path / "run")
+    assert yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["side"] == "intruders"

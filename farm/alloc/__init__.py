@@ -7,17 +7,30 @@ Importing this package registers the env, and each benchmark scenario
     env = gymnasium.make("farm/paper_3x3_c1_0-v0")
 and each id's batched form (farm.alloc.vector_env.SwarmAllocationVectorEnv, B episodes in numpy):
     envs = gymnasium.make_vec("farm/paper_3x3_c1_0-v0", num_envs=16, vectorization_mode="vector_entry_point")
+The intruders' side against a frozen allocator (farm.alloc.intruder_env), as `farm/SwarmIntruders-v0`
+and each scenario's `farm/<name>-intruders-v0`:
+    env = gymnasium.make("farm/paper_3x3_c1_0-intruders-v0", opponent="stay_at_base")
 """
 
 import gymnasium
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.env import SwarmAllocationEnv, moves, n_actions
-from farm.alloc.scenarios import SCENARIOS, VECTOR_ENTRY_POINT, register_scenarios
+from farm.alloc.scenarios import (
+    INTRUDER_ENTRY_POINT,
+    INTRUDER_VECTOR_ENTRY_POINT,
+    SCENARIOS,
+    VECTOR_ENTRY_POINT,
+    register_scenarios,
+)
 
 ENV_ID = "farm/SwarmAllocation-v0"
+INTRUDER_ENV_ID = "farm/SwarmIntruders-v0"
 if ENV_ID not in gymnasium.registry:
     gymnasium.register(ENV_ID, entry_point="farm.alloc.env:SwarmAllocationEnv", vector_entry_point=VECTOR_ENTRY_POINT)
+if INTRUDER_ENV_ID not in gymnasium.registry:
+    gymnasium.register(INTRUDER_ENV_ID, entry_point=INTRUDER_ENTRY_POINT,
+                       vector_entry_point=INTRUDER_VECTOR_ENTRY_POINT)
 register_scenarios()
 
-__all__ = ["AllocConfig", "SwarmAllocationEnv", "ENV_ID", "moves", "n_actions", "SCENARIOS"]
+__all__ = ["AllocConfig", "SwarmAllocationEnv", "ENV_ID", "INTRUDER_ENV_ID", "moves", "n_actions", "SCENARIOS"]

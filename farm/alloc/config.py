@@ -10,9 +10,9 @@ Case's default.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import Field, create_model, model_validator
+from pydantic import Field, create_model, model_serializer, model_validator
 
 from workers import Case
 from workers.engine import case_defaults
@@ -63,6 +63,15 @@ class _AllocFields(Strict):
     capture_score: Literal["expected", "conditional"] | None = None  # v2: expected, v1: conditional
     games: int = Field(_SERVICE.games, ge=2, le=100_000)  # games per case in the capture-time service
     seed: int = Field(_SERVICE.seed, ge=0)  # the service's seed of those games
+    # The intruders as a player (docs/model.md section 8): their policy (farm.alloc.intruders' registry),
+    # its options, and what they see when they route: the defenders after their move (follower) or the
+    # state both sides choose from (simultaneous).
+    intruders: str = "drift"
+    intruder_options: dict[str, Any] = Field(default_factory=dict)  # the intruder policy's options (learned: run)
+    information: Literal["follower", "simultaneous"] = "follower"  # follower: the intruders see D'; simultaneous: D
+
+
+INTRUDER_FIELDS = ("intruders", "intruder_options", "information")  # written out only when not at their defaults
 
 
 # workers.Case's settings, each optional: None means the engagement's value, else Case's default.
@@ -123,6 +132,9 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
 
     @model_validator(mode="after")
     def _coupled(self):
+        from farm.alloc.intruders.registry import intruder_entry
+
+        intruder_entry(self.intruders)  # an unknown policy: one line naming `intruders`
         case = self.game()  # Case's own checks of the game's settings
         if self.engagement == "v1":
             if self.step_seconds is not None:
@@ -139,6 +151,16 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
                              f"({case.tau:g} s), got {self.capture_time_norm:g} (for another norm, set "
                              f"capture_score: conditional)")
         return self
+
+    @model_serializer(mode="wrap")
+    def _without_default_intruders(self, handler):
+        """The settings as written (config.yaml, manifests): the intruder fields only when set otherwise."""
+        data = handler(self)
+        for name in INTRUDER_FIELDS:
+            if name in data and getattr(self, name) == _AllocFields.model_fields[name].get_default(
+                    call_default_factory=True):
+                del data[name]
+        return data
 
     def game(self) -> Case:
         """The engagement games' Case (team sizes 1 v 1; each engaged cell sets its own)."""

@@ -1,16 +1,17 @@
 """One step of the allocation MDP for B episodes at once: the one definition of a step.
 
-The single env (farm.alloc.env.SwarmAllocationEnv) steps through step() with B = 1 and the
-batched one (farm.alloc.vector_env.SwarmAllocationVectorEnv) with B episodes, so episode k
-of a batch gets, to the last bit, the numbers it would get alone: every operation here is
-elementwise, or a sum over one episode's entries that does not depend on the other episodes
-(np.add.reduceat over each cell's moves, np.bincount in entry order, and farm.alloc.model's
-row_sums and segment_sums, which sum as numpy sums one episode's 1-D array), and the
-engagements of all B episodes are answered by one lookup (EngagementModel.engage_many).
+The single env steps through step() with B = 1 and the batched one with B episodes, so episode
+k of a batch gets, to the last bit, the numbers it would get alone: every operation here is
+elementwise, or a sum over one episode's entries alone (np.add.reduceat over each cell's moves,
+np.bincount in entry order, farm.alloc.model's row_sums and segment_sums), and the engagements
+of all B episodes are answered by one lookup (EngagementModel.engage_many).
 
-Its parts: moves, n_actions, Layout (the action layout of an N x N grid); check_actions (the
-refusal rule, ActionError); move_probabilities, move_defenders (the `action_map`, D' = T D);
-start_densities, observe, episode_end (termination, truncation); step (StepResult).
+Its parts: moves, n_actions, Layout (the action layout of an N x N grid; routes, the intruders');
+check_actions (the refusal rule, ActionError); move_probabilities, move_defenders (the
+`action_map`, D' = T D) and defenders_move (both); route_probabilities, routing_of (the
+intruders' action as a routing) and intruder_routing (both); start_densities, observe,
+episode_end (termination, truncation); step (StepResult: defenders_move, then resolve, the part
+after the defenders' move), the pieces the intruders' env composes too.
 Densities are (B, N^2) float64, one episode a row, cells in cell order c = row * N + col.
 """
 
@@ -21,11 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from farm.alloc.config import AllocConfig
-from farm.alloc.model import EngagementModel, advance_intruders_many, row_sums, segment_sums
+from farm.alloc.model import EngagementModel, advance_intruders_many, route_intruders_many, row_sums, segment_sums
 from farm.core.errors import ActionError
 
-__all__ = ["moves", "n_actions", "Layout", "check_actions", "move_probabilities", "move_defenders",
-           "start_densities", "observe", "episode_end", "StepResult", "step"]
+__all__ = ["moves", "routes", "n_actions", "Layout", "check_actions", "move_probabilities", "route_probabilities",
+           "routing_of", "intruder_routing", "move_defenders", "defenders_move", "start_densities", "observe",
+           "episode_end", "StepResult", "step", "resolve"]
 
 
 def moves(n: int):
@@ -50,6 +52,25 @@ def moves(n: int):
     return np.array(src), np.array(dst), np.array(start)
 
 
+def routes(n: int):
+    """The intruders' routes of an n x n grid, in the intruder action vector's order.
+
+    Each cell's mass may go up-left, left or down-left (d_row -1, 0, +1; the top and bottom
+    rows have two); cells in cell order. Returns (src, d_row, start): src: (R,) int64 each
+    route's cell, d_row: (R,) int64 its row change, R = n (3n - 2); start: (n*n,) int64 the
+    offset of each cell's slice.
+    """
+    src, d_row, start = [], [], []
+    for r in range(n):
+        for c in range(n):
+            start.append(len(src))
+            for dr in (-1, 0, 1):
+                if 0 <= r + dr < n:
+                    src.append(r * n + c)
+                    d_row.append(dr)
+    return np.array(src), np.array(d_row), np.array(start)
+
+
 def n_actions(n: int) -> int:
     """The number of feasible moves A of an n x n grid (n >= 2): the action's length.
 
@@ -65,7 +86,8 @@ class Layout:
     n: the grid side N. Attributes: n; cells: int, N^2; src, dst: (A,) int64 and start:
     (N^2,) int64 as moves(n) returns them; n_moves: (N^2,) int64 the moves of each cell;
     base: int, the base cell (row N//2, col 0); right: (N,) int64 the right-most column's
-    cells, top to bottom.
+    cells, top to bottom; route_src, route_row: (R,) int64 and route_start: (N^2,) int64 the
+    intruders' routes as routes(n) returns them; n_routes: (N^2,) int64 the routes of each cell.
     """
 
     def __init__(self, n: int):
@@ -75,7 +97,10 @@ class Layout:
         self.n_moves = np.diff(np.append(self.start, len(self.src)))
         self.base = (n // 2) * n
         self.right = np.arange(n) * n + (n - 1)
+        self.route_src, self.route_row, self.route_start = routes(n)
+        self.n_routes = np.diff(np.append(self.route_start, len(self.route_src)))
         self._offsets: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._route_offsets: dict[int, np.ndarray] = {}
 
     def offsets(self, B: int) -> tuple[np.ndarray, np.ndarray]:
         """(starts: (B N^2,) int64 each cell's slice in the flattened (B A,) actions, dst: (B A,)
@@ -86,6 +111,13 @@ class Layout:
             dst = ((np.arange(B) * self.cells)[:, None] + self.dst).reshape(-1)
             self._offsets[B] = (starts, dst)
         return self._offsets[B]
+
+    def route_offsets(self, B: int) -> np.ndarray:
+        """starts: (B N^2,) int64 each cell's slice in the flattened (B R,) intruder actions, made once per B."""
+        if B not in self._route_offsets:
+            R = len(self.route_src)
+            self._route_offsets[B] = ((np.arange(B) * R)[:, None] + self.route_start).reshape(-1)
+        return self._route_offsets[B]
 
 
 def check_actions(action, shape: tuple[int, ...], name: str = "action") -> np.ndarray:
@@ -115,6 +147,27 @@ def check_actions(action, shape: tuple[int, ...], name: str = "action") -> np.nd
     return a
 
 
+def _slice_probabilities(config: AllocConfig, a: np.ndarray, starts: np.ndarray, src: np.ndarray, cells: int,
+                         n_moves: np.ndarray) -> np.ndarray:
+    """The action_map on each cell's slice: a: (B, K) float64 clipped to [-1, 1]; starts: (B
+    cells,) each slice's offset in a.reshape(-1); src: (K,) each entry's cell; n_moves: (cells,)
+    each slice's length -> (B, K) float64, each slice summing to 1."""
+    B = len(a)
+    if config.action_map == "softmax":
+        z = config.softmax_beta * a
+        z = z - np.maximum.reduceat(z.reshape(-1), starts).reshape(B, cells)[:, src]
+        w = np.exp(z)
+    else:
+        w = a + 1.0
+    total = np.add.reduceat(w.reshape(-1), starts).reshape(B, cells)
+    uniform = total <= 0
+    total = np.where(uniform, 1.0, total)
+    p = w / total[:, src]
+    if uniform.any():
+        p = np.where(uniform[:, src], 1.0 / n_moves[src], p)
+    return p
+
+
 def move_probabilities(layout: Layout, config: AllocConfig, action: np.ndarray) -> np.ndarray:
     """Map actions to the probabilities of the feasible moves (the config's `action_map`).
 
@@ -123,22 +176,33 @@ def move_probabilities(layout: Layout, config: AllocConfig, action: np.ndarray) 
     `softmax_beta`); `shifted`, p = (a + 1) / sum(a + 1), uniform when every entry is -1.
     """
     a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64), -1.0), 1.0)
-    B = len(a)
-    starts, _ = layout.offsets(B)
-    src = layout.src
-    if config.action_map == "softmax":
-        z = config.softmax_beta * a
-        z = z - np.maximum.reduceat(z.reshape(-1), starts).reshape(B, layout.cells)[:, src]
-        w = np.exp(z)
-    else:
-        w = a + 1.0
-    total = np.add.reduceat(w.reshape(-1), starts).reshape(B, layout.cells)
-    uniform = total <= 0
-    total = np.where(uniform, 1.0, total)
-    p = w / total[:, src]
-    if uniform.any():
-        p = np.where(uniform[:, src], 1.0 / layout.n_moves[src], p)
-    return p
+    starts, _ = layout.offsets(len(a))
+    return _slice_probabilities(config, a, starts, layout.src, layout.cells, layout.n_moves)
+
+
+def route_probabilities(layout: Layout, config: AllocConfig, action: np.ndarray) -> np.ndarray:
+    """Map intruder actions to the probabilities of their routes, as move_probabilities maps the
+    defenders' (the same `action_map`): action: (B, R) float, clipped to [-1, 1] -> (B, R) float64."""
+    a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64), -1.0), 1.0)
+    return _slice_probabilities(config, a, layout.route_offsets(len(a)), layout.route_src, layout.cells,
+                                layout.n_routes)
+
+
+def routing_of(layout: Layout, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The routing of route probabilities p: (B, R) float64 -> (up, down): (B, N^2) float64 each
+    cell's share sent up-left and down-left (farm.alloc.model.route_intruders_many)."""
+    B, cells = len(p), layout.cells
+    up, down = np.zeros((B, cells)), np.zeros((B, cells))
+    rising, falling = layout.route_row == -1, layout.route_row == 1
+    up[:, layout.route_src[rising]] = p[:, rising]
+    down[:, layout.route_src[falling]] = p[:, falling]
+    return up, down
+
+
+def intruder_routing(layout: Layout, config: AllocConfig, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The intruders' routing of their actions: action: (B, R) float, clipped to [-1, 1] ->
+    (up, down): (B, N^2) float64 (route_probabilities, then routing_of)."""
+    return routing_of(layout, route_probabilities(layout, config, action))
 
 
 def move_defenders(layout: Layout, D: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -148,6 +212,12 @@ def move_defenders(layout: Layout, D: np.ndarray, p: np.ndarray) -> np.ndarray:
     _, dst = layout.offsets(B)
     flow = p * D[:, layout.src]
     return np.bincount(dst, weights=flow.reshape(-1), minlength=B * layout.cells).reshape(B, layout.cells)
+
+
+def defenders_move(layout: Layout, config: AllocConfig, D: np.ndarray, action: np.ndarray) -> np.ndarray:
+    """The defenders after the move of their actions: D: (B, N^2) float64, action: (B, A) float,
+    clipped to [-1, 1] -> (B, N^2) float64 (move_probabilities, then move_defenders)."""
+    return move_defenders(layout, D, move_probabilities(layout, config, action))
 
 
 def start_densities(layout: Layout, shares: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -202,17 +272,33 @@ class StepResult:
 
 
 def step(layout: Layout, config: AllocConfig, model: EngagementModel, D: np.ndarray, I: np.ndarray,
-         action: np.ndarray) -> StepResult:
+         action: np.ndarray, intruders=None) -> StepResult:
     """One step of the MDP (SwarmAllocationEnv's Description) for B episodes.
 
     D, I: (B, N^2) float64 the densities before the step (not changed); action: (B, A)
     float64, checked (check_actions); model: the config's EngagementModel, asked once (its
-    engage_many) for every engaged cell of the B episodes. Returns the StepResult; the
+    engage_many) for every engaged cell of the B episodes; intruders: None, the drift law of
+    the config, or a function (D', I) -> (up, down) giving the intruders' routing (resolve)
+    from the defenders after their move D': (B, N^2) float64. Returns the StepResult; the
     caller keeps the episodes' counters.
     """
-    p = move_probabilities(layout, config, action)
-    D = move_defenders(layout, D, p)
-    I, breach = advance_intruders_many(I, layout.n, config.vertical_drift)
+    D = defenders_move(layout, config, D, action)
+    return resolve(layout, config, model, D, I, None if intruders is None else intruders(D, I))
+
+
+def resolve(layout: Layout, config: AllocConfig, model: EngagementModel, D: np.ndarray, I: np.ndarray,
+            routing: tuple[np.ndarray, np.ndarray] | None = None) -> StepResult:
+    """The rest of a step once the defenders have moved: the intruders' move, the engagements, the reward.
+
+    D: (B, N^2) float64 the defenders after their move; I: (B, N^2) float64 the intruders
+    before theirs (not changed); routing: None, the drift law of the config
+    (farm.alloc.model.advance_intruders_many), or (up, down): (B, N^2) float64 each cell's
+    share of intruder mass sent up-left and down-left (farm.alloc.model.route_intruders_many).
+    """
+    if routing is None:
+        I, breach = advance_intruders_many(I, layout.n, config.vertical_drift)
+    else:
+        I, breach = route_intruders_many(I, layout.n, *routing)
     e = model.engage_many(D, I)
     B = len(D)
     total = row_sums(I)

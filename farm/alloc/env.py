@@ -21,13 +21,29 @@ from gymnasium.error import ResetNeeded
 from pydantic import ValidationError
 
 from farm.alloc.config import AllocConfig
-from farm.alloc.dynamics import (Layout, check_actions, episode_end, move_probabilities, moves, n_actions, observe,
-                                 start_densities, step)
+from farm.alloc.dynamics import (
+    Layout,
+    StepResult,
+    check_actions,
+    episode_end,
+    move_probabilities,
+    moves,
+    n_actions,
+    observe,
+    start_densities,
+    step,
+)
+from farm.alloc.intruders.play import (
+    configured_intruders,
+    draw_state,
+    for_episode,
+    intruder_move,
+)
 from farm.alloc.model import EngagementModel, row_sums
 from farm.core.config import error_field, first_line
 from farm.core.errors import ConfigError
 
-__all__ = ["SwarmAllocationEnv", "moves", "n_actions", "check_env_arguments", "env_client"]
+__all__ = ["GridEnv", "SwarmAllocationEnv", "moves", "n_actions", "check_env_arguments", "env_client"]
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +81,185 @@ def env_client(config: AllocConfig, store):
     return CaptureTimeClient(config.game_settings(), local_store=store)
 
 
-class SwarmAllocationEnv(gym.Env):
+class GridEnv(gym.Env):
+    """One episode of the grid MDP as a gymnasium env, whichever side acts in it: the part the
+    defenders' env (SwarmAllocationEnv, whose docstring describes each piece) and the intruders'
+    env (farm.alloc.intruder_env.SwarmIntruderEnv) share: the arguments, the observation space,
+    the start, a step's accounting and info (_record of the step's StepResult), get_state and
+    set_state, render and close. A subclass sets action_space and step(); its hooks are
+    _prepare (before the agent sees a state), _obs (what it sees) and _reward (what it gets).
+
+    Attributes: config: AllocConfig; client: CaptureTimeClient; model: EngagementModel; n:
+    int, the grid side N; layout: farm.alloc.dynamics.Layout; base: int, the base cell's index;
+    D, I: (N^2,) float64 the densities; steps: int and breached, eliminated: float, the
+    episode's counters; engagements, estimated: int, the engaged cells answered by the service
+    over the env's lifetime and of them the interpolated ones.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+
+    def __init__(self, name: str, config: AllocConfig | None, client, store, render_mode: str | None,
+                 estimates: bool | str, kwargs: dict):
+        """Make the env's shared part. name: the env class's name, for check_env_arguments' message;
+        the other arguments are SwarmAllocationEnv's (its class docstring's Arguments)."""
+        self.config = check_env_arguments(name, config, estimates, kwargs)
+        self.estimates = estimates
+        self.engagements = 0  # engaged cells answered by the service, over the env's lifetime
+        self.estimated = 0  # of which by an interpolation (estimates=True)
+        n = self.config.grid_size
+        self.n = n
+        self.layout = Layout(n)
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
+        self.render_mode = render_mode
+        self._owns_client = client is None  # close() closes a client the env made, never one it was given
+        self.client = env_client(self.config, store) if client is None else client
+        self.model = EngagementModel(self.config, self.client, estimates)
+        self.base = self.layout.base
+        self.D = np.zeros(n * n)
+        self.I = np.zeros(n * n)
+        self.steps = 0
+        self.breached = 0.0
+        self.eliminated = 0.0
+        self._reset_done = False  # step() needs a reset() first
+
+    def reset(self, *, seed=None, options=None):
+        """Start an episode (see SwarmAllocationEnv's Starting State); returns (observation, info).
+
+        seed: seeds the env's generator (the intruders' start); options: unused.
+        observation: (2 N^2,) float32 (_obs); info: the step measures, all 0.
+        """
+        super().reset(seed=seed)
+        D, I = start_densities(self.layout, self.np_random.dirichlet(np.ones(self.n))[None])
+        self._draw()
+        self.D, self.I = D[0], I[0]
+        self.steps = 0
+        self.breached = 0.0
+        self.eliminated = 0.0
+        self._reset_done = True
+        self._prepare()
+        return self._obs(), self._info(0.0, 0.0, 0, 0, float(row_sums(I)[0]))
+
+    def _record(self, r: StepResult):
+        """Take a step's outcome, r: a StepResult of one episode (B = 1): the densities, the
+        counters, the episode's end; then _prepare unless it ended. Returns step()'s (obs,
+        reward: float (_reward), terminated, truncated: bool, info)."""
+        self.D, self.I = r.D[0], r.I[0]
+        breach, eliminated = float(r.breach[0]), float(r.eliminated[0])
+        engaged, estimates = int(r.engaged[0]), int(r.estimates[0])
+        self.breached += breach
+        self.eliminated += eliminated
+        self.engagements += engaged
+        self.estimated += estimates
+        self.steps += 1
+        terminated, truncated = episode_end(self.config, np.array([self.steps]), r.remaining)
+        terminated, truncated = bool(terminated[0]), bool(truncated[0])
+        if not (terminated or truncated):
+            self._prepare()
+        info = self._info(breach, eliminated, engaged, estimates, float(r.remaining[0]), float(r.coverage[0]),
+                          float(r.per_engaged[0]))
+        return self._obs(), float(self._reward(r)[0]), terminated, truncated, info
+
+    def _prepare(self) -> None:
+        """What happens before the agent sees a state (after a start, and after a step that did
+        not end the episode): nothing here."""
+
+    def _draw(self) -> None:
+        """The draw of the frozen side when it draws its play per episode (a mixture), from the
+        env's generator right after the start: nothing here."""
+
+    def _draw_state(self) -> dict:
+        """The episode's draw, for get_state ({} without one)."""
+        return {}
+
+    def _resume_draw(self, state: dict) -> None:
+        """Take the episode's draw from a state get_state() returned: nothing here."""
+
+    def _reward(self, r: StepResult) -> np.ndarray:
+        """The agent's reward of the step r: (B,) float64, the defenders' (r.reward) here."""
+        return r.reward
+
+    def get_state(self) -> dict:
+        """The env's state, for set_state() to continue it later (a resumed training): a
+        picklable dict of copies. D, I: (N^2,) float64 the densities; steps: int; breached,
+        eliminated: float; started: bool, a reset() done; rng: dict, the generator's
+        bit_generator.state; engagements, estimated: int, the lifetime counters. The client is no
+        part of it: its answers do not depend on what it answered before (under `estimates:
+        true` they depend on timing anyway)."""
+        return {"D": self.D.copy(), "I": self.I.copy(), "steps": self.steps, "breached": self.breached,
+                "eliminated": self.eliminated, "started": self._reset_done,
+                "rng": self.np_random.bit_generator.state, "engagements": self.engagements,
+                "estimated": self.estimated, **self._draw_state()}
+
+    def set_state(self, state: dict) -> None:
+        """Take a state get_state() returned (of an env of the same grid): the episode goes on
+        from there, the generator draws what the saved one would have, the counters go on.
+        ConfigError (one line) for a state of another grid size, with a field missing, or with
+        densities that are not finite numbers >= 0; the env is unchanged then."""
+        cells = self.n * self.n
+        missing = sorted({"D", "I", "steps", "breached", "eliminated", "started", "rng", "engagements",
+                          "estimated"} - set(state))
+        if missing:
+            raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
+        if np.shape(state["D"]) != (cells,) or np.shape(state["I"]) != (cells,):
+            raise ConfigError(f"set_state: the state's densities are of shape {np.shape(state['D'])}, "
+                              f"this env's grid has {cells} cells", field="set_state")
+        for side in ("D", "I"):
+            values = np.asarray(state[side])
+            if values.dtype.kind not in "iuf" or not np.all(np.isfinite(values)) or np.any(values < 0):
+                raise ConfigError(f"set_state: the state's densities {side} must be finite numbers >= 0",
+                                  field="set_state")
+        self.D = np.array(state["D"], dtype=np.float64)
+        self.I = np.array(state["I"], dtype=np.float64)
+        self.steps = int(state["steps"])
+        self.breached = float(state["breached"])
+        self.eliminated = float(state["eliminated"])
+        self._reset_done = bool(state["started"])
+        self.np_random.bit_generator.state = state["rng"]
+        self.engagements = int(state["engagements"])
+        self.estimated = int(state["estimated"])
+        self._resume_draw(state)
+
+    def _obs(self) -> np.ndarray:
+        """The observation: (2 N^2,) float32 [D, I] clipped to [0, 1]."""
+        return observe(self.D[None], self.I[None])[0]
+
+    def _info(self, breach, eliminated, engaged, estimates, mass, coverage=0.0, per_cell=0.0) -> dict:
+        """The info dict of reset() and step() (see SwarmAllocationEnv's Info).
+
+        mass: the intruder mass sum(I); coverage: the share of the intruder mass (after its
+        advance) in cells with defenders (n_p >= 1), which are the engaged cells;
+        defenders_per_engaged: mean n_p over them.
+        """
+        return {"breached_step": breach, "breached": self.breached, "eliminated_step": eliminated,
+                "eliminated": self.eliminated, "engaged_cells": engaged,
+                "estimates": estimates, "intruder_mass": mass, "coverage": coverage,
+                "defenders_per_engaged": per_cell}
+
+    def render(self):
+        """The densities as an image: (32 N, 32 N, 3) uint8 under render_mode "rgb_array", else None.
+
+        Defenders blue, intruders red (farm.alloc.plots.density_frame).
+        """
+        if self.render_mode != "rgb_array":
+            return None
+        from farm.alloc.plots import density_frame
+
+        return density_frame(self.D.reshape(self.n, self.n), self.I.reshape(self.n, self.n), self.steps)
+
+    def close(self):
+        """Release the env's resources: the client's store if the env made the client.
+
+        A client made by the env (none given) is closed, with its in-process service's
+        SQLite store; a client given to the env belongs to its owner and stays open.
+        Closing twice is allowed and does nothing more.
+        """
+        if self._owns_client:
+            self._owns_client = False
+            self.client.close()
+        super().close()
+
+
+class SwarmAllocationEnv(GridEnv):
     """The grid allocation MDP: place a defender swarm over an N x N grid against intruders.
 
     ## Description
@@ -205,33 +399,15 @@ class SwarmAllocationEnv(gym.Env):
     service over the env's lifetime and of them the interpolated ones.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
-
     def __init__(self, config: AllocConfig | None = None, *, client=None, store: str | None = None,
                  render_mode: str | None = None, estimates: bool | str = False, **kwargs):
         """Make the env; the class docstring's Arguments section describes each argument."""
-        self.config = check_env_arguments("SwarmAllocationEnv", config, estimates, kwargs)
-        self.estimates = estimates
-        self.engagements = 0  # engaged cells answered by the service, over the env's lifetime
-        self.estimated = 0  # of which by an interpolation (estimates=True)
-        n = self.config.grid_size
-        self.n = n
-        self.layout = Layout(n)
+        super().__init__("SwarmAllocationEnv", config, client, store, render_mode, estimates, kwargs)
         self.src, self.dst, self.start = self.layout.src, self.layout.dst, self.layout.start
         self.n_moves = self.layout.n_moves
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.src),), dtype=np.float32)
-        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
-        self.render_mode = render_mode
-        self._owns_client = client is None  # close() closes a client the env made, never one it was given
-        self.client = env_client(self.config, store) if client is None else client
-        self.model = EngagementModel(self.config, self.client, estimates)
-        self.base = self.layout.base
-        self.D = np.zeros(n * n)
-        self.I = np.zeros(n * n)
-        self.steps = 0
-        self.breached = 0.0
-        self.eliminated = 0.0
-        self._reset_done = False  # step() needs a reset() first
+        self.intruders = configured_intruders(self.config)  # None: the drift law
+        self._episode_intruders = self.intruders  # the episode's draw of intruders that draw per episode
 
     # ----- the MDP ------------------------------------------------------------------
     def check_action(self, action) -> np.ndarray:
@@ -261,21 +437,6 @@ class SwarmAllocationEnv(gym.Env):
         T[self.dst, self.src] = self.move_probabilities(action)
         return T
 
-    def reset(self, *, seed=None, options=None):
-        """Start an episode (see Starting State); returns (observation, info).
-
-        seed: seeds the env's generator (the intruders' start); options: unused.
-        observation: (2 N^2,) float32 [D, I]; info: the step measures, all 0.
-        """
-        super().reset(seed=seed)
-        D, I = start_densities(self.layout, self.np_random.dirichlet(np.ones(self.n))[None])
-        self.D, self.I = D[0], I[0]
-        self.steps = 0
-        self.breached = 0.0
-        self.eliminated = 0.0
-        self._reset_done = True
-        return self._obs(), self._info(0.0, 0.0, 0, 0, float(row_sums(I)[0]))
-
     def step(self, action):
         """One step of the MDP (see Description); returns (obs, reward, terminated, truncated, info).
 
@@ -287,95 +448,21 @@ class SwarmAllocationEnv(gym.Env):
         """
         if not self._reset_done:
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
-        r = step(self.layout, self.config, self.model, self.D[None], self.I[None], self.check_action(action)[None])
-        self.D, self.I = r.D[0], r.I[0]
-        breach, eliminated = float(r.breach[0]), float(r.eliminated[0])
-        engaged, estimates = int(r.engaged[0]), int(r.estimates[0])
-        self.breached += breach
-        self.eliminated += eliminated
-        self.engagements += engaged
-        self.estimated += estimates
-        self.steps += 1
-        terminated, truncated = episode_end(self.config, np.array([self.steps]), r.remaining)
-        info = self._info(breach, eliminated, engaged, estimates, float(r.remaining[0]), float(r.coverage[0]),
-                          float(r.per_engaged[0]))
-        return self._obs(), float(r.reward[0]), bool(terminated[0]), bool(truncated[0]), info
+        D, I = self.D[None], self.I[None]
+        intruders = intruder_move(self._episode_intruders, self.config.information, D, I)
+        return self._record(step(self.layout, self.config, self.model, D, I, self.check_action(action)[None],
+                                 intruders))
 
-    def get_state(self) -> dict:
-        """The env's state, for set_state() to continue it later (a resumed training): a
-        picklable dict of copies. D, I: (N^2,) float64 the densities; steps: int; breached,
-        eliminated: float; started: bool, a reset() done; rng: dict, the generator's
-        bit_generator.state; engagements, estimated: int, the lifetime counters. The client is no
-        part of it: its answers do not depend on what it answered before (under `estimates:
-        true` they depend on timing anyway)."""
-        return {"D": self.D.copy(), "I": self.I.copy(), "steps": self.steps, "breached": self.breached,
-                "eliminated": self.eliminated, "started": self._reset_done,
-                "rng": self.np_random.bit_generator.state, "engagements": self.engagements,
-                "estimated": self.estimated}
+    def _draw(self) -> None:
+        """The episode's intruders: a policy that draws per episode draws from the env's generator."""
+        self._episode_intruders = for_episode(self.intruders, self.np_random)
 
-    def set_state(self, state: dict) -> None:
-        """Take a state get_state() returned (of an env of the same grid): the episode goes on
-        from there, the generator draws what the saved one would have, the counters go on.
-        ConfigError (one line) for a state of another grid size, with a field missing, or with
-        densities that are not finite numbers >= 0; the env is unchanged then."""
-        cells = self.n * self.n
-        missing = sorted({"D", "I", "steps", "breached", "eliminated", "started", "rng", "engagements",
-                          "estimated"} - set(state))
-        if missing:
-            raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
-        if np.shape(state["D"]) != (cells,) or np.shape(state["I"]) != (cells,):
-            raise ConfigError(f"set_state: the state's densities are of shape {np.shape(state['D'])}, "
-                              f"this env's grid has {cells} cells", field="set_state")
-        for side in ("D", "I"):
-            values = np.asarray(state[side])
-            if values.dtype.kind not in "iuf" or not np.all(np.isfinite(values)) or np.any(values < 0):
-                raise ConfigError(f"set_state: the state's densities {side} must be finite numbers >= 0",
-                                  field="set_state")
-        self.D = np.array(state["D"], dtype=np.float64)
-        self.I = np.array(state["I"], dtype=np.float64)
-        self.steps = int(state["steps"])
-        self.breached = float(state["breached"])
-        self.eliminated = float(state["eliminated"])
-        self._reset_done = bool(state["started"])
-        self.np_random.bit_generator.state = state["rng"]
-        self.engagements = int(state["engagements"])
-        self.estimated = int(state["estimated"])
+    def _draw_state(self) -> dict:
+        """{"intruder_draw": the episode's draw} for intruders that draw per episode, else {}."""
+        saved = draw_state(self._episode_intruders)
+        return {} if saved is None else {"intruder_draw": saved}
 
-    def _obs(self) -> np.ndarray:
-        """The observation: (2 N^2,) float32 [D, I] clipped to [0, 1]."""
-        return observe(self.D[None], self.I[None])[0]
-
-    def _info(self, breach, eliminated, engaged, estimates, mass, coverage=0.0, per_cell=0.0) -> dict:
-        """The info dict of reset() and step() (see the class docstring's Info).
-
-        mass: the intruder mass sum(I); coverage: the share of the intruder mass (after its
-        advance) in cells with defenders (n_p >= 1), which are the engaged cells;
-        defenders_per_engaged: mean n_p over them.
-        """
-        return {"breached_step": breach, "breached": self.breached, "eliminated_step": eliminated,
-                "eliminated": self.eliminated, "engaged_cells": engaged,
-                "estimates": estimates, "intruder_mass": mass, "coverage": coverage,
-                "defenders_per_engaged": per_cell}
-
-    def render(self):
-        """The densities as an image: (32 N, 32 N, 3) uint8 under render_mode "rgb_array", else None.
-
-        Defenders blue, intruders red (farm.alloc.plots.density_frame).
-        """
-        if self.render_mode != "rgb_array":
-            return None
-        from farm.alloc.plots import density_frame
-
-        return density_frame(self.D.reshape(self.n, self.n), self.I.reshape(self.n, self.n), self.steps)
-
-    def close(self):
-        """Release the env's resources: the client's store if the env made the client.
-
-        A client made by the env (none given) is closed, with its in-process service's
-        SQLite store; a client given to the env belongs to its owner and stays open.
-        Closing twice is allowed and does nothing more.
-        """
-        if self._owns_client:
-            self._owns_client = False
-            self.client.close()
-        super().close()
+    def _resume_draw(self, state: dict) -> None:
+        """The episode's intruders from a saved draw."""
+        if "intruder_draw" in state:
+            self._episode_intruders = self.intruders.resume_episode(state["intruder_draw"])

@@ -72,6 +72,16 @@ def evaluate_trained(run: RunFolder, config, policies: dict, client, episodes: i
     return table, per, steps
 
 
+def _allocator_config(run: RunFolder, run_dir):
+    """The run's TrainConfig; ConfigError (one line naming run) for a run that trained the intruders."""
+    config = run.read_config()
+    if config.side == "intruders":
+        raise ConfigError(f"run: {run_dir} trained the intruders (side: intruders), not an allocator; play it as the "
+                          f"intruders of a config (intruders: learned, intruder_options: {{run: {run_dir}}})",
+                          field="run")
+    return config
+
+
 def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str = "service",
                  scenario: str | None = None, references: list[str] | None = None,
                  animate=None, show_progress: bool = True, repair: str | None = None) -> RunEvaluation:
@@ -82,7 +92,8 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     seed stay the run's), the tables and figures
     then written into the run's scenarios/<name>/. references: the baselines and planners to
     compare with, by name (default: every one; [] none). ConfigError (one line naming the
-    field) for bad input, before any episode: not a run, episodes or seed not whole numbers
+    field) for bad input, before any episode: not a run, a run of the intruders (side:
+    intruders), episodes or seed not whole numbers
     >= 1 (>= 0), an unknown fidelity, scenario or reference, a model that cannot act on the
     scenario's map, a run folder the tables cannot be written into, an animate path that is not
     a .gif or .mp4. animate: also write an animation of the trained allocator's first episode
@@ -93,7 +104,7 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     config's. One other than the run's own writes into repair_<value>/ of the folder the
     tables go into, so the run's own evaluation there is kept."""
     run = RunFolder(run_dir)
-    config = _on_scenario(run.read_config(), scenario)
+    config = _on_scenario(_allocator_config(run, run_dir), scenario)
     _check_arguments(episodes, seed, fidelity, references)
     specs = None if references is None else [PolicySpec(policy_entry(name)) for name in references]
     learned = _trained_allocator(run, config, scenario, repair)

@@ -4,8 +4,8 @@ The env (farm.alloc.env) steps through these functions, and the planners
 (farm.alloc.policies.planners) call the same ones to look ahead, so a planner's model of a
 step is the env's step and never a copy that could drift from it:
 
-- advance_intruders (advance_intruders_many for B episodes): the intruders' vertical drift
-  and one-column advance (known in advance: it does not depend on the defenders);
+- advance_intruders (advance_intruders_many for B episodes): the intruders' move under the
+  drift law, known in advance; route_intruders_many under any routing (docs/model.md section 8);
 - team_sizes: a cell's game, (n_p, n_e) from its densities (rounding, the lattice);
 - EngagementModel: a cell's expected outcome from the capture-time client's statistics
   (docs/model.md section 5); engage_many answers B episodes' engaged cells in one lookup.
@@ -25,6 +25,7 @@ from farm.alloc.config import AllocConfig
 from farm.service.keys import LATTICE
 
 __all__ = ["LATTICE", "snap", "snap_many", "row_sums", "segment_sums", "advance_intruders", "advance_intruders_many",
+           "route_intruders_many", "drift_routing",
            "team_sizes", "Engagement", "Engagements", "EngagementModel"]
 
 _LATTICE = np.array(LATTICE)
@@ -92,27 +93,59 @@ def segment_sums(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return out
 
 
-def advance_intruders_many(I: np.ndarray, n: int, drift: float) -> tuple[np.ndarray, np.ndarray]:
-    """The intruders' move of one step in B episodes: vertical drift, then one column left.
+def route_intruders_many(I: np.ndarray, n: int, up: np.ndarray, down: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The intruders' move of one step in B episodes: each cell's mass routed between rows, then one column left.
 
-    I: (B, N^2) float64 intruder densities, one episode a row; n: the grid side N; drift: the
-    share d of each row's mass sent to each neighbouring row (`vertical_drift`). Returns (I':
+    I: (B, N^2) float64 intruder densities, one episode a row; n: the grid side N; up, down:
+    (B, N^2) float64 the share of each cell's mass sent up-left and down-left (0 on the top
+    row for up and on the bottom row for down), the rest going straight left. Returns (I':
     (B, N^2) float64 the densities after the advance, breach: (B,) float64 the mass that left
-    the left edge). I is not changed.
+    the left edge). I is not changed. The routed masses are computed as up * I and down * I
+    and moved in the order: up out, up in, down out, down in; so the routing (d, 1 - 2d, d)
+    gives exactly what advance_intruders_many(I, n, d) gives.
     """
     grid = np.asarray(I).reshape(-1, n, n)
-    if drift > 0:
-        up = drift * grid[:, 1:]
-        down = drift * grid[:, :-1]
-        grid = grid.copy()
-        grid[:, 1:] -= up
-        grid[:, :-1] += up
-        grid[:, :-1] -= down
-        grid[:, 1:] += down
+    rising = np.asarray(up).reshape(grid.shape)[:, 1:] * grid[:, 1:]
+    falling = np.asarray(down).reshape(grid.shape)[:, :-1] * grid[:, :-1]
+    grid = grid.copy()
+    grid[:, 1:] -= rising
+    grid[:, :-1] += rising
+    grid[:, :-1] -= falling
+    grid[:, 1:] += falling
+    return _one_column_left(grid, n)
+
+
+def _one_column_left(grid: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """grid: (B, N, N) float64 -> (the grid moved one column left as (B, N^2), breach: (B,) the
+    mass of column 0, which leaves)."""
     breach = row_sums(grid[:, :, 0])
     moved = np.zeros_like(grid)
     moved[:, :, :-1] = grid[:, :, 1:]
     return moved.reshape(len(grid), n * n), breach
+
+
+def drift_routing(n: int, drift: float, B: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """The drift law as a routing: (up, down): (B, N^2) float64 each, every row but the top
+    sending the share `drift` up-left and every row but the bottom the same share down-left."""
+    rows = np.repeat(np.arange(n), n)
+    up = np.where(rows > 0, float(drift), 0.0)
+    down = np.where(rows < n - 1, float(drift), 0.0)
+    return np.tile(up, (B, 1)), np.tile(down, (B, 1))
+
+
+def advance_intruders_many(I: np.ndarray, n: int, drift: float) -> tuple[np.ndarray, np.ndarray]:
+    """The intruders' move of one step in B episodes under the drift law: vertical drift, then one column left.
+
+    I: (B, N^2) float64 intruder densities, one episode a row; n: the grid side N; drift: the
+    share d of each row's mass sent to each neighbouring row (`vertical_drift`). Returns (I':
+    (B, N^2) float64 the densities after the advance, breach: (B,) float64 the mass that left
+    the left edge). I is not changed. route_intruders_many with drift_routing(n, drift).
+    """
+    grid = np.asarray(I).reshape(-1, n, n)
+    if drift > 0:
+        up, down = drift_routing(n, drift, len(grid))
+        return route_intruders_many(grid.reshape(len(grid), n * n), n, up, down)
+    return _one_column_left(grid, n)
 
 
 def advance_intruders(I: np.ndarray, n: int, drift: float) -> tuple[np.ndarray, float]:

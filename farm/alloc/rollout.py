@@ -25,8 +25,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from farm.alloc.dynamics import Layout, check_actions, episode_end, observe, start_densities, step
+from farm.alloc.dynamics import (
+    Layout,
+    check_actions,
+    episode_end,
+    observe,
+    start_densities,
+    step,
+)
 from farm.alloc.env import SwarmAllocationEnv
+from farm.alloc.intruders.play import EpisodeIntruders, configured_intruders, for_episode, intruder_move
 from farm.alloc.model import EngagementModel
 from farm.alloc.plots import plot_episode
 from farm.core.stats import ci_columns
@@ -77,16 +85,24 @@ def play(config, policy, client, episodes: int, seed: int, record_first: bool = 
     client (one batch of games under `farm eval --fidelity games`); episode k is, to the last
     bit, SwarmAllocationEnv(config).reset(seed=seed + k) stepped with the policy's actions
     (tests/test_vector_env.py), and the policy is asked for each episode's observation alone.
+    A policy or intruder policy that draws its play per episode (for_episode: a mixture) draws
+    from the episode's generator after its start, the intruders' first.
     """
     from gymnasium.utils import seeding
 
     layout = Layout(config.grid_size)
     model = EngagementModel(config, client, False)
+    side = configured_intruders(config)  # the intruders' policy, None for the drift law
     if record_first:
         model = _Recording(model)
     engaged_cells: list = []
     n, A = config.grid_size, len(layout.src)
-    shares = np.stack([seeding.np_random(seed + k)[0].dirichlet(np.ones(n)) for k in range(episodes)])
+    rngs = [seeding.np_random(seed + k)[0] for k in range(episodes)]  # each episode's generator, as the env's
+    shares = np.stack([rng.dirichlet(np.ones(n)) for rng in rngs])
+    # after the start, a policy that draws its play per episode draws from the episode's generator:
+    # the intruders' first (as the env draws them), then the allocator's
+    sides = None if side is None else EpisodeIntruders([for_episode(side, rng) for rng in rngs])
+    players = [for_episode(policy, rng) for rng in rngs]
     D, I = start_densities(layout, shares)
     obs = observe(D, I)
     first = obs.copy()
@@ -99,10 +115,12 @@ def play(config, policy, client, episodes: int, seed: int, record_first: bool = 
         actions = np.empty((len(running), A))
         for row, k in enumerate(running.tolist()):
             t0 = time.perf_counter()
-            action, _ = policy.predict(obs[k], deterministic=True)
+            action, _ = players[k].predict(obs[k], deterministic=True)
             seconds[k] += time.perf_counter() - t0
             actions[row] = check_actions(action, (A,))
-        r = step(layout, config, model, D[running], I[running], actions)
+        intruders = None if sides is None else intruder_move(sides.subset(running), config.information, D[running],
+                                                             I[running])
+        r = step(layout, config, model, D[running], I[running], actions, intruders)
         D[running], I[running] = r.D, r.I
         obs[running] = observe(r.D, r.I)
         totals[running] += r.reward

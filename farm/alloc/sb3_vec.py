@@ -3,8 +3,9 @@
 SB3VecEnv runs a gymnasium.vector.VectorEnv that autoresets in the same step (AutoresetMode
 SAME_STEP, farm.alloc.vector_env.SwarmAllocationVectorEnv's) under SB3's VecEnv conventions,
 the ones DummyVecEnv follows over single envs, so PPO, SAC and TD3 learn on it as on a
-DummyVecEnv of the same episodes. make_vec_env makes the allocation env's batched training
-env (SB3VecEnv in a VecMonitor), which training uses when n_envs > 1.
+DummyVecEnv of the same episodes. monitored adapts any such VectorEnv for training (SB3VecEnv
+in a VecMonitor); make_vec_env makes the allocation env's batched training env so, which
+training uses when n_envs > 1 (and the intruders' batched env, farm.alloc.intruder_env, the same way).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from farm.alloc.config import AllocConfig
 from farm.core.errors import ConfigError
 
-__all__ = ["SB3VecEnv", "make_vec_env"]
+__all__ = ["SB3VecEnv", "make_vec_env", "monitored"]
 
 
 class SB3VecEnv(VecEnv):
@@ -165,7 +166,14 @@ def make_vec_env(config: AllocConfig, n_envs: int, client, estimates: bool | str
     restore every episode."""
     from farm.alloc.vector_env import SwarmAllocationVectorEnv
 
-    adapter = SB3VecEnv(SwarmAllocationVectorEnv(config, num_envs=n_envs, client=client, estimates=estimates))
+    return monitored(SwarmAllocationVectorEnv(config, num_envs=n_envs, client=client, estimates=estimates), seed)
+
+
+def monitored(env: VectorEnv, seed: int | None = None) -> VecMonitor:
+    """A SAME_STEP VectorEnv as a training env: adapted by SB3VecEnv and wrapped in SB3's
+    VecMonitor (episode returns and lengths in infos[k]["episode"]); seed: None, or episode k's
+    seed at the first reset is seed + k. The VectorEnv is the result's venv.env."""
+    adapter = SB3VecEnv(env)
     if seed is not None:
         adapter.seed(seed)
     return VecMonitor(adapter)

@@ -10,8 +10,8 @@ scenario uses `team_sizes: lattice` (the 16 sizes of farm.alloc.env.LATTICE), so
 most 16 x 16 = 256 distinct games, computed once up front (farm.alloc.lattice.warm_lattices):
 that is why the paper's runs here differ from their training configs, which use exact team
 sizes (configs/train/suite_<name>.yaml trains each scenario as defined here). Each is a
-gymnasium id (register_scenarios). How the harder scenarios and the theatres were chosen:
-docs/results.md, "How the scenarios were chosen".
+gymnasium id, its intruders' env (farm.alloc.intruder_env) another (register_scenarios). How
+the harder scenarios and the theatres were chosen: docs/results.md, "How the scenarios were chosen".
 """
 
 from __future__ import annotations
@@ -23,9 +23,12 @@ from typing import Any
 
 from farm.alloc.config import AllocConfig
 
-__all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "THEATRES", "VECTOR_ENTRY_POINT", "gym_id", "register_scenarios"]
+__all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "THEATRES", "VECTOR_ENTRY_POINT", "INTRUDER_ENTRY_POINT",
+           "INTRUDER_VECTOR_ENTRY_POINT", "gym_id", "intruder_gym_id", "register_scenarios"]
 
 VECTOR_ENTRY_POINT = "farm.alloc.vector_env:SwarmAllocationVectorEnv"  # the batched env of every id
+INTRUDER_ENTRY_POINT = "farm.alloc.intruder_env:SwarmIntruderEnv"  # the intruders' env of every intruders' id
+INTRUDER_VECTOR_ENTRY_POINT = "farm.alloc.intruder_env:SwarmIntruderVectorEnv"  # and its batched form
 
 
 @dataclass(frozen=True)
@@ -55,10 +58,21 @@ class Scenario:
         """The scenario's gymnasium id, `farm/<name>-v0`."""
         return gym_id(self.name)
 
+    @property
+    def intruder_gym_id(self) -> str:
+        """The gymnasium id of the scenario played by the intruders, `farm/<name>-intruders-v0`."""
+        return intruder_gym_id(self.name)
+
 
 def gym_id(name: str) -> str:
     """The gymnasium id of the scenario named name: `farm/<name>-v0`."""
     return f"farm/{name}-v0"
+
+
+def intruder_gym_id(name: str) -> str:
+    """The gymnasium id of the intruders' env (farm.alloc.intruder_env) of the scenario named name:
+    `farm/<name>-intruders-v0`."""
+    return f"farm/{name}-intruders-v0"
 
 
 _LATTICE = {"team_sizes": "lattice"}
@@ -111,29 +125,33 @@ THEATRES = ("theatre_8x8", "theatre_16x16", "theatre_32x32")  # the size-free le
 
 
 def register_scenarios() -> list[str]:
-    """Register every scenario as the gymnasium id `farm/<name>-v0` (once; registering again
-    does nothing); returns the ids.
+    """Register every scenario as the gymnasium id `farm/<name>-v0`, and its intruders' env as
+    `farm/<name>-intruders-v0` (once; registering again does nothing); returns the ids, each
+    scenario's two in turn.
 
     Each id makes farm.alloc.env.SwarmAllocationEnv with the scenario's settings as keyword
     arguments; gymnasium.make's own keyword arguments replace them, one by one, and may add
     the env's other arguments (client, store, render_mode, estimates). Its vector entry point
     (VECTOR_ENTRY_POINT) is farm.alloc.vector_env.SwarmAllocationVectorEnv, which
     gymnasium.make_vec(id, num_envs=B, vectorization_mode="vector_entry_point") makes with the
-    same settings and keyword arguments, as RL Zoo's `env_kwargs` do. Importing farm.alloc
-    calls it:
+    same settings and keyword arguments, as RL Zoo's `env_kwargs` do. The intruders' id makes
+    farm.alloc.intruder_env.SwarmIntruderEnv (its vector entry point SwarmIntruderVectorEnv) so,
+    the frozen allocator its `opponent` argument. Importing farm.alloc calls it:
 
         import gymnasium, farm.alloc
         env = gymnasium.make("farm/outnumbered_3x3-v0")              # the scenario as defined
         env = gymnasium.make("farm/outnumbered_3x3-v0", c_capture=0.0)  # one setting changed
         envs = gymnasium.make_vec("farm/outnumbered_3x3-v0", num_envs=16,  # 16 episodes batched
                                   vectorization_mode="vector_entry_point")
+        env = gymnasium.make("farm/outnumbered_3x3-intruders-v0", opponent="stay_at_base")
     """
     import gymnasium
 
     ids = []
     for scenario in SCENARIOS.values():
-        if scenario.gym_id not in gymnasium.registry:
-            gymnasium.register(scenario.gym_id, entry_point="farm.alloc.env:SwarmAllocationEnv",
-                               vector_entry_point=VECTOR_ENTRY_POINT, kwargs=dict(scenario.env))
-        ids.append(scenario.gym_id)
+        for env_id, entry, vector in ((scenario.gym_id, "farm.alloc.env:SwarmAllocationEnv", VECTOR_ENTRY_POINT),
+                                      (scenario.intruder_gym_id, INTRUDER_ENTRY_POINT, INTRUDER_VECTOR_ENTRY_POINT)):
+            if env_id not in gymnasium.registry:
+                gymnasium.register(env_id, entry_point=entry, vector_entry_point=vector, kwargs=dict(scenario.env))
+            ids.append(env_id)
     return ids

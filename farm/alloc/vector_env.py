@@ -25,13 +25,28 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from farm.alloc.config import AllocConfig
-from farm.alloc.dynamics import Layout, check_actions, episode_end, observe, start_densities, step
+from farm.alloc.dynamics import (
+    Layout,
+    StepResult,
+    check_actions,
+    episode_end,
+    observe,
+    start_densities,
+    step,
+)
 from farm.alloc.env import check_env_arguments, env_client
+from farm.alloc.intruders.play import (
+    EpisodeIntruders,
+    configured_intruders,
+    draw_state,
+    for_episode,
+    intruder_move,
+)
 from farm.alloc.model import EngagementModel, row_sums
 from farm.core.checks import is_whole, whole
 from farm.core.errors import ConfigError
 
-__all__ = ["SwarmAllocationVectorEnv", "INFO_KEYS"]
+__all__ = ["GridVectorEnv", "SwarmAllocationVectorEnv", "INFO_KEYS"]
 
 # The single env's info entries, in its order, with the dtype gymnasium batches each one as.
 INFO_KEYS = (("breached_step", np.float64), ("breached", np.float64), ("eliminated_step", np.float64),
@@ -49,7 +64,250 @@ def _num_envs(value) -> int:
     return whole("num_envs", value, 1, numpy=True)
 
 
-class SwarmAllocationVectorEnv(VectorEnv):
+class GridVectorEnv(VectorEnv):
+    """B episodes of the grid MDP stepped together, whichever side acts in them: the part the
+    defenders' batched env (SwarmAllocationVectorEnv, whose docstring describes each piece) and
+    the intruders' (farm.alloc.intruder_env.SwarmIntruderVectorEnv) share: the arguments, the
+    observation spaces, the starts and their seeds, a step's accounting, infos and SAME_STEP
+    autoreset (_record of the step's StepResult), get_state and set_state, close. A subclass
+    sets the action spaces and step(); its hooks are _prepare (before the agent sees the
+    episodes' states), _observations (what it sees) and _reward (what it gets).
+
+    Attributes: config: AllocConfig; client; model: EngagementModel; layout:
+    farm.alloc.dynamics.Layout; num_envs: int, B; D, I: (B, N^2) float64 the densities;
+    steps: (B,) int64; breached, eliminated: (B,) float64 the episodes' counters; started:
+    (B,) bool, the episodes reset at least once; engagements, estimated: int, the engaged
+    cells answered over the env's lifetime and of them the interpolated ones.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    STATE_FIELDS = _STATE_FIELDS  # get_state's keys
+
+    def __init__(self, name: str, config: AllocConfig | None, num_envs, client, store, render_mode: str | None,
+                 estimates: bool | str, kwargs: dict):
+        """Make the env's shared part. name: the env class's name, for check_env_arguments'
+        message; the other arguments are SwarmAllocationVectorEnv's (its class docstring's Arguments)."""
+        B = _num_envs(num_envs)
+        self.config = check_env_arguments(name, config, estimates, kwargs)
+        if render_mode is not None:
+            raise ConfigError(f"render_mode: the batched env renders nothing (None only), got {render_mode!r}",
+                              field="render_mode")
+        self.render_mode = None
+        self.estimates = estimates
+        self.num_envs = B
+        n = self.config.grid_size
+        self.layout = Layout(n)
+        self.single_observation_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, B)
+        self._owns_client = client is None  # close() closes a client the env made, never one it was given
+        self.client = env_client(self.config, store) if client is None else client
+        self.model = EngagementModel(self.config, self.client, estimates)
+        cells = self.layout.cells
+        self.D = np.zeros((B, cells))
+        self.I = np.zeros((B, cells))
+        self.steps = np.zeros(B, dtype=np.int64)
+        self.breached = np.zeros(B)
+        self.eliminated = np.zeros(B)
+        self.started = np.zeros(B, dtype=bool)
+        self._rngs: list[np.random.Generator | None] = [None] * B
+        self.engagements = 0
+        self.estimated = 0
+        self._all = np.ones(B, dtype=bool)
+        self._indices = np.arange(B)
+        self._alpha = np.ones(n)  # the flat Dirichlet of the intruders' start
+
+    # ----- the MDP ------------------------------------------------------------------
+    def _seeds(self, seed) -> list:
+        """The episodes' seeds of reset(seed=...): a list of B ints or Nones."""
+        B = self.num_envs
+        if seed is None:
+            return [None] * B
+        def whole_seed(s) -> bool:
+            return is_whole(s) and s >= 0
+
+        if whole_seed(seed):
+            return [int(seed) + k for k in range(B)]
+        if isinstance(seed, (list, tuple, np.ndarray)) and len(seed) == B \
+                and all(s is None or whole_seed(s) for s in seed):
+            return [None if s is None else int(s) for s in seed]
+        raise ConfigError(f"seed: must be an int >= 0, None or a list of {B} of them, got {seed!r}", field="seed")
+
+    def _reset_mask(self, options) -> np.ndarray:
+        """The episodes reset() resets: options["reset_mask"], (B,) bool with one True at least, else all."""
+        if not options or "reset_mask" not in options:
+            return self._all
+        mask = options["reset_mask"]
+        if not isinstance(mask, np.ndarray) or mask.dtype != np.bool_ or mask.shape != (self.num_envs,) \
+                or not mask.any():
+            raise ConfigError(f"reset_mask: must be a ({self.num_envs},) numpy bool array with one True at least, "
+                              f"got {mask!r}", field="reset_mask")
+        return mask
+
+    def _start(self, episodes: np.ndarray, seeds: list | None = None) -> None:
+        """Start the episodes (their indices, (m,) int64) as the single env's reset does, each
+        drawing its intruders' start from its own generator (seeds[k]: its new seed or None;
+        seeds None: none new)."""
+        shares = np.empty((len(episodes), self.layout.n))
+        rngs = self._rngs
+        for row, k in enumerate(episodes.tolist()):
+            if rngs[k] is None or (seeds is not None and seeds[k] is not None):
+                rngs[k], _ = seeding.np_random(None if seeds is None else seeds[k])
+            shares[row] = rngs[k].dirichlet(self._alpha)
+            self._draw(k, rngs[k])
+        self.D[episodes], self.I[episodes] = start_densities(self.layout, shares)
+        self.steps[episodes] = 0
+        self.breached[episodes] = 0.0
+        self.eliminated[episodes] = 0.0
+        self.started[episodes] = True
+
+    @staticmethod
+    def _infos(floats: np.ndarray, ints: np.ndarray, mask: np.ndarray) -> dict:
+        """gymnasium's infos from the (7, B) float64 and (2, B) int64 blocks of INFO_KEYS'
+        values (rows in _FLOATS' and _INTS' order), each key masked by a copy of mask: (B,) bool."""
+        infos = {}
+        for row, key in enumerate(_FLOATS):
+            infos[key], infos["_" + key] = floats[row], mask.copy()
+        for row, key in enumerate(_INTS):
+            infos[key], infos["_" + key] = ints[row], mask.copy()
+        return infos
+
+    def _reset_info(self, mask: np.ndarray) -> dict:
+        """The info of a reset of the episodes in mask ((B,) bool): every per-step entry 0,
+        the counters 0, the intruder mass of the new start; masked to them."""
+        floats = np.zeros((len(_FLOATS), self.num_envs))
+        floats[_MASS] = np.where(mask, row_sums(self.I), 0.0)
+        return self._infos(floats, np.zeros((len(_INTS), self.num_envs), dtype=np.int64), mask)
+
+    def reset(self, *, seed=None, options=None):
+        """Start the episodes (see SwarmAllocationVectorEnv's docstring); returns (obs: (B, 2 N^2) float32, infos).
+
+        ConfigError (one line) for a seed that is no int >= 0, None or list of B of them, or a bad
+        options["reset_mask"]; nothing is changed then.
+        """
+        seeds = self._seeds(seed)
+        mask = self._reset_mask(options)
+        episodes = np.flatnonzero(mask)
+        self._start(episodes, seeds)
+        self._prepare(episodes)
+        return self._observations(), self._reset_info(mask)
+
+    def _record(self, r: StepResult):
+        """Take a step's outcome, r: a StepResult of the B episodes: the densities, the counters,
+        the episodes' ends, the SAME_STEP autoreset of those that ended; then _prepare of every
+        episode. Returns step()'s (obs, rewards: (B,) float64 (_reward), terminated, truncated:
+        (B,) bool, infos)."""
+        self.D, self.I = r.D, r.I
+        self.breached = self.breached + r.breach
+        self.eliminated = self.eliminated + r.eliminated
+        self.engagements += int(r.engaged.sum())
+        self.estimated += int(r.estimates.sum())
+        self.steps = self.steps + 1
+        terminated, truncated = episode_end(self.config, self.steps, r.remaining)
+        rewards = self._reward(r)
+        values = {"breached_step": r.breach, "breached": self.breached, "eliminated_step": r.eliminated,
+                  "eliminated": self.eliminated, "intruder_mass": r.remaining, "coverage": r.coverage,
+                  "defenders_per_engaged": r.per_engaged, "engaged_cells": r.engaged, "estimates": r.estimates}
+        floats = np.array([values[key] for key in _FLOATS], dtype=np.float64)
+        ints = np.array([values[key] for key in _INTS], dtype=np.int64)
+        done = terminated | truncated
+        if not done.any():
+            self._prepare(self._indices)
+            return self._observations(), rewards, terminated, truncated, self._infos(floats, ints, self._all)
+        ended = np.flatnonzero(done)
+        final_obs = np.full(self.num_envs, None, dtype=object)
+        for k, last in zip(ended.tolist(), observe(self.D[ended], self.I[ended])):
+            final_obs[k] = last.copy()
+        final_info = self._infos(np.where(done, floats, 0.0), np.where(done, ints, 0), done)
+        self._start(ended)
+        self._prepare(self._indices)
+        floats[:, ended] = 0.0  # the new episodes' reset info
+        floats[_MASS, ended] = row_sums(self.I[ended])
+        ints[:, ended] = 0
+        infos = self._infos(floats, ints, self._all)
+        infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
+        infos["final_info"], infos["_final_info"] = final_info, done.copy()
+        return self._observations(), rewards, terminated, truncated, infos
+
+    def _prepare(self, episodes: np.ndarray) -> None:
+        """What happens before the agent sees the states of the episodes (their indices, (m,)
+        int64: after their start, and after every step): nothing here."""
+
+    def _observations(self) -> np.ndarray:
+        """What the agent sees of every episode: (B, 2 N^2) float32 [D, I] (observe)."""
+        return observe(self.D, self.I)
+
+    def _reward(self, r: StepResult) -> np.ndarray:
+        """The agent's rewards of the step r: (B,) float64, the defenders' (r.reward) here."""
+        return r.reward
+
+    # ----- saving and restoring ---------------------------------------------------
+    def get_state(self) -> dict:
+        """All B episodes' state, for set_state() to continue them later: a picklable dict of
+        copies (STATE_FIELDS). num_envs: int; D, I: (B, N^2) float64; steps: (B,) int64; breached,
+        eliminated: (B,) float64; started: (B,) bool; rngs: list of B bit_generator.state
+        dicts (None for an episode never reset); engagements, estimated: int. The client is
+        no part of it (see SwarmAllocationEnv.get_state)."""
+        return {"num_envs": self.num_envs, "D": self.D.copy(), "I": self.I.copy(), "steps": self.steps.copy(),
+                "breached": self.breached.copy(), "eliminated": self.eliminated.copy(),
+                "started": self.started.copy(),
+                "rngs": [None if g is None else g.bit_generator.state for g in self._rngs],
+                "engagements": self.engagements, "estimated": self.estimated, **self._draw_state()}
+
+    def _draw(self, k: int, rng) -> None:
+        """Episode k's draw of the frozen side when it draws its play per episode (a mixture), from
+        its generator rng right after its start: nothing here."""
+
+    def _draw_state(self) -> dict:
+        """The episodes' draws, for get_state ({} without any)."""
+        return {}
+
+    def _resume_draw(self, state: dict) -> None:
+        """Take the episodes' draws from a state get_state() returned: nothing here."""
+
+    def set_state(self, state: dict) -> None:
+        """Take a state get_state() returned (of an env of the same grid and num_envs): every
+        episode goes on from there, each generator draws what the saved one would have.
+        ConfigError (one line) for a state of another grid or batch size or a field missing."""
+        missing = [name for name in self.STATE_FIELDS if name not in state]
+        if missing:
+            raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
+        B, cells = self.num_envs, self.layout.cells
+        if state["num_envs"] != B or np.shape(state["D"]) != (B, cells) or np.shape(state["I"]) != (B, cells) \
+                or len(state["rngs"]) != B:
+            raise ConfigError(f"set_state: the state is of {state['num_envs']} episodes of densities "
+                              f"{np.shape(state['D'])}, this env has {B} episodes of {cells} cells", field="set_state")
+        rngs = []
+        for saved in state["rngs"]:
+            if saved is None:
+                rngs.append(None)
+                continue
+            rng, _ = seeding.np_random(0)
+            rng.bit_generator.state = saved
+            rngs.append(rng)
+        self.D = np.array(state["D"], dtype=np.float64)
+        self.I = np.array(state["I"], dtype=np.float64)
+        self.steps = np.array(state["steps"], dtype=np.int64)
+        self.breached = np.array(state["breached"], dtype=np.float64)
+        self.eliminated = np.array(state["eliminated"], dtype=np.float64)
+        self.started = np.array(state["started"], dtype=bool)
+        self._rngs = rngs
+        self.engagements = int(state["engagements"])
+        self.estimated = int(state["estimated"])
+        self._resume_draw(state)
+
+    def render(self):
+        """Nothing: the batched env has no render mode (render_mode None)."""
+        return None
+
+    def close_extras(self, **kwargs) -> None:
+        """Close the client when the env made it (with its in-process store); a client given to
+        the env stays open for its owner. VectorEnv.close() calls this once."""
+        if self._owns_client:
+            self._owns_client = False
+            self.client.close()
+
+
+class SwarmAllocationVectorEnv(GridVectorEnv):
     """B = num_envs episodes of the grid allocation MDP, stepped together (gymnasium VectorEnv).
 
     Each episode is SwarmAllocationEnv's MDP (farm.alloc.env, its docstring); this class
@@ -95,111 +353,14 @@ class SwarmAllocationVectorEnv(VectorEnv):
     cells answered over the env's lifetime and of them the interpolated ones.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
-
     def __init__(self, config: AllocConfig | None = None, num_envs: int = 1, *, client=None,
                  store: str | None = None, render_mode: str | None = None, estimates: bool | str = False, **kwargs):
         """Make the env; the class docstring's Arguments describe each argument."""
-        B = _num_envs(num_envs)
-        self.config = check_env_arguments("SwarmAllocationVectorEnv", config, estimates, kwargs)
-        if render_mode is not None:
-            raise ConfigError(f"render_mode: the batched env renders nothing (None only), got {render_mode!r}",
-                              field="render_mode")
-        self.render_mode = None
-        self.estimates = estimates
-        self.num_envs = B
-        n = self.config.grid_size
-        self.layout = Layout(n)
+        super().__init__("SwarmAllocationVectorEnv", config, num_envs, client, store, render_mode, estimates, kwargs)
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.layout.src),), dtype=np.float32)
-        self.single_observation_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
-        self.action_space = batch_space(self.single_action_space, B)
-        self.observation_space = batch_space(self.single_observation_space, B)
-        self._owns_client = client is None  # close() closes a client the env made, never one it was given
-        self.client = env_client(self.config, store) if client is None else client
-        self.model = EngagementModel(self.config, self.client, estimates)
-        cells = self.layout.cells
-        self.D = np.zeros((B, cells))
-        self.I = np.zeros((B, cells))
-        self.steps = np.zeros(B, dtype=np.int64)
-        self.breached = np.zeros(B)
-        self.eliminated = np.zeros(B)
-        self.started = np.zeros(B, dtype=bool)
-        self._rngs: list[np.random.Generator | None] = [None] * B
-        self.engagements = 0
-        self.estimated = 0
-        self._all = np.ones(B, dtype=bool)
-        self._alpha = np.ones(n)  # the flat Dirichlet of the intruders' start
-
-    # ----- the MDP ------------------------------------------------------------------
-    def _seeds(self, seed) -> list:
-        """The episodes' seeds of reset(seed=...): a list of B ints or Nones."""
-        B = self.num_envs
-        if seed is None:
-            return [None] * B
-        def whole(s) -> bool:
-            return is_whole(s) and s >= 0
-
-        if whole(seed):
-            return [int(seed) + k for k in range(B)]
-        if isinstance(seed, (list, tuple, np.ndarray)) and len(seed) == B and all(s is None or whole(s) for s in seed):
-            return [None if s is None else int(s) for s in seed]
-        raise ConfigError(f"seed: must be an int >= 0, None or a list of {B} of them, got {seed!r}", field="seed")
-
-    def _reset_mask(self, options) -> np.ndarray:
-        """The episodes reset() resets: options["reset_mask"], (B,) bool with one True at least, else all."""
-        if not options or "reset_mask" not in options:
-            return self._all
-        mask = options["reset_mask"]
-        if not isinstance(mask, np.ndarray) or mask.dtype != np.bool_ or mask.shape != (self.num_envs,) \
-                or not mask.any():
-            raise ConfigError(f"reset_mask: must be a ({self.num_envs},) numpy bool array with one True at least, "
-                              f"got {mask!r}", field="reset_mask")
-        return mask
-
-    def _start(self, episodes: np.ndarray, seeds: list | None = None) -> None:
-        """Start the episodes (their indices, (m,) int64) as the single env's reset does, each
-        drawing its intruders' start from its own generator (seeds[k]: its new seed or None;
-        seeds None: none new)."""
-        shares = np.empty((len(episodes), self.layout.n))
-        rngs = self._rngs
-        for row, k in enumerate(episodes.tolist()):
-            if rngs[k] is None or (seeds is not None and seeds[k] is not None):
-                rngs[k], _ = seeding.np_random(None if seeds is None else seeds[k])
-            shares[row] = rngs[k].dirichlet(self._alpha)
-        self.D[episodes], self.I[episodes] = start_densities(self.layout, shares)
-        self.steps[episodes] = 0
-        self.breached[episodes] = 0.0
-        self.eliminated[episodes] = 0.0
-        self.started[episodes] = True
-
-    @staticmethod
-    def _infos(floats: np.ndarray, ints: np.ndarray, mask: np.ndarray) -> dict:
-        """gymnasium's infos from the (7, B) float64 and (2, B) int64 blocks of INFO_KEYS'
-        values (rows in _FLOATS' and _INTS' order), each key masked by a copy of mask: (B,) bool."""
-        infos = {}
-        for row, key in enumerate(_FLOATS):
-            infos[key], infos["_" + key] = floats[row], mask.copy()
-        for row, key in enumerate(_INTS):
-            infos[key], infos["_" + key] = ints[row], mask.copy()
-        return infos
-
-    def _reset_info(self, mask: np.ndarray) -> dict:
-        """The info of a reset of the episodes in mask ((B,) bool): every per-step entry 0,
-        the counters 0, the intruder mass of the new start; masked to them."""
-        floats = np.zeros((len(_FLOATS), self.num_envs))
-        floats[_MASS] = np.where(mask, row_sums(self.I), 0.0)
-        return self._infos(floats, np.zeros((len(_INTS), self.num_envs), dtype=np.int64), mask)
-
-    def reset(self, *, seed=None, options=None):
-        """Start the episodes (see the class docstring); returns (obs: (B, 2 N^2) float32, infos).
-
-        ConfigError (one line) for a seed that is no int >= 0, None or list of B of them, or a bad
-        options["reset_mask"]; nothing is changed then.
-        """
-        seeds = self._seeds(seed)
-        mask = self._reset_mask(options)
-        self._start(np.flatnonzero(mask), seeds)
-        return observe(self.D, self.I), self._reset_info(mask)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.intruders = configured_intruders(self.config)  # None: the drift law
+        self._episode_intruders = [self.intruders] * self.num_envs  # each episode's draw of intruders that draw
 
     def step(self, actions):
         """One step of every episode, with SAME_STEP autoreset (see the class docstring).
@@ -212,88 +373,21 @@ class SwarmAllocationVectorEnv(VectorEnv):
         if not self.started.all():
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         a = check_actions(actions, self.action_space.shape, "actions")
-        r = step(self.layout, self.config, self.model, self.D, self.I, a)
-        self.D, self.I = r.D, r.I
-        self.breached = self.breached + r.breach
-        self.eliminated = self.eliminated + r.eliminated
-        self.engagements += int(r.engaged.sum())
-        self.estimated += int(r.estimates.sum())
-        self.steps = self.steps + 1
-        terminated, truncated = episode_end(self.config, self.steps, r.remaining)
-        obs = observe(self.D, self.I)
-        values = {"breached_step": r.breach, "breached": self.breached, "eliminated_step": r.eliminated,
-                  "eliminated": self.eliminated, "intruder_mass": r.remaining, "coverage": r.coverage,
-                  "defenders_per_engaged": r.per_engaged, "engaged_cells": r.engaged, "estimates": r.estimates}
-        floats = np.array([values[key] for key in _FLOATS], dtype=np.float64)
-        ints = np.array([values[key] for key in _INTS], dtype=np.int64)
-        done = terminated | truncated
-        if not done.any():
-            return obs, r.reward, terminated, truncated, self._infos(floats, ints, self._all)
-        ended = np.flatnonzero(done)
-        final_obs = np.full(self.num_envs, None, dtype=object)
-        for k in ended.tolist():
-            final_obs[k] = obs[k].copy()
-        final_info = self._infos(np.where(done, floats, 0.0), np.where(done, ints, 0), done)
-        self._start(ended)
-        obs[ended] = observe(self.D[ended], self.I[ended])
-        floats[:, ended] = 0.0  # the new episodes' reset info
-        floats[_MASS, ended] = row_sums(self.I[ended])
-        ints[:, ended] = 0
-        infos = self._infos(floats, ints, self._all)
-        infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
-        infos["final_info"], infos["_final_info"] = final_info, done.copy()
-        return obs, r.reward, terminated, truncated, infos
+        side = None if self.intruders is None else EpisodeIntruders(self._episode_intruders)
+        intruders = intruder_move(side, self.config.information, self.D, self.I)
+        return self._record(step(self.layout, self.config, self.model, self.D, self.I, a, intruders))
 
-    # ----- saving and restoring ---------------------------------------------------
-    def get_state(self) -> dict:
-        """All B episodes' state, for set_state() to continue them later: a picklable dict of
-        copies. num_envs: int; D, I: (B, N^2) float64; steps: (B,) int64; breached,
-        eliminated: (B,) float64; started: (B,) bool; rngs: list of B bit_generator.state
-        dicts (None for an episode never reset); engagements, estimated: int. The client is
-        no part of it (see SwarmAllocationEnv.get_state)."""
-        return {"num_envs": self.num_envs, "D": self.D.copy(), "I": self.I.copy(), "steps": self.steps.copy(),
-                "breached": self.breached.copy(), "eliminated": self.eliminated.copy(),
-                "started": self.started.copy(),
-                "rngs": [None if g is None else g.bit_generator.state for g in self._rngs],
-                "engagements": self.engagements, "estimated": self.estimated}
+    def _draw(self, k: int, rng) -> None:
+        """Episode k's intruders: a policy that draws per episode draws from its generator."""
+        self._episode_intruders[k] = for_episode(self.intruders, rng)
 
-    def set_state(self, state: dict) -> None:
-        """Take a state get_state() returned (of an env of the same grid and num_envs): every
-        episode goes on from there, each generator draws what the saved one would have.
-        ConfigError (one line) for a state of another grid or batch size or a field missing."""
-        missing = [name for name in _STATE_FIELDS if name not in state]
-        if missing:
-            raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
-        B, cells = self.num_envs, self.layout.cells
-        if state["num_envs"] != B or np.shape(state["D"]) != (B, cells) or np.shape(state["I"]) != (B, cells) \
-                or len(state["rngs"]) != B:
-            raise ConfigError(f"set_state: the state is of {state['num_envs']} episodes of densities "
-                              f"{np.shape(state['D'])}, this env has {B} episodes of {cells} cells", field="set_state")
-        rngs = []
-        for saved in state["rngs"]:
-            if saved is None:
-                rngs.append(None)
-                continue
-            rng, _ = seeding.np_random(0)
-            rng.bit_generator.state = saved
-            rngs.append(rng)
-        self.D = np.array(state["D"], dtype=np.float64)
-        self.I = np.array(state["I"], dtype=np.float64)
-        self.steps = np.array(state["steps"], dtype=np.int64)
-        self.breached = np.array(state["breached"], dtype=np.float64)
-        self.eliminated = np.array(state["eliminated"], dtype=np.float64)
-        self.started = np.array(state["started"], dtype=bool)
-        self._rngs = rngs
-        self.engagements = int(state["engagements"])
-        self.estimated = int(state["estimated"])
+    def _draw_state(self) -> dict:
+        """{"intruder_draws": each episode's draw (None: none)} for intruders that draw per episode, else {}."""
+        saved = [draw_state(p) for p in self._episode_intruders]
+        return {} if all(d is None for d in saved) else {"intruder_draws": saved}
 
-    def render(self):
-        """Nothing: the batched env has no render mode (render_mode None)."""
-        return None
-
-    def close_extras(self, **kwargs) -> None:
-        """Close the client when the env made it (with its in-process store); a client given to
-        the env stays open for its owner. VectorEnv.close() calls this once."""
-        if self._owns_client:
-            self._owns_client = False
-            self.client.close()
+    def _resume_draw(self, state: dict) -> None:
+        """The episodes' intruders from their saved draws."""
+        if "intruder_draws" in state:
+            self._episode_intruders = [self.intruders if d is None else self.intruders.resume_episode(d)
+                                       for d in state["intruder_draws"]]

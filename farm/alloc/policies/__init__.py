@@ -6,10 +6,29 @@ in your own module: registering there puts it in every evaluation of that proces
 """
 
 from farm.alloc.policies import learned
-from farm.alloc.policies.baselines import GreedyNearestIntruder, SpreadEvenly, StayAtBase
-from farm.alloc.policies.planners import Intercept, MaxMarginalReturn, RecedingHorizon, SubRegions, Transport
-from farm.alloc.policies.registry import (KINDS, PolicyEntry, PolicySpec, make_policy, policy_entry, policy_names,
-                                          register_policy, unregister_policy)
+from farm.alloc.policies.baselines import (
+                                          GreedyNearestIntruder,
+                                          SpreadEvenly,
+                                          StayAtBase,
+)
+from farm.alloc.policies.mixture import Mixture
+from farm.alloc.policies.planners import (
+                                          Intercept,
+                                          MaxMarginalReturn,
+                                          RecedingHorizon,
+                                          SubRegions,
+                                          Transport,
+)
+from farm.alloc.policies.registry import (
+                                          KINDS,
+                                          PolicyEntry,
+                                          PolicySpec,
+                                          make_policy,
+                                          policy_entry,
+                                          policy_names,
+                                          register_policy,
+                                          unregister_policy,
+)
 
 __all__ = ["PolicyEntry", "PolicySpec", "KINDS", "register_policy", "unregister_policy", "policy_entry",
            "policy_names", "make_policy"]
@@ -25,3 +44,4 @@ register_policy("subregions", SubRegions, kind="planner", reference=False)
 register_policy("td3", learned.td3, kind="learned")
 register_policy("ppo", learned.ppo, kind="learned")
 register_policy("sac", learned.sac, kind="learned")
+register_policy("mixture", Mixture, kind="mixture", reference=False)

@@ -1,7 +1,7 @@
 """The allocators' registry: every allocator, heuristic, planner or learned, listed once and
 made one way.
 
-An entry is a name, a kind (`baseline`, `planner` or `learned`) and a maker,
+An entry is a name, a kind (`baseline`, `planner`, `learned` or `mixture`) and a maker,
 `make(config, client, **options) -> allocator`: config is the scenario's AllocConfig, client
 the CaptureTimeClient answering its engagements (a baseline ignores it), options the
 allocator's own keywords (a planner's `horizon`, a learned allocator's trained `policy`).
@@ -18,19 +18,17 @@ import by name): an allocator registered in a driver's own module is evaluated o
 from __future__ import annotations
 
 import inspect
-import sys
-import sysconfig
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from farm.core.errors import ConfigError
+from farm.core.pickling import dumps_by_value
 
 __all__ = ["PolicyEntry", "PolicySpec", "KINDS", "register_policy", "unregister_policy", "policy_entry",
            "policy_names", "make_policy"]
 
-KINDS = ("baseline", "planner", "learned")
+KINDS = ("baseline", "planner", "learned", "mixture")
 _REGISTRY: dict[str, PolicyEntry] = {}
 
 
@@ -70,32 +68,7 @@ class PolicySpec:
         return self.entry.make(config, client, **self.options)
 
     def __reduce__(self):
-        return _spec_from_bytes, (_dumps((self.entry, self.options)),)
-
-
-def _users_module(name: str):
-    """The module `name` when it is the user's own code (see the module doc), else None."""
-    module = sys.modules.get(name)
-    path = getattr(module, "__file__", None)
-    if module is None or name == "__main__" or name.split(".")[0] in ("farm", "workers") or path is None:
-        return None
-    installed = {Path(sysconfig.get_paths()[k]).resolve() for k in ("purelib", "platlib", "stdlib")}
-    return None if any(parent in installed for parent in Path(path).resolve().parents) else module
-
-
-def _dumps(value) -> bytes:
-    """cloudpickle's bytes of value, the module of its maker by value when it is the user's own."""
-    import cloudpickle
-
-    entry = value[0]
-    module = _users_module(getattr(entry.make, "__module__", "") or "")
-    if module is None:
-        return cloudpickle.dumps(value)
-    cloudpickle.register_pickle_by_value(module)
-    try:
-        return cloudpickle.dumps(value)
-    finally:
-        cloudpickle.unregister_pickle_by_value(module)
+        return _spec_from_bytes, (dumps_by_value((self.entry, self.options)),)
 
 
 def _spec_from_bytes(data: bytes) -> PolicySpec:

@@ -1,5 +1,6 @@
 """A `farm train` config: TrainConfig and its sections (the learner's: TD3Params, PPOParams or
-SACParams under `algo`; PretrainParams, EvalParams, ServiceParams, TrackingParams), read with load_train_config;
+SACParams under `algo`; PretrainParams, OpponentParams, EvalParams, ServiceParams, TrackingParams), read with
+load_train_config;
 every default in one place (docs/training.md shows a config)."""
 
 from __future__ import annotations
@@ -7,18 +8,20 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_serializer, model_validator
 
 from farm.alloc.config import AllocConfig
+from farm.alloc.intruder_env import DEFAULT_OPPONENT, REWARDS
 from farm.alloc.scenarios import SCENARIOS
 from farm.core.checks import flag, is_finite_number, is_whole, whole
 from farm.core.config import ConfigError, Strict, load_yaml_model
 from farm.core.tracking import TrackingParams
 
-__all__ = ["ALGOS", "TD3Params", "PPOParams", "SACParams", "PretrainParams", "EvalParams", "ServiceParams",
-           "TrainConfig", "load_train_config", "store_of", "POLICY_KWARGS"]
+__all__ = ["ALGOS", "SIDES", "TD3Params", "PPOParams", "SACParams", "PretrainParams", "OpponentParams", "EvalParams",
+           "ServiceParams", "TrainConfig", "load_train_config", "store_of", "POLICY_KWARGS"]
 
 ALGOS = ("td3", "ppo", "sac")  # stable-baselines3's algorithms a config may name (`algo`)
+SIDES = ("defenders", "intruders")  # the side a run trains (`side`)
 
 # What policy_kwargs may set from a config, by algorithm: the SB3 policy's arguments that are plain
 # values (activation_fn by name: ACTIVATIONS).
@@ -283,6 +286,25 @@ class PretrainParams(Strict):
         return [self.expert_share ** i for i in range(self.iterations)]
 
 
+class OpponentParams(Strict):
+    """The game a `side: intruders` run trains the intruders in (farm.alloc.intruder_env): the frozen
+    allocator they play against, an allocator of the registry (farm.alloc.policies: a baseline, a
+    planner, or a learned one, e.g. `name: ppo` with `options: {run: FOLDER}`), and their reward."""
+
+    name: str = DEFAULT_OPPONENT  # the frozen allocator (farm.alloc.policies' registry)
+    options: dict[str, Any] = {}  # its options (a learned allocator's run folder: run)
+    reward: Literal[REWARDS] = "eliminated"  # eliminated: minus the mass eliminated; zero_sum: minus the defenders'
+
+    @field_validator("name")
+    @classmethod
+    def _known_allocator(cls, v):
+        from farm.alloc.policies import policy_names
+
+        if v not in policy_names():
+            raise ValueError(f"unknown allocator {v!r} (choose from {', '.join(policy_names())})")
+        return v
+
+
 class EvalParams(Strict):
     """The periodic evaluation during training (SB3's EvalCallback)."""
 
@@ -321,6 +343,10 @@ class TrainConfig(Strict):
     n_envs: int = Field(1, ge=1, le=1024)  # episodes stepped at once (> 1: the batched vector env)
     pretrain: PretrainParams | None = None  # planner-guided pretraining before RL; None: none
     keep: Literal["final", "best"] = "final"  # model.zip: the final model, or the best of the periodic evaluations
+    # the side trained: the defenders (an allocator), or the intruders (their routing, farm.alloc.intruder_env)
+    # against the frozen allocator of `opponent`; side and opponent are written out only when set
+    side: Literal[SIDES] = "defenders"
+    opponent: OpponentParams = OpponentParams()  # side intruders: the allocator they play and their reward
     # how the trained allocator acts, in the periodic evaluations and after: its network's action (none),
     # or that action moved onto the game levels it almost plays (levels: farm.alloc.policies.repair)
     repair: Literal["none", "levels"] = "none"
@@ -362,6 +388,36 @@ class TrainConfig(Strict):
             raise ValueError(f"ppo.n_steps: a rollout of n_steps x n_envs = {self.ppo.n_steps * self.n_envs} "
                              f"step; PPO needs at least 2")
         return self
+
+    @model_validator(mode="after")
+    def _side(self):
+        """What the intruders' side refuses: the allocator's pretraining, repair and CellPolicy, and
+        intruders of the env's own; an opponent is the intruders' side's alone."""
+        if self.side == "defenders":
+            if self.opponent != OpponentParams():
+                raise ValueError("opponent: the frozen allocator is for side: intruders (the defenders' intruders "
+                                 "are env.intruders)")
+            return self
+        if self.pretrain is not None:
+            raise ValueError("pretrain: planner-guided pretraining imitates an allocator; side: intruders has none")
+        if self.repair != "none":
+            raise ValueError("repair: the level repair moves an allocator's action; side: intruders has none")
+        if self.algo == "ppo" and self.ppo.policy == "CellPolicy":
+            raise ValueError("ppo.policy: CellPolicy scores the defenders' moves; side: intruders takes MlpPolicy")
+        if self.env.intruders != "drift":
+            raise ValueError(f"env.intruders: side: intruders trains the intruders' routing; leave env.intruders at "
+                             f"drift, got {self.env.intruders!r}")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _without_default_side(self, handler):
+        """The config as written (config.yaml, an experiment's trials): side and opponent only on the
+        intruders' side (a defenders' run is written as before they existed)."""
+        data = handler(self)
+        if self.side == "defenders":
+            data.pop("side", None)
+            data.pop("opponent", None)
+        return data
 
     @property
     def learner(self) -> TD3Params | PPOParams | SACParams:

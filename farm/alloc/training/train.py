@@ -33,7 +33,7 @@ from farm.core.config import ConfigError
 from farm.core.errors import ActionError, SwarmFarmError, TrainingDiverged
 from farm.core.output import check_writable_folder
 
-__all__ = ["train", "make_model", "policy_kwargs", "training_envs", "EVAL_SEED_OFFSET"]
+__all__ = ["train", "make_model", "policy_kwargs", "single_env", "training_envs", "EVAL_SEED_OFFSET"]
 
 EVAL_SEED_OFFSET = 1_000_000  # the periodic evaluation's episodes: seeded apart from training's
 
@@ -141,23 +141,44 @@ def make_model(config: TrainConfig, env, run_dir: Path):
     return TD3(**common, **off_policy, policy_delay=p.policy_delay, action_noise=noise)
 
 
+def single_env(config: TrainConfig, client):
+    """One env of the side config trains: the allocation env (side defenders), or the intruders'
+    env against config.opponent's frozen allocator (side intruders), answered by client."""
+    if config.side == "intruders":
+        from farm.alloc.intruder_env import SwarmIntruderEnv
+
+        o = config.opponent
+        return SwarmIntruderEnv(config.env, opponent=o.name, opponent_options=o.options, reward=o.reward,
+                                client=client, estimates=config.service.estimates)
+    return SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+
+
 def training_envs(config: TrainConfig, client):
     """(the SB3 VecEnv trained on, the env whose state a checkpoint keeps, its monitor): one env
-    in a DummyVecEnv under Monitor, or n_envs > 1 episodes in the batched vector env under VecMonitor."""
+    (single_env) in a DummyVecEnv under Monitor, or n_envs > 1 episodes in the batched vector env
+    of its side under VecMonitor."""
     if config.n_envs == 1:
-        train_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+        train_env = single_env(config, client)
         monitor = Monitor(train_env)
         return DummyVecEnv([lambda: monitor]), train_env, monitor
-    from farm.alloc.sb3_vec import make_vec_env
+    from farm.alloc.sb3_vec import make_vec_env, monitored
 
-    monitor = make_vec_env(config.env, config.n_envs, client, config.service.estimates)
+    if config.side == "intruders":
+        from farm.alloc.intruder_env import SwarmIntruderVectorEnv
+
+        o = config.opponent
+        monitor = monitored(SwarmIntruderVectorEnv(config.env, num_envs=config.n_envs, opponent=o.name,
+                                                   opponent_options=o.options, reward=o.reward, client=client,
+                                                   estimates=config.service.estimates))
+    else:
+        monitor = make_vec_env(config.env, config.n_envs, client, config.service.estimates)
     return monitor, monitor.venv.env, monitor
 
 
 def _eval_envs(config: TrainConfig, client):
     """(the periodic evaluation's env, as EvalCallback takes it, the env whose state a checkpoint
     keeps), seeded once (config.seed + EVAL_SEED_OFFSET)."""
-    eval_env = SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
+    eval_env = single_env(config, client)
     played = RepairedActions(eval_env) if config.repair == "levels" else eval_env  # as the allocator acts after
     if config.n_envs == 1:
         eval_monitor = Monitor(played)

@@ -4,12 +4,28 @@ Tune side, tune.py), the run (run.py), the folder (folder.py), the tables (table
 learning curves (results.py) and the progress display (display.py). docs/experiments.md
 tells how it runs and resumes."""
 
-from farm.studies.experiments.config import RESERVED_FIELDS, ExperimentConfig, field_problem, load_experiment_config
-from farm.studies.experiments.folder import MANIFEST, RESULT, TUNE_DIR, ExperimentFolder, is_experiment
+from farm.studies.experiments.config import (
+                                             RESERVED_FIELDS,
+                                             ExperimentConfig,
+                                             field_problem,
+                                             load_experiment_config,
+)
+from farm.studies.experiments.folder import (
+                                             MANIFEST,
+                                             RESULT,
+                                             TUNE_DIR,
+                                             ExperimentFolder,
+                                             is_experiment,
+)
 from farm.studies.experiments.plan import Plan, Trial, plan, trial_cpus
 from farm.studies.experiments.run import ExperimentError, run_experiment
-from farm.studies.experiments.tables import (TIMING_COLUMNS, format_summary, summary_table, summary_view,
-                                             trials_table)
+from farm.studies.experiments.tables import (
+                                             TIMING_COLUMNS,
+                                             format_summary,
+                                             summary_table,
+                                             summary_view,
+                                             trials_table,
+)
 
 __all__ = ["ExperimentConfig", "load_experiment_config", "field_problem", "RESERVED_FIELDS", "Trial", "Plan", "plan",
            "trial_cpus", "run_experiment", "ExperimentError", "ExperimentFolder", "is_experiment", "trials_table",

@@ -3,6 +3,7 @@ grid may set (field_problem); docs/experiments.md shows one."""
 
 from __future__ import annotations
 
+import itertools
 import types
 import typing
 from typing import Any
@@ -12,7 +13,7 @@ from pydantic import BaseModel, Field, field_validator, model_validator
 from farm.core.config import StrictFile, load_yaml_model
 from farm.core.tracking import TrackingParams
 
-__all__ = ["ExperimentConfig", "load_experiment_config", "field_problem", "RESERVED_FIELDS"]
+__all__ = ["ExperimentConfig", "load_experiment_config", "field_problem", "RESERVED_FIELDS", "UNSET"]
 
 RESERVED_FIELDS = ("name", "seed", "threads", "service", "tracking")  # the experiment sets these for every trial
 
@@ -29,6 +30,7 @@ class ExperimentConfig(StrictFile):
     scenario: str | None = None  # a suite scenario's name, with TrainConfig's defaults (or give base)
     overrides: dict[str, Any] = {}  # dotted TrainConfig field -> value, set in every trial
     grid: dict[str, list[Any]] = {}  # dotted TrainConfig field -> values: the points, a cartesian product
+    points: list[dict[str, Any]] = []  # or the points themselves: each a mapping of dotted TrainConfig fields to values
     seeds: list[int]  # each (point, seed) is one trial, its TrainConfig.seed
     # evaluation episodes: each trial's model, the baselines and the planners
     episodes: int = Field(10, ge=1, le=100_000)
@@ -49,6 +51,18 @@ class ExperimentConfig(StrictFile):
             raise ValueError(f"a seed is named twice: {v}")
         return v
 
+    @field_validator("points")
+    @classmethod
+    def _points(cls, v):
+        for i, point in enumerate(v):
+            if not isinstance(point, dict) or not point:
+                raise ValueError(f"point {i}: must be a mapping of dotted fields to values, got {point!r}")
+            for path in point:
+                problem = field_problem(path)
+                if problem:
+                    raise ValueError(f"point {i}: {path}: {problem}")
+        return v
+
     @field_validator("overrides", "grid")
     @classmethod
     def _fields(cls, v, info):
@@ -63,7 +77,8 @@ class ExperimentConfig(StrictFile):
 
     @model_validator(mode="after")
     def _one_base(self):
-        named = "scenario" in self.grid or "scenario" in self.overrides
+        named = "scenario" in self.grid or "scenario" in self.overrides or \
+            (self.points and all("scenario" in point for point in self.points))
         if self.base is not None and self.scenario is not None:
             raise ValueError("base: give one of `base` (a training config) or `scenario` (a suite scenario), not both")
         if self.base is None and self.scenario is None and not named:
@@ -74,10 +89,31 @@ class ExperimentConfig(StrictFile):
 
             if self.scenario not in SCENARIOS:
                 raise ValueError(f"scenario: unknown scenario {self.scenario!r} (choose from {', '.join(SCENARIOS)})")
-        both = set(self.overrides) & set(self.grid)
+        both = set(self.overrides) & (set(self.grid) | {f for point in self.points for f in point})
         if both:
             raise ValueError(f"grid: {sorted(both)[0]} is in `overrides` too; give it in one of them")
+        if self.grid and self.points:
+            raise ValueError("points: give the points as a `grid` (a cartesian product) or as `points`, not both")
         return self
+
+    def point_list(self) -> tuple[list[str], list[tuple]]:
+        """(the fields the points set, in order of first appearance; each point's values in that
+        order, None for a field a point leaves out): the grid's cartesian product, or `points`."""
+        if not self.points:
+            fields = list(self.grid)
+            return fields, list(itertools.product(*(self.grid[f] for f in fields))) if fields else [()]
+        fields = list(dict.fromkeys(f for point in self.points for f in point))
+        return fields, [tuple(point.get(f, UNSET) for f in fields) for point in self.points]
+
+
+class _Unset:
+    """A field a point leaves at the base's value."""
+
+    def __repr__(self) -> str:
+        return "unset"
+
+
+UNSET = _Unset()
 
 
 def field_problem(path: str) -> str | None:

@@ -21,9 +21,8 @@ class Display:
     keys of trials finished before this run."""
 
     def __init__(self, plan, enabled: bool, finished: list[str]):
-        from farm.core.progress import GameProgress
-
         from farm.alloc.training.config import TrainConfig
+        from farm.core.progress import GameProgress
 
         self.total = {t.key: TrainConfig(**t.config).learner.n_timesteps for t in plan.trials}
         self.steps = {key: (self.total[key] if key in finished else 0) for key in self.total}

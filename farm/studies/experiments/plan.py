@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import itertools
 import json
 import math
 from pathlib import Path
@@ -16,7 +15,7 @@ from pydantic import BaseModel, ValidationError
 
 from farm.core.config import ConfigError, first_line, read_yaml
 from farm.core.errors import ClusterError
-from farm.studies.experiments.config import RESERVED_FIELDS, ExperimentConfig
+from farm.studies.experiments.config import RESERVED_FIELDS, UNSET, ExperimentConfig
 
 __all__ = ["Trial", "Plan", "plan", "trial_cpus", "RESERVED_CPUS"]
 
@@ -96,8 +95,7 @@ def plan(config: ExperimentConfig, source: str = "experiments") -> Plan:
     base = _base_raw(config, source)
     service = dict(base.pop("service", None) or {})
     store = str(Path(config.store or default_store_path()).resolve())
-    fields = list(config.grid)
-    points = list(itertools.product(*(config.grid[f] for f in fields))) if fields else [()]
+    fields, points = config.point_list()
     trials = []
     for p, values in enumerate(points):
         for seed in config.seeds:
@@ -105,7 +103,8 @@ def plan(config: ExperimentConfig, source: str = "experiments") -> Plan:
             for path, value in config.overrides.items():
                 _set(raw, path, copy.deepcopy(value))
             for path, value in zip(fields, values):
-                _set(raw, path, copy.deepcopy(value))
+                if value is not UNSET:
+                    _set(raw, path, copy.deepcopy(value))
             key = f"p{p}_s{seed}"
             raw.update(name=f"{config.name}-{key}", seed=seed, threads=1,
                        service={"mode": "ray", "store": store, "address": None,
@@ -117,7 +116,8 @@ def plan(config: ExperimentConfig, source: str = "experiments") -> Plan:
             except (ValidationError, ConfigError) as e:
                 shown = ", ".join(f"{f}={v!r}" for f, v in zip(fields, values))
                 raise ConfigError(f"{source}: {first_line(e)} (point {p}{': ' + shown if shown else ''})") from None
-            trials.append(Trial(key=key, point=p, seed=seed, values=dict(zip(fields, values)),
+            trials.append(Trial(key=key, point=p, seed=seed,
+                                values={f: v for f, v in zip(fields, values) if v is not UNSET},
                                 config=json.loads(train.model_dump_json())))
     decided = {"name": config.name, "trials": [t.model_dump() for t in trials], "episodes": config.episodes,
                "eval_seed": config.eval_seed}

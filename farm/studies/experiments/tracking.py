@@ -19,10 +19,15 @@ import time
 import uuid
 
 import numpy as np
-
 from ray.tune.logger import LoggerCallback
 
-from farm.core.tracking import MlflowParams, flattened, mlflow_client, mlflow_experiment, param_text
+from farm.core.tracking import (
+    MlflowParams,
+    flattened,
+    mlflow_client,
+    mlflow_experiment,
+    param_text,
+)
 
 __all__ = ["TrialRuns", "report_metrics"]
 

@@ -1,6 +1,7 @@
 """One experiment trial, Ray Tune's function trainable (run_trial): train the trial (or resume
 it), evaluate its trained allocator beside the registered baselines and planners (the one
-evaluation of farm.alloc.evaluation), write its result.json and report it. docs/experiments.md
+evaluation of farm.alloc.evaluation; a trained intruders' run: its opponent against it and
+against the drift law), write its result.json and report it. docs/experiments.md
 tells how trials resume and why a finished one never trains again."""
 
 from __future__ import annotations
@@ -25,6 +26,29 @@ def _evaluate(config, run: RunFolder, episodes: int, seed: int, specs):
     with open_client(config.env.game_settings(), mode="ray", store=config.service.store) as client:
         policies = allocators(run, config, client, specs)
         return evaluate_trained(run, config, policies, client, episodes, seed, figures=False)[0]
+
+
+def _evaluate_intruders(config, run: RunFolder, episodes: int, seed: int):
+    """A trained intruders' run: its opponent allocator against it (`learned`) and against the
+    drift law (`drift`) on episodes seed .. seed+episodes-1; returns the table (policy,
+    return_mean, eliminated_mean): the opponent's measures."""
+    import pandas as pd
+
+    from farm.alloc.config import AllocConfig
+    from farm.alloc.policies import make_policy
+    from farm.alloc.rollout import play
+    from farm.service.client import open_client
+
+    learned = AllocConfig(**{**config.env.model_dump(), "intruders": "learned",
+                             "intruder_options": {"run": str(run.path)}})
+    rows = []
+    with open_client(config.env.game_settings(), mode="ray", store=config.service.store) as client:
+        for name, env in ((LEARNED, learned), ("drift", config.env)):
+            opponent = make_policy(config.opponent.name, env, client, **config.opponent.options)
+            played = play(env, opponent, client, episodes, seed)
+            rows.append({"policy": name, "return_mean": sum(e.summary["return"] for e in played) / episodes,
+                         "eliminated_mean": sum(e.summary["eliminated"] for e in played) / episodes})
+    return pd.DataFrame(rows)
 
 
 def run_trial(params: dict) -> None:
@@ -55,7 +79,11 @@ def run_trial(params: dict) -> None:
                     callbacks=[TuneReport(run.path, every)], on_pretrain=PretrainReport(run.path))
     t1 = time.perf_counter()
     specs = spec.get("policies")
-    table = _evaluate(config, run, spec["episodes"], spec["eval_seed"], reference_specs() if specs is None else specs)
+    if config.side == "intruders":  # the opponent's measures against the trained intruders
+        table = _evaluate_intruders(config, run, spec["episodes"], spec["eval_seed"])
+    else:
+        table = _evaluate(config, run, spec["episodes"], spec["eval_seed"],
+                          reference_specs() if specs is None else specs)
     t2 = time.perf_counter()
     result = {"trial": trial.key, "point": trial.point, "seed": trial.seed, **trial.values, "algo": config.algo,
               "final_eval_return": metrics.get("final_eval_mean_return"),

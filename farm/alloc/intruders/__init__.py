@@ -1,0 +1,34 @@
+"""Intruder policies behind one interface, listed once (registry.py): the drift law (drift.py), the
+adaptive heuristics (one file each) and trained ones (learned.py).
+
+Adding one is one file holding a subclass of base.IntruderPolicy (its `routing(D, I)`) and one
+`register_intruders` line below.
+"""
+
+from farm.alloc.intruders.drift import Drift
+from farm.alloc.intruders.fewest_ahead import FewestAhead
+from farm.alloc.intruders.learned import LearnedIntruders
+from farm.alloc.intruders.least_defended import LeastDefended
+from farm.alloc.intruders.mixture import IntruderMixture
+from farm.alloc.intruders.play import configured_intruders, intruder_move
+from farm.alloc.intruders.registry import (
+                                           KINDS,
+                                           IntruderEntry,
+                                           IntruderSpec,
+                                           intruder_entry,
+                                           intruder_names,
+                                           make_intruders,
+                                           register_intruders,
+                                           unregister_intruders,
+)
+from farm.alloc.intruders.split_away import SplitAway
+
+__all__ = ["KINDS", "IntruderEntry", "IntruderSpec", "register_intruders", "unregister_intruders", "intruder_entry",
+           "intruder_names", "make_intruders", "configured_intruders", "intruder_move"]
+
+register_intruders("drift", Drift.make, kind="law")
+register_intruders("fewest_ahead", FewestAhead.make, kind="heuristic")
+register_intruders("least_defended", LeastDefended.make, kind="heuristic")
+register_intruders("split_away", SplitAway.make, kind="heuristic")
+register_intruders("learned", LearnedIntruders.make, kind="learned")
+register_intruders("mixture", IntruderMixture.make, kind="mixture")

@@ -1,0 +1,54 @@
+"""`learned`: a trained intruder policy of a run folder (`farm train` with `side: intruders`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from farm.alloc.dynamics import observe, route_probabilities, routing_of
+from farm.alloc.intruders.base import IntruderPolicy
+from farm.core.errors import ConfigError
+
+__all__ = ["LearnedIntruders"]
+
+
+class LearnedIntruders(IntruderPolicy):
+    """The trained model of the run folder `run` (its config's algo; model.zip on the CPU), acting on
+    the observation [D, I] it sees: its action is mapped to routes as the env maps an intruder
+    action (route_probabilities). deterministic: its policy's mean action (True) or a draw.
+    ConfigError (one line naming intruder_options) for a folder without a trained intruder
+    model, or one trained on a map of another size."""
+
+    def __init__(self, config, run: str | None = None, deterministic: bool = True):
+        super().__init__(config)
+        import yaml
+
+        from farm.alloc.trained import load_model
+
+        if run is None:
+            raise ConfigError("intruder_options: learned intruders need the run folder (run: PATH)",
+                              field="intruder_options")
+        path = Path(run) / "config.yaml"  # a run folder's config (farm.alloc.runs, which imports the rollout)
+        values = yaml.safe_load(path.read_text()) if path.is_file() else None
+        if not isinstance(values, dict) or values.get("side") != "intruders":
+            raise ConfigError(f"intruder_options: {run} holds no intruders' training run (farm train with "
+                              f"side: intruders)", field="intruder_options")
+        self.model = load_model(run, values.get("algo", "ppo"))
+        shape, routes = self.model.observation_space.shape, len(self.layout.route_src)
+        if shape != (2 * self.n * self.n,) or self.model.action_space.shape != (routes,):
+            trained = int(round((shape[0] / 2) ** 0.5))
+            raise ConfigError(f"intruder_options: {run} was trained on a {trained}x{trained} map, not this "
+                              f"{self.n}x{self.n} one", field="intruder_options")
+        self.deterministic = bool(deterministic)
+
+    @classmethod
+    def make(cls, config, run: str | None = None, deterministic: bool = True):
+        """The registry's maker."""
+        return cls(config, run, deterministic)
+
+    def routing(self, D, I):
+        """The model's action on each episode's observation, as routes."""
+        obs = observe(np.atleast_2d(D), np.atleast_2d(I))
+        action, _ = self.model.policy.predict(obs, deterministic=self.deterministic)
+        return routing_of(self.layout, route_probabilities(self.layout, self.config, action))

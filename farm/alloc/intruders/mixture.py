@@ -1,0 +1,90 @@
+"""`mixture`: a mixed strategy over intruder policies, drawing one member per episode or per step."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from farm.alloc.intruders.base import IntruderPolicy
+from farm.alloc.intruders.registry import make_intruders
+from farm.core.mixture import mixture_members
+
+__all__ = ["IntruderMixture"]
+
+
+class IntruderMixture(IntruderPolicy):
+    """A mixed strategy over intruder policies of the registry: each episode (draw `episode`) or
+    each step (draw `step`) plays one member, drawn with the weights.
+
+    members: names or {intruders: NAME, options: {...}}; weights: None (uniform) or one number
+    >= 0 a member; draw: episode or step; seed: the generator of a caller that runs no episodes
+    (routing() then draws per row and call). An episode's draw is made by whoever runs the
+    episode, from the episode's generator (for_episode: the envs, farm.alloc.rollout.play).
+    """
+
+    def __init__(self, config, members=None, weights=None, draw: str = "episode", seed: int = 0):
+        super().__init__(config)
+        parsed, self.weights = mixture_members("intruder_options", members, weights, draw, "intruders")
+        self.names = [name for name, _ in parsed]
+        self.players = [make_intruders(name, config, **options) for name, options in parsed]
+        self.draw = draw
+        self._rng = np.random.default_rng(seed)
+
+    @classmethod
+    def make(cls, config, members=None, weights=None, draw: str = "episode", seed: int = 0):
+        """The registry's maker."""
+        return cls(config, members, weights, draw, seed)
+
+    def _pick(self, rng, size=None):
+        return rng.choice(len(self.players), p=self.weights, size=size)
+
+    def for_episode(self, rng: np.random.Generator):
+        """The mixture as one episode plays it (see Mixture.for_episode)."""
+        if self.draw == "episode":
+            return _Member(self, int(self._pick(rng)))
+        return _Draws(self, np.random.default_rng(rng.integers(2 ** 63)))
+
+    def resume_episode(self, state: dict):
+        """The episode's play from its get_state()."""
+        if "member" in state:
+            return _Member(self, int(state["member"]))
+        rng = np.random.default_rng()
+        rng.bit_generator.state = state["rng"]
+        return _Draws(self, rng)
+
+    def routing(self, D, I):
+        """Each row's routing by a member drawn from the mixture's own generator."""
+        return self._rows(np.atleast_2d(D), np.atleast_2d(I), self._pick(self._rng, size=len(np.atleast_2d(I))))
+
+    def _rows(self, D, I, members):
+        up, down = np.zeros(I.shape), np.zeros(I.shape)
+        for k in np.unique(members).tolist():
+            rows = np.flatnonzero(members == k)
+            up[rows], down[rows] = self.players[k].routing(D[rows], I[rows])
+        return up, down
+
+
+class _Member:
+    """One episode's member of a mixture drawn per episode."""
+
+    def __init__(self, mixture: IntruderMixture, member: int):
+        self.mixture, self.member = mixture, member
+
+    def routing(self, D, I):
+        return self.mixture.players[self.member].routing(D, I)
+
+    def get_state(self) -> dict:
+        return {"member": self.member}
+
+
+class _Draws:
+    """One episode of a mixture drawn per step, from the episode's generator."""
+
+    def __init__(self, mixture: IntruderMixture, rng: np.random.Generator):
+        self.mixture, self.rng = mixture, rng
+
+    def routing(self, D, I):
+        D, I = np.atleast_2d(D), np.atleast_2d(I)
+        return self.mixture._rows(D, I, self.mixture._pick(self.rng, size=len(I)))
+
+    def get_state(self) -> dict:
+        return {"rng": self.rng.bit_generator.state}

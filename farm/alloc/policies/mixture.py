@@ -1,0 +1,78 @@
+"""`mixture`: a mixed strategy over allocators, drawing one member per episode or per step."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from farm.core.mixture import mixture_members
+
+__all__ = ["Mixture"]
+
+class Mixture:
+    """A mixed strategy over allocators of the registry: each episode (draw `episode`) or each step
+    (draw `step`) plays one member, drawn with the weights from a seeded generator.
+
+    config, client: as every allocator's; members: names or {policy: NAME, options: {...}};
+    weights: None (uniform) or one number >= 0 a member; draw: episode or step; seed: the
+    generator of a caller that runs no episodes (predict() then draws a member per call). An
+    episode's draw is made by whoever runs the episode, from the episode's own generator
+    (for_episode: farm.alloc.rollout.play, the intruders' env), so a mixture's episodes are
+    the same whatever the batching. Attributes: players (the members' allocators), weights.
+    """
+
+    def __init__(self, config, client=None, members=None, weights=None, draw: str = "episode", seed: int = 0):
+        from farm.alloc.policies.registry import make_policy
+
+        parsed, self.weights = mixture_members("mixture", members, weights, draw, "policy")
+        self.names = [name for name, _ in parsed]
+        self.players = [make_policy(name, config, client, **options) for name, options in parsed]
+        self.draw = draw
+        self._rng = np.random.default_rng(seed)
+
+    def for_episode(self, rng: np.random.Generator):
+        """The mixture as one episode plays it: a member drawn from rng (draw episode), or draws per
+        step from a generator of rng's (draw step)."""
+        if self.draw == "episode":
+            return _Member(self, int(rng.choice(len(self.players), p=self.weights)))
+        return _Draws(self, np.random.default_rng(rng.integers(2 ** 63)))
+
+    def resume_episode(self, state: dict):
+        """The episode's play from its get_state()."""
+        if "member" in state:
+            return _Member(self, int(state["member"]))
+        rng = np.random.default_rng()
+        rng.bit_generator.state = state["rng"]
+        return _Draws(self, rng)
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        """A member drawn from the mixture's own generator acts (see the class doc)."""
+        k = int(self._rng.choice(len(self.players), p=self.weights))
+        return self.players[k].predict(obs, state, episode_start, deterministic)
+
+
+class _Member:
+    """One episode's member of a mixture drawn per episode."""
+
+    def __init__(self, mixture: Mixture, member: int):
+        self.mixture, self.member = mixture, member
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        return self.mixture.players[self.member].predict(obs, state, episode_start, deterministic)
+
+    def get_state(self) -> dict:
+        return {"member": self.member}
+
+
+class _Draws:
+    """One episode of a mixture drawn per step, from the episode's generator."""
+
+    def __init__(self, mixture: Mixture, rng: np.random.Generator):
+        self.mixture, self.rng = mixture, rng
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        m = self.mixture
+        return m.players[int(self.rng.choice(len(m.players), p=m.weights))].predict(obs, state, episode_start,
+                                                                                    deterministic)
+
+    def get_state(self) -> dict:
+        return {"rng": self.rng.bit_generator.state}

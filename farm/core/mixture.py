@@ -1,0 +1,46 @@
+"""A mixed strategy's members and weights, checked: the one rule of the allocators' and the
+intruders' `mixture`."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from farm.core.errors import ConfigError
+
+__all__ = ["DRAWS", "mixture_members"]
+
+DRAWS = ("episode", "step")
+
+
+def mixture_members(owner: str, members, weights, draw: str, key: str) -> tuple[list[tuple[str, dict]], np.ndarray]:
+    """The checked members ((name, options) each) and weights ((m,) float64 summing to 1) of a mixture.
+
+    members: a list of names or {key: name, options: {...}} mappings (key: "policy" for
+    allocators, "intruders" for intruder policies); weights: None (uniform) or m numbers >= 0
+    with a positive sum; draw: one of DRAWS. ConfigError (one line naming owner.field) otherwise.
+    """
+    if not isinstance(members, (list, tuple)) or not members:
+        raise ConfigError(f"{owner}.members: a non-empty list of members, got {members!r}", field=f"{owner}.members")
+    parsed = []
+    for i, member in enumerate(members):
+        if isinstance(member, str):
+            member = {key: member}
+        if not isinstance(member, dict) or not isinstance(member.get(key), str) \
+                or not set(member) <= {key, "options"} or not isinstance(member.get("options", {}), dict):
+            raise ConfigError(f"{owner}.members: member {i} is not a name or {{{key}: NAME, options: {{...}}}}: "
+                              f"{member!r}", field=f"{owner}.members")
+        parsed.append((member[key], dict(member.get("options", {}))))
+    if weights is None:
+        w = np.full(len(parsed), 1.0 / len(parsed))
+    else:
+        try:
+            w = np.asarray(weights, dtype=np.float64)
+        except (TypeError, ValueError):
+            w = np.array([np.nan])
+        if w.shape != (len(parsed),) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+            raise ConfigError(f"{owner}.weights: {len(parsed)} numbers >= 0 with a positive sum, got {weights!r}",
+                              field=f"{owner}.weights")
+        w = w / w.sum()
+    if draw not in DRAWS:
+        raise ConfigError(f"{owner}.draw: one of {', '.join(DRAWS)}, got {draw!r}", field=f"{owner}.draw")
+    return parsed, w

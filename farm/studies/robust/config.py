@@ -1,0 +1,108 @@
+"""A `farm robust` config (RobustConfig, load_robust_config): the meta-game's map, its two starting
+populations, how payoffs are played, the oracles and the loop's budget; docs/robust.md shows one."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from farm.core.config import Strict, StrictFile, load_yaml_model
+
+__all__ = ["RobustConfig", "load_robust_config", "PayoffParams", "LibraryParams", "TrainingParams"]
+
+
+class PayoffParams(Strict):
+    """How a pair's payoff is played: episodes seeded seed .. seed + episodes - 1, and the measure
+    the meta-game is zero-sum in (eliminated mass or the defenders' return)."""
+
+    episodes: int = Field(20, ge=1, le=10_000)
+    seed: int = Field(2000, ge=0)
+    measure: Literal["eliminated", "return"] = "eliminated"
+
+
+class LibraryParams(Strict):
+    """The library oracle's candidates (double oracle over a fixed set): each side's best response
+    is its candidate, or member, doing best against the other side's meta-Nash mixture."""
+
+    allocators: list[Any] = []
+    intruders: list[Any] = []
+
+
+class TrainingParams(Strict):
+    """The trained oracles: dotted TrainConfig settings of each side's best response (the loop sets
+    the scenario, the seed, the side, the opponent mixture and the name)."""
+
+    defenders: dict[str, Any] = {
+        "algo": "ppo", "ppo.n_timesteps": 20000, "ppo.n_steps": 256, "ppo.batch_size": 256, "n_envs": 8,
+        "pretrain": {"expert": "receding_horizon", "iterations": 2, "episodes": 32, "expert_share": 0.5},
+        "repair": "levels", "keep": "best", "eval.freq": 5000}
+    intruders: dict[str, Any] = {"algo": "ppo", "ppo.n_timesteps": 20000, "ppo.n_steps": 256, "ppo.batch_size": 256,
+                                 "n_envs": 8, "eval.freq": 5000}
+
+
+class RobustConfig(StrictFile):
+    """A `farm robust` config (see the module doc); one line naming the field for bad input."""
+
+    KIND = "a robust"
+
+    name: str = Field(min_length=1, max_length=80, pattern=r"^[A-Za-z0-9_.-]+$")
+    scenario: str  # a suite scenario: the map, its teams and reward
+    env: dict[str, Any] = {}  # AllocConfig settings over the scenario's (information: follower or simultaneous)
+    seed: int = Field(0, ge=0)  # seeds the oracles' trainings
+    allocators: list[Any] = ["intercept", "mmr", "receding_horizon", "transport", "spread_evenly"]
+    intruders: list[Any] = ["drift", "fewest_ahead", "least_defended", "split_away"]
+    iterations: int = Field(4, ge=0, le=100)  # oracle iterations at most
+    threshold: float = Field(0.0, ge=0)  # stop once NashConv is at most this
+    payoffs: PayoffParams = PayoffParams()
+    oracle: Literal["trained", "library"] = "trained"
+    library: LibraryParams = LibraryParams()
+    training: TrainingParams = TrainingParams()
+    store: str | None = Field(None, min_length=1)  # the capture-time store; None: default_store_path()
+
+    @field_validator("scenario")
+    @classmethod
+    def _known_scenario(cls, v):
+        from farm.alloc.scenarios import SCENARIOS
+
+        if v not in SCENARIOS:
+            raise ValueError(f"unknown scenario {v!r} (choose from {', '.join(SCENARIOS)})")
+        return v
+
+    @model_validator(mode="after")
+    def _members(self):
+        from farm.studies.robust.members import member_of
+
+        self.alloc_config()  # the env settings: one line naming the field
+        for side in ("allocators", "intruders"):
+            values = getattr(self, side)
+            if not values:
+                raise ValueError(f"{side}: the population needs one member at least")
+            for i, v in enumerate(values):
+                member_of(side, v, f"{side}[{i}]")
+            for i, v in enumerate(getattr(self.library, side)):
+                member_of(side, v, f"library.{side}[{i}]")
+        return self
+
+    def alloc_config(self):
+        """The map's AllocConfig: the scenario's settings with `env` over them."""
+        from farm.alloc.scenarios import SCENARIOS
+
+        return SCENARIOS[self.scenario].config(**self.env)
+
+    def population(self, side: str) -> list:
+        """The starting members of a side (farm.studies.robust.members.Member)."""
+        from farm.studies.robust.members import member_of
+
+        return [member_of(side, v, side) for v in getattr(self, side)]
+
+    def candidates(self, side: str) -> list:
+        """The library oracle's candidates of a side."""
+        from farm.studies.robust.members import member_of
+
+        return [member_of(side, v, f"library.{side}") for v in getattr(self.library, side)]
+
+
+def load_robust_config(path) -> RobustConfig:
+    """Read and validate a robust YAML; ConfigError of one line naming the file and the field."""
+    return load_yaml_model(path, RobustConfig, "robust")

@@ -1,0 +1,185 @@
+"""`farm robust CONFIG --out DIR`: policy-space response oracles (PSRO, Lanctot et al. 2017) for the
+allocation game, on the farm. docs/robust.md tells the algorithm and how it resumes.
+
+Each iteration: every (allocator, intruder policy) pair of the two populations is played on the
+same seeded episodes (the missing ones as Ray tasks; farm.studies.robust.payoffs keeps each);
+the zero-sum meta-game of their mean payoff is solved by LP (farm.core.matrix_game); each side's
+oracle answers the other side's meta-Nash mixture with a best response; the responses are played
+against the other population and NashConv (the sum of both sides' best-response gains) is
+recorded; the responses join the populations. The loop stops at `iterations` or once NashConv
+is at most `threshold`. The state is saved after each iteration (robust.json), so a run stopped
+anywhere goes on from its last whole iteration; every payoff played before is kept, and the
+trained oracles' trials resume as an experiment's do.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from farm.core.errors import ConfigError
+from farm.core.matrix_game import solve
+from farm.core.output import atomic_write_bytes, check_writable_folder
+from farm.studies.robust.config import RobustConfig
+from farm.studies.robust.members import Member, member_of
+from farm.studies.robust.payoffs import PayoffStore, fill, payoff_key
+
+__all__ = ["Iteration", "run_robust", "payoff_matrix", "STATE"]
+
+STATE = "robust.json"
+
+
+@dataclass
+class Iteration:
+    """One iteration's record: the populations it solved (allocators, intruders: lists of Member),
+    the meta-Nash mixes (row: allocators', column: intruders', as lists of floats) and value, the
+    oracles' responses (Members), their gains over the value (defenders: >= 0 when the response
+    does better than the mixture; intruders: the same for the intruders) and NashConv (the sum
+    of both gains, each floored at 0: a response no better than the population adds nothing)."""
+
+    allocators: list
+    intruders: list
+    row: list
+    column: list
+    value: float
+    responses: dict
+    gains: dict
+    nash_conv: float
+
+    def to_dict(self) -> dict:
+        """Plain values for robust.json."""
+        return {"allocators": [m.to_dict() for m in self.allocators],
+                "intruders": [m.to_dict() for m in self.intruders],
+                "row": self.row, "column": self.column, "value": self.value,
+                "responses": {k: m.to_dict() for k, m in self.responses.items()}, "gains": self.gains,
+                "nash_conv": self.nash_conv}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Iteration:
+        """An Iteration from robust.json's values."""
+        return cls([member_of("allocators", m, "allocators") for m in d["allocators"]],
+                   [member_of("intruders", m, "intruders") for m in d["intruders"]], d["row"], d["column"],
+                   d["value"], {k: member_of(k, m, k) for k, m in d["responses"].items()}, d["gains"], d["nash_conv"])
+
+
+def digest(config: RobustConfig) -> str:
+    """The digest of everything in the config that decides the results (iterations and threshold
+    only bound the loop, so they may change when a run is resumed)."""
+    values = config.model_dump(mode="json", exclude={"iterations", "threshold", "store"})
+    return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def payoff_matrix(store: PayoffStore, config: RobustConfig, allocators: list, intruders: list) -> np.ndarray:
+    """(len(allocators), len(intruders)) float64: each pair's mean payoff (the config's measure) from
+    the store, every pair played already."""
+    env, p = config.alloc_config(), config.payoffs
+    M = np.empty((len(allocators), len(intruders)))
+    for i, a in enumerate(allocators):
+        for j, b in enumerate(intruders):
+            values = store.get(payoff_key(env, a, b, p.episodes, p.seed))
+            if values is None:
+                raise RuntimeError(f"payoff of {a.shown()} v {b.shown()} missing")
+            M[i, j] = float(np.mean(values[p.measure]))
+    return M
+
+
+def _load_state(out: Path, config: RobustConfig) -> list[Iteration]:
+    path = out / STATE
+    if not path.exists():
+        return []
+    saved = json.loads(path.read_text())
+    if saved.get("digest") != digest(config):
+        raise ConfigError(f"out: {out} holds a robust run of another config; choose another folder", field="out")
+    return [Iteration.from_dict(d) for d in saved["iterations"]]
+
+
+def _save_state(out: Path, config: RobustConfig, iterations: list[Iteration]) -> None:
+    state = {"name": config.name, "digest": digest(config), "iterations": [it.to_dict() for it in iterations]}
+    atomic_write_bytes(out / STATE, json.dumps(state, indent=1).encode())
+
+
+def _library_response(side: str, config: RobustConfig, store, client, population: list, opponents: list,
+                      mix, workers: int) -> Member:
+    """The library oracle: the candidate or member of side doing best against the opponents' mixture mix."""
+    env, p = config.alloc_config(), config.payoffs
+    options = population + [c for c in config.candidates(side) if c not in population]
+    pairs = [(c, o) if side == "allocators" else (o, c) for c in options for o in opponents]
+    fill(store, env, pairs, p.episodes, p.seed, client, workers)
+    M = payoff_matrix(store, config, options, opponents) if side == "allocators" else \
+        payoff_matrix(store, config, opponents, options).T
+    worth = M @ np.asarray(mix)
+    return options[int(np.argmax(worth) if side == "allocators" else np.argmin(worth))]
+
+
+def run_robust(config: RobustConfig, out, *, address: str | None = None, workers: int | None = None,
+               show_progress: bool = True) -> tuple[list[Iteration], dict]:
+    """Run or resume the loop into out (a local folder); returns (the iterations, info: the pairs
+    played this time, the seconds). ConfigError (one line) for bad input before Ray starts."""
+    import time
+
+    from farm.alloc.lattice import lattice_groups, warm_lattices
+    from farm.runtime import check_workers, starts_local_ray, tasks_in_flight
+    from farm.service.client import open_client
+    from farm.service.store import default_store_path
+
+    check_workers(workers)
+    out = check_writable_folder(out, "out")
+    iterations = _load_state(out, config)
+    out.mkdir(parents=True, exist_ok=True)
+    store = PayoffStore(out / "payoffs")
+    env, p = config.alloc_config(), config.payoffs
+    info = {"pairs_played": 0, "iterations_before": len(iterations)}
+    t0 = time.perf_counter()
+    with open_client(env.game_settings(), mode="ray", store=Path(config.store or default_store_path()),
+                     address=address, num_cpus=max(2, workers or 2) if starts_local_ray(address) else None) as client:
+        import ray
+
+        warm_lattices(client, lattice_groups([env]), show_progress)
+        n = tasks_in_flight(workers, int(ray.cluster_resources().get("CPU", 1)), address)
+        allocators = iterations[-1].allocators + _new(iterations[-1], "allocators") if iterations \
+            else config.population("allocators")
+        intruders = iterations[-1].intruders + _new(iterations[-1], "intruders") if iterations \
+            else config.population("intruders")
+        while len(iterations) < config.iterations and not (iterations and iterations[-1].nash_conv <= config.threshold):
+            info["pairs_played"] += fill(store, env, [(a, b) for a in allocators for b in intruders], p.episodes,
+                                         p.seed, client, n)
+            M = payoff_matrix(store, config, allocators, intruders)
+            solution = solve(M)
+            k = len(iterations)
+            if config.oracle == "library":
+                responses = {"allocators": _library_response("allocators", config, store, client, allocators,
+                                                             intruders, solution.column, n),
+                             "intruders": _library_response("intruders", config, store, client, intruders,
+                                                            allocators, solution.row, n)}
+            else:
+                from farm.studies.robust.oracles import trained_responses
+
+                responses = trained_responses(config, out, k, allocators, intruders, solution, address=address,
+                                              workers=workers, show_progress=show_progress)
+            ra, ri = responses["allocators"], responses["intruders"]
+            pairs = [(ra, b) for b in intruders] + [(a, ri) for a in allocators] + [(ra, ri)]
+            info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
+            gain_d = float(payoff_matrix(store, config, [ra], intruders)[0] @ solution.column) - solution.value
+            gain_i = solution.value - float(solution.row @ payoff_matrix(store, config, allocators, [ri])[:, 0])
+            it = Iteration(list(allocators), list(intruders), solution.row.tolist(), solution.column.tolist(),
+                           solution.value, responses, {"defenders": gain_d, "intruders": gain_i},
+                           max(0.0, gain_d) + max(0.0, gain_i))
+            iterations.append(it)
+            _save_state(out, config, iterations)
+            if show_progress:
+                print(f"robust {config.name}: iteration {k}: value {solution.value:.4f}, NashConv {it.nash_conv:.4f}",
+                      file=sys.stderr)
+            allocators, intruders = allocators + _new(it, "allocators"), intruders + _new(it, "intruders")
+    info["seconds"] = time.perf_counter() - t0
+    return iterations, info
+
+
+def _new(it: Iteration, side: str) -> list:
+    """The iteration's response of side as a new member ([] when it is one already)."""
+    response = it.responses[side]
+    return [] if response in getattr(it, side) else [response]

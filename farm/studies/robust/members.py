@@ -1,0 +1,82 @@
+"""The members of the two populations of the meta-game: allocators and intruder policies, named
+as the registries name them, and made from those names."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+from farm.alloc.config import AllocConfig
+from farm.core.errors import ConfigError
+
+__all__ = ["MEASURES", "Member", "member_of", "against", "mixture_options", "play_pair"]
+
+SIDES = ("allocators", "intruders")
+MEASURES = ("eliminated", "breached", "return")  # a pair's measures, kept per episode
+
+
+@dataclass(frozen=True)
+class Member:
+    """One pure strategy of the meta-game: side (allocators or intruders), name (a name of that
+    side's registry) and options (its options, e.g. a learned member's `run` folder); label: how
+    tables show it."""
+
+    side: str
+    name: str
+    options: dict = field(default_factory=dict)
+    label: str = ""
+
+    def key(self) -> dict:
+        """What identifies the member in a payoff's key: side, name and options."""
+        return {"side": self.side, "name": self.name, "options": self.options}
+
+    def shown(self) -> str:
+        """The member's label, else its name (with its options when it has any)."""
+        if self.label:
+            return self.label
+        return self.name if not self.options else f"{self.name} {json.dumps(self.options, sort_keys=True)}"
+
+    def spec(self) -> dict:
+        """The member as a mixture names it: {policy|intruders: name, options: {...}}."""
+        return {("policy" if self.side == "allocators" else "intruders"): self.name, "options": dict(self.options)}
+
+    def to_dict(self) -> dict:
+        """Plain values (the loop's saved state)."""
+        return {"side": self.side, "name": self.name, "options": self.options, "label": self.label}
+
+
+def member_of(side: str, value, where: str) -> Member:
+    """A member from a config's or a saved state's value: a name, or {name, options, label};
+    ConfigError (one line naming where) for anything else or an unknown name."""
+    from farm.alloc.intruders import intruder_entry
+    from farm.alloc.policies import policy_entry
+
+    if isinstance(value, str):
+        value = {"name": value}
+    if not isinstance(value, dict) or not isinstance(value.get("name"), str) \
+            or not set(value) <= {"name", "options", "label", "side"} or not isinstance(value.get("options", {}), dict):
+        raise ConfigError(f"{where}: a member is a name or {{name: NAME, options: {{...}}}}, got {value!r}",
+                          field=where.split("[")[0])
+    (policy_entry if side == "allocators" else intruder_entry)(value["name"], where.split("[")[0])
+    return Member(side, value["name"], dict(value.get("options", {})), value.get("label", ""))
+
+
+def against(config: AllocConfig, intruders: Member) -> AllocConfig:
+    """The env settings config with the intruder member as its intruders."""
+    return AllocConfig(**{**config.model_dump(), "intruders": intruders.name, "intruder_options": intruders.options})
+
+
+def mixture_options(members: list[Member], weights) -> dict:
+    """The options of a mixture (allocator or intruder) playing members with weights, drawn per episode."""
+    return {"members": [m.spec() for m in members], "weights": [float(w) for w in weights], "draw": "episode"}
+
+
+def play_pair(config: AllocConfig, allocator: Member, intruders: Member, client, episodes: int, seed: int) -> dict:
+    """The allocator against the intruders on episodes seeded seed .. seed + episodes - 1:
+    {measure: list of floats, one an episode} (farm.alloc.rollout.play)."""
+    from farm.alloc.policies import make_policy
+    from farm.alloc.rollout import play
+
+    env = against(config, intruders)
+    played = play(env, make_policy(allocator.name, env, client, **allocator.options), client, episodes, seed)
+    return {m: [e.summary[m] for e in played] for m in MEASURES}

@@ -1,0 +1,49 @@
+"""The trained oracles of `farm robust`: each side's best response to the other side's meta-Nash
+mixture, trained as the two trials of one experiment an iteration (farm.studies.experiments), so
+that they train side by side, resume after a stop, and never train twice."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from farm.studies.robust.config import RobustConfig
+from farm.studies.robust.members import Member, mixture_options
+
+__all__ = ["trained_responses", "iteration_experiment"]
+
+
+def iteration_experiment(config: RobustConfig, k: int, allocators: list, intruders: list, solution):
+    """Iteration k's experiment: point 0 the defenders' best response (an allocator trained in the
+    env whose intruders are the intruders' mixture), point 1 the intruders' (trained against the
+    allocators' mixture), one seed (config.seed * 1000 + k)."""
+    from farm.studies.experiments.config import ExperimentConfig
+
+    defenders = {"env.intruders": "mixture", "env.intruder_options": mixture_options(intruders, solution.column),
+                 **config.training.defenders}
+    attackers = {"side": "intruders", "opponent.name": "mixture",
+                 "opponent.options": mixture_options(allocators, solution.row), **config.training.intruders}
+    shared = {f"env.{name}": value for name, value in config.env.items()}
+    points = [{k_: v for k_, v in point.items() if k_ not in shared} for point in (defenders, attackers)]
+    return ExperimentConfig(name=f"{config.name}-it{k}", scenario=config.scenario, overrides=shared, points=points,
+                            seeds=[config.seed * 1000 + k], episodes=3, eval_seed=config.payoffs.seed,
+                            store=config.store)
+
+
+def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list, intruders: list, solution, *,
+                      address: str | None = None, workers: int | None = None, show_progress: bool = True) -> dict:
+    """Both sides' best responses of iteration k (iteration_experiment, run or resumed in
+    out/iterations/<k>): {"allocators": the defenders' trained allocator, "intruders": the
+    intruders' trained policy}, Members whose `run` is their run folder."""
+    from farm.alloc.runs import RunFolder
+    from farm.studies.experiments.plan import plan
+    from farm.studies.experiments.run import run_experiment
+    from farm.studies.experiments.storage import ExperimentStorage
+
+    experiment = iteration_experiment(config, k, allocators, intruders, solution)
+    where = out / "iterations" / str(k)
+    run_experiment(experiment, where, address=address, workers=workers, show_progress=show_progress)
+    storage = ExperimentStorage(where)
+    trials = plan(experiment).trials
+    defenders, attackers = (storage.run_dir(t.key) for t in trials)
+    return {"allocators": Member("allocators", RunFolder(defenders).learner(), {"run": str(defenders)}, f"br{k}"),
+            "intruders": Member("intruders", "learned", {"run": str(attackers)}, f"br{k}")}

@@ -1,0 +1,85 @@
+"""The meta-game's payoffs: each (allocator, intruder policy) pair's seeded episodes, played once and
+kept (PayoffStore), the missing ones as Ray tasks on the farm (fill)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from farm.alloc.config import AllocConfig
+from farm.core.output import atomic_write_bytes
+from farm.studies.robust.members import MEASURES, Member
+
+__all__ = ["payoff_key", "PayoffStore", "fill"]
+
+
+
+def payoff_key(config: AllocConfig, allocator: Member, intruders: Member, episodes: int, seed: int) -> str:
+    """The digest of everything that decides a pair's episodes: the env settings, both members,
+    the episodes and their first seed."""
+    blob = json.dumps({"env": config.model_dump(mode="json"), "allocator": allocator.key(),
+                       "intruders": intruders.key(), "episodes": episodes, "seed": seed}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:32]
+
+
+class PayoffStore:
+    """Pairs' per-episode measures on disk, one JSON file a pair (folder/<key>.json, written
+    atomically, with a SHA-256 of its values): a pair played once is never played again, and a
+    damaged file is said in one line and played again."""
+
+    def __init__(self, folder):
+        self.folder = Path(folder)
+
+    def path(self, key: str) -> Path:
+        """The pair's file."""
+        return self.folder / f"{key}.json"
+
+    def get(self, key: str) -> dict | None:
+        """{measure: (episodes,) float64} of a pair kept, else None."""
+        path = self.path(key)
+        if not path.exists():
+            return None
+        try:
+            saved = json.loads(path.read_text())
+            values = saved["values"]
+            if saved["sha256"] != _digest(values):
+                raise ValueError("checksum")
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            print(f"robust: payoff file {path.name} is damaged ({type(e).__name__}); played again", file=sys.stderr)
+            return None
+        return {m: np.asarray(values[m], dtype=np.float64) for m in MEASURES}
+
+    def put(self, key: str, values: dict) -> None:
+        """Keep a pair's measures ({measure: sequence of floats})."""
+        plain = {m: [float(x) for x in values[m]] for m in MEASURES}
+        atomic_write_bytes(self.path(key), json.dumps({"values": plain, "sha256": _digest(plain)}).encode())
+
+
+def _digest(values: dict) -> str:
+    return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()
+
+
+def fill(store: PayoffStore, config: AllocConfig, pairs: list[tuple[Member, Member]], episodes: int, seed: int,
+         client, workers: int, progress=None) -> int:
+    """Play every pair the store lacks, as Ray tasks on client's service actor (at most workers at
+    once, farm.runtime.bounded), each kept as it finishes; returns the pairs played. progress(n):
+    called with each finished pair's count."""
+    missing = [(a, b) for a, b in pairs if store.get(payoff_key(config, a, b, episodes, seed)) is None]
+    if not missing:
+        return 0
+    import ray
+
+    from farm.runtime import bounded
+    from farm.studies.robust.tasks import remote_pair
+
+    actor = client.backend.actor
+    for (a, b), ref in bounded(lambda pair: remote_pair.remote(config, pair[0], pair[1], actor, episodes, seed),
+                               missing, workers):
+        store.put(payoff_key(config, a, b, episodes, seed), ray.get(ref))
+        if progress is not None:
+            progress(1)
+    return len(missing)
