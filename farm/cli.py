@@ -542,6 +542,85 @@ def cmd_experiments(args) -> int:
     return 0
 
 
+def _exploit_config(args):
+    """The ExploitConfig of `farm exploit`: the YAML file named, else one allocator (a registry name
+    or a trained run folder) on --scenario, with the flags' budget."""
+    from farm.alloc.policies import policy_names
+    from farm.studies.exploit import ExploitConfig, load_exploit_config
+
+    target = args.target
+    if target.endswith((".yaml", ".yml")):
+        for flag in ("scenario", "seeds", "steps", "information"):
+            if getattr(args, flag) is not None:
+                raise CliError(f"--{flag}: give it in the config file {target}, not as a flag")
+        return load_exploit_config(target)
+    if args.scenario is None:
+        raise CliError("--scenario: name the map to exploit the allocator on (farm exploit ALLOCATOR --scenario S)")
+    run = Path(target)
+    if target not in policy_names() and not run.is_dir():
+        raise CliError(f"target: {target!r} is no allocator of the registry, run folder or exploit YAML "
+                       f"(allocators: {', '.join(policy_names())})")
+    label = run.name if run.is_dir() else target
+    learned = None
+    if args.seeds != "none":
+        seeds = [int(s) for s in _floats(args.seeds or "0,1,2", "--seeds")]
+        learned = {"seeds": seeds, "settings": {"algo": "ppo", "ppo.n_timesteps": args.steps or 30000, "n_envs": 8,
+                                                "ppo.n_steps": 256, "ppo.batch_size": 256, "eval.freq": 10000}}
+    information = (args.information or "follower").split(",")
+    fields = {"name": f"exploit-{label}-{args.scenario}".replace("/", "_"), "scenarios": [args.scenario],
+              "allocators": [] if run.is_dir() else [target], "runs": {args.scenario: str(run)} if run.is_dir() else {},
+              "information": information, "learned": learned, "episodes": args.episodes, "exact": args.exact}
+    if not fields["allocators"] and not fields["runs"]:
+        raise CliError(f"target: {target} holds no run")
+    from pydantic import ValidationError
+
+    try:
+        return ExploitConfig(**fields)
+    except ValidationError as e:
+        from farm.core.config import first_line
+
+        raise CliError(first_line(e)) from None
+
+
+def cmd_exploit(args) -> int:
+    """`farm exploit CONFIG|ALLOCATOR --out DIR`: allocators against the drift law, the heuristic
+    intruders, their exact best response and a learned one over seeds; the worst case and the drop."""
+    from farm.studies.exploit import format_table, run_exploit
+
+    config = _exploit_config(args)
+    out = Path(args.out or f"results/exploit/{config.name}")
+    with flags("out", "address", "workers", workers="num_cpus"):
+        long, table, info = run_exploit(config, out, address=args.address, workers=args.workers,
+                                        show_progress=not args.quiet)
+    print(format_table(table))
+    skipped = f"; exact search skipped on {', '.join(info['exact_skipped'])} (its tree exceeds max_nodes)" \
+        if info["exact_skipped"] else ""
+    print(f"{config.name}: {len(long)} (allocator, adversary) rows, {info['pairs_played']} pairs played and "
+          f"{info['exact_searched']} exact searches this time, {info['seconds']:.1f} s{skipped}", file=sys.stderr)
+    print(f"wrote {out / 'table.csv'}, table.md, exploit.csv")
+    return 0
+
+
+def cmd_robust(args) -> int:
+    """`farm robust CONFIG --out DIR`: policy-space response oracles for the allocation game; each
+    iteration's NashConv and the final meta-Nash mixtures (resumable)."""
+    from farm.studies.robust import load_robust_config, run_robust
+
+    config = load_robust_config(args.config)
+    out = Path(args.out or f"results/robust/{config.name}")
+    with flags("out", "address", "workers", workers="num_cpus"):
+        iterations, info = run_robust(config, out, address=args.address, workers=args.workers,
+                                      show_progress=not args.quiet)
+    for k, it in enumerate(iterations):
+        print(f"iteration {k}: {len(it.allocators)} allocators x {len(it.intruders)} intruder policies, value "
+              f"{it.value:.4f}, gains {it.gains['defenders']:+.4f} (defenders) {it.gains['intruders']:+.4f} "
+              f"(intruders), NashConv {it.nash_conv:.4f}")
+    print(f"{config.name}: {len(iterations)} iteration(s) ({info['iterations_before']} before this run), "
+          f"{info['pairs_played']} pairs played this time, {info['seconds']:.1f} s", file=sys.stderr)
+    print(f"wrote {', '.join(str(p) for p in info.get('files', []))}")
+    return 0
+
+
 def _cluster_options(p: argparse.ArgumentParser, workers_help: str) -> None:
     """--address, --workers and --quiet of a command that runs on Ray."""
     p.add_argument("--address", help="Ray cluster to join (default: $RAY_ADDRESS, else a local 2-CPU Ray)")
@@ -661,6 +740,28 @@ def build_parser() -> argparse.ArgumentParser:
                                                  "needed on a cluster)")
     _cluster_options(ex, "trials at once (default: the cluster's CPUs; a local Ray gets max(2, WORKERS) CPUs)")
     ex.set_defaults(func=cmd_experiments)
+
+    xp = sub.add_parser("exploit", help="how far adapting intruders exploit allocators: drift, heuristics, the "
+                                        "exact best response and a learned one (resumable)")
+    xp.add_argument("target", help="an exploit YAML (e.g. configs/exploit/table.yaml), or one allocator: a registry "
+                                   "name or a trained run folder, with --scenario")
+    xp.add_argument("--scenario", help="the map (one allocator only)")
+    xp.add_argument("--information", help="follower, simultaneous or both comma-separated (default follower)")
+    xp.add_argument("--seeds", help="the learned best response's seeds, comma-separated (default 0,1,2), or none")
+    xp.add_argument("--steps", type=int, help="the learned best response's PPO steps (default 30000)")
+    xp.add_argument("--episodes", type=int, default=20, help="evaluation episodes, seeded 1000.. (default 20)")
+    xp.add_argument("--exact", choices=("auto", "always", "never"), default="auto",
+                    help="the exact search: where its tree fits (auto), everywhere, or not at all")
+    xp.add_argument("--out", help="results folder (default results/exploit/NAME)")
+    _cluster_options(xp, "tasks and trials at once (default: the cluster's CPUs)")
+    xp.set_defaults(func=cmd_exploit)
+
+    rb = sub.add_parser("robust", help="allocators that hold against adapting intruders: policy-space response "
+                                       "oracles on the farm (resumable)")
+    rb.add_argument("config", help="robust YAML, e.g. configs/robust/outnumbered_3x3.yaml")
+    rb.add_argument("--out", help="results folder (default results/robust/NAME)")
+    _cluster_options(rb, "payoff rollouts and trials at once (default: the cluster's CPUs)")
+    rb.set_defaults(func=cmd_robust)
 
     cl = sub.add_parser("claims", help="the paper's claims (a)-(c), measured on evaluated runs, or over an "
                                        "experiment's seeds")

@@ -411,6 +411,11 @@ SECTIONS = [
     ("games", "Game figures", "farm game --plot RESULTS_DIR/game.png"),
     ("animations", "Animations", "farm game --animate RESULTS_DIR/game.gif, or farm eval RUN_DIR --animate"),
 ]
+# Sections shown only when their data is there (no placeholder): the adapting intruders' studies.
+OPTIONAL_SECTIONS = [
+    ("exploit", "Exploitability: allocators against adapting intruders"),
+    ("robust", "Robust allocators: policy-space response oracles"),
+]
 
 MAX_ANIMATION_BYTES = 8 << 20  # a larger animation is linked, not inlined, so that the page stays light
 
@@ -446,6 +451,48 @@ window.addEventListener('load', function () {
 """
 
 
+def _exploit_section(root: Path) -> str | None:
+    """Every exploit under root (farm exploit: exploit.json and table.csv): its table of eliminated
+    mass under each adversary, the worst case and the drop."""
+    manifests = sorted(root.rglob("exploit.json"))
+    parts = []
+    for manifest in manifests:
+        table_path = manifest.with_name("table.csv")
+        if not table_path.exists():
+            continue
+        doc = _read_json(manifest)
+        table = _read_table(table_path)
+        from farm.studies.exploit import table_view
+
+        shown = table_view(table)
+        parts.append(f"<h3>{html.escape(str(doc.get('name', manifest.parent.name)))}</h3>"
+                     f"<p class=src>{html.escape(str(table_path))}</p>"
+                     "<p>Eliminated mass (mean over the seeded episodes ± the 95% t interval's half-width) against "
+                     "the intruders' drift law, each heuristic, their exact best response (follower; where the "
+                     "search fits) and a learned best response (the mean over its seeds); the worst case over "
+                     "every adversary but drift, and the drop from drift.</p>" + _table(shown))
+    return "".join(parts) or None
+
+
+def _robust_section(root: Path) -> str | None:
+    """Every robust run under root (farm robust: robust.json, nash_conv.csv, payoffs.csv): NashConv
+    by iteration and the final cross-play table."""
+    parts = []
+    for state in sorted(root.rglob("robust.json")):
+        folder = state.parent
+        if not (folder / "nash_conv.csv").exists():
+            continue
+        name = _read_json(state).get("name", folder.name)
+        curve = folder / "nash_conv.png"
+        payoffs = _read_table(folder / "payoffs.csv").rename(columns={"Unnamed: 0": "allocator"})
+        parts.append(f"<h3>{html.escape(str(name))}</h3><p class=src>{html.escape(str(folder))}</p>"
+                     + (_img(_png(curve), "NashConv by iteration") if curve.exists() else "")
+                     + _table(_read_table(folder / "nash_conv.csv"))
+                     + "<p>The final cross-play table: each allocator's mean payoff against each intruder "
+                       "policy of the final populations.</p>" + _table(payoffs.round(3)))
+    return "".join(parts) or None
+
+
 def build_report(results_dir: str | Path) -> str:
     """The report's HTML page for a results folder, as a string; raises ReportError on bad input.
 
@@ -473,10 +520,13 @@ def build_report(results_dir: str | Path) -> str:
         "eval": _eval_section(root),
         "leaderboard": _leaderboard_section(root),
         "experiments": _experiments_section(root),
+        "exploit": _exploit_section(root),
+        "robust": _robust_section(root),
     }
     used.update(root.rglob("fig_*.png"))
     used.update(root.rglob("leaderboard.png"))
     used.update(root.rglob("learning_curves.png"))
+    used.update(root.rglob("nash_conv.png"))
     found["games"] = _game_figures(root, used)
     found["animations"] = _animations_section(root)
     if not any(found.values()):
@@ -492,6 +542,7 @@ def build_report(results_dir: str | Path) -> str:
         else:
             body.append(f"<h2>{html.escape(title)}</h2><p class=missing>No data in this folder: "
                         f"<code>{html.escape(command)}</code> would produce it.</p>")
+    body += [f"<h2>{html.escape(title)}</h2>{found[key]}" for key, title in OPTIONAL_SECTIONS if found[key]]
     stamp = time.strftime("%Y-%m-%d %H:%M:%S")
     return (
         "<!doctype html><html lang=en><head><meta charset=utf-8>"

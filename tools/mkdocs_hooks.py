@@ -45,6 +45,8 @@ def config_pages():
     from farm.games.sweep.config import SweepConfig
     from farm.service.table import TableConfig
     from farm.studies.experiments.config import ExperimentConfig
+    from farm.studies.exploit.config import ExploitConfig
+    from farm.studies.robust.config import RobustConfig
     from farm.studies.suite.config import SuiteConfig
 
     return [
@@ -63,6 +65,10 @@ def config_pages():
          [SuiteConfig], "configs/suite_demo.yaml"),
         ("experiments", "Experiment configs", "`farm experiments CONFIG`: a grid of training settings over seeds, "
          "as Ray Tune trials.", [ExperimentConfig], "configs/experiments/smoke.yaml"),
+        ("exploit", "Exploit configs", "`farm exploit CONFIG`: allocators against adapting intruders, their worst "
+         "case and its drop.", [ExploitConfig], "configs/exploit/smoke.yaml"),
+        ("robust", "Robust configs", "`farm robust CONFIG`: policy-space response oracles for the allocation game.",
+         [RobustConfig], "configs/robust/smoke.yaml"),
     ]
 
 

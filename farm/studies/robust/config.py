@@ -16,27 +16,29 @@ class PayoffParams(Strict):
     """How a pair's payoff is played: episodes seeded seed .. seed + episodes - 1, and the measure
     the meta-game is zero-sum in (eliminated mass or the defenders' return)."""
 
-    episodes: int = Field(20, ge=1, le=10_000)
-    seed: int = Field(2000, ge=0)
-    measure: Literal["eliminated", "return"] = "eliminated"
+    episodes: int = Field(20, ge=1, le=10_000)  # episodes a pair plays
+    seed: int = Field(2000, ge=0)  # the pairs' episodes are seeded seed .. seed + episodes - 1
+    measure: Literal["eliminated", "return"] = "eliminated"  # the defenders' payoff: eliminated mass or return
 
 
 class LibraryParams(Strict):
     """The library oracle's candidates (double oracle over a fixed set): each side's best response
     is its candidate, or member, doing best against the other side's meta-Nash mixture."""
 
-    allocators: list[Any] = []
-    intruders: list[Any] = []
+    allocators: list[Any] = []  # candidate allocators: names or {name, options, label}
+    intruders: list[Any] = []  # candidate intruder policies: names or {name, options, label}
 
 
 class TrainingParams(Strict):
     """The trained oracles: dotted TrainConfig settings of each side's best response (the loop sets
     the scenario, the seed, the side, the opponent mixture and the name)."""
 
+    # dotted TrainConfig settings of the defenders' best response (DAgger from a planner, PPO, the level repair)
     defenders: dict[str, Any] = {
         "algo": "ppo", "ppo.n_timesteps": 20000, "ppo.n_steps": 256, "ppo.batch_size": 256, "n_envs": 8,
         "pretrain": {"expert": "receding_horizon", "iterations": 2, "episodes": 32, "expert_share": 0.5},
         "repair": "levels", "keep": "best", "eval.freq": 5000}
+    # dotted TrainConfig settings of the intruders' best response (side: intruders)
     intruders: dict[str, Any] = {"algo": "ppo", "ppo.n_timesteps": 20000, "ppo.n_steps": 256, "ppo.batch_size": 256,
                                  "n_envs": 8, "eval.freq": 5000}
 
@@ -46,18 +48,20 @@ class RobustConfig(StrictFile):
 
     KIND = "a robust"
 
-    name: str = Field(min_length=1, max_length=80, pattern=r"^[A-Za-z0-9_.-]+$")
+    name: str = Field(min_length=1, max_length=80, pattern=r"^[A-Za-z0-9_.-]+$")  # the run's name
     scenario: str  # a suite scenario: the map, its teams and reward
     env: dict[str, Any] = {}  # AllocConfig settings over the scenario's (information: follower or simultaneous)
     seed: int = Field(0, ge=0)  # seeds the oracles' trainings
+    # the allocators' starting population: names or {name, options, label}
     allocators: list[Any] = ["intercept", "mmr", "receding_horizon", "transport", "spread_evenly"]
+    # the intruders' starting population: names or {name, options, label}
     intruders: list[Any] = ["drift", "fewest_ahead", "least_defended", "split_away"]
     iterations: int = Field(4, ge=0, le=100)  # oracle iterations at most
     threshold: float = Field(0.0, ge=0)  # stop once NashConv is at most this
-    payoffs: PayoffParams = PayoffParams()
-    oracle: Literal["trained", "library"] = "trained"
-    library: LibraryParams = LibraryParams()
-    training: TrainingParams = TrainingParams()
+    payoffs: PayoffParams = PayoffParams()  # how a pair's payoff is played
+    oracle: Literal["trained", "library"] = "trained"  # trained best responses, or the best of a fixed library
+    library: LibraryParams = LibraryParams()  # the library oracle's candidates
+    training: TrainingParams = TrainingParams()  # the trained oracles' settings
     store: str | None = Field(None, min_length=1)  # the capture-time store; None: default_store_path()
 
     @field_validator("scenario")

@@ -175,8 +175,62 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
                 print(f"robust {config.name}: iteration {k}: value {solution.value:.4f}, NashConv {it.nash_conv:.4f}",
                       file=sys.stderr)
             allocators, intruders = allocators + _new(it, "allocators"), intruders + _new(it, "intruders")
+        info["files"] = write_results(out, config, store, iterations) if iterations else []
     info["seconds"] = time.perf_counter() - t0
     return iterations, info
+
+
+def final_populations(iterations: list[Iteration]) -> tuple[list, list]:
+    """The populations after the last iteration: its own and its responses."""
+    last = iterations[-1]
+    return last.allocators + _new(last, "allocators"), last.intruders + _new(last, "intruders")
+
+
+def write_results(out: Path, config: RobustConfig, store: PayoffStore, iterations: list[Iteration]) -> list[Path]:
+    """The loop's files: nash_conv.csv (each iteration's value, both gains and NashConv), payoffs.csv
+    (the final populations' payoff matrix, allocators by row), mixture.yaml (the final meta-Nash
+    mixtures: the robust allocator as the registry's `mixture` with its options, and the
+    intruders' as theirs) and nash_conv.png; returns the paths."""
+    import pandas as pd
+    import yaml
+
+    from farm.studies.robust.members import mixture_options
+
+    allocators, intruders = final_populations(iterations)
+    M = payoff_matrix(store, config, allocators, intruders)
+    final = solve(M)
+    rows = [{"iteration": k, "value": it.value, "gain_defenders": it.gains["defenders"],
+             "gain_intruders": it.gains["intruders"], "nash_conv": it.nash_conv, "allocators": len(it.allocators),
+             "intruders": len(it.intruders)} for k, it in enumerate(iterations)]
+    files = [out / "nash_conv.csv", out / "payoffs.csv", out / "mixture.yaml", out / "nash_conv.png"]
+    pd.DataFrame(rows).to_csv(files[0], index=False)
+    pd.DataFrame(M, index=[a.shown() for a in allocators], columns=[b.shown() for b in intruders]).to_csv(files[1])
+    mixture = {"value": float(final.value), "measure": config.payoffs.measure,
+               "allocator": {"name": "mixture", "options": mixture_options(allocators, final.row)},
+               "intruders": {"name": "mixture", "options": mixture_options(intruders, final.column)},
+               "weights": {"allocators": {a.shown(): float(w) for a, w in zip(allocators, final.row)},
+                           "intruders": {b.shown(): float(w) for b, w in zip(intruders, final.column)}}}
+    atomic_write_bytes(files[2], yaml.safe_dump(mixture, sort_keys=False).encode())
+    _plot_nash_conv(rows, files[3], config.name)
+    return files
+
+
+def _plot_nash_conv(rows: list[dict], path: Path, name: str) -> None:
+    """NashConv and the meta-game's value by iteration, as a PNG (an Agg figure of its own)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 3.5))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    k = [r["iteration"] for r in rows]
+    ax.plot(k, [r["nash_conv"] for r in rows], "o-", label="NashConv")
+    ax.plot(k, [r["value"] for r in rows], "s--", label="meta-game value")
+    ax.set_xlabel("iteration")
+    ax.set_title(f"{name}: NashConv by iteration")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
 
 
 def _new(it: Iteration, side: str) -> list:
