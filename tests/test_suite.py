@@ -14,6 +14,7 @@ import gymnasium
 import numpy as np
 import pandas as pd
 import pytest
+from pydantic import ValidationError
 import yaml
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
@@ -369,3 +370,29 @@ def test_the_report_takes_a_bare_leaderboard_and_refuses_a_damaged_one(tmp_path)
     board.drop(columns="eliminated_ci95").to_csv(tmp_path / "bad" / "leaderboard.csv", index=False)
     with pytest.raises(ReportError, match=r"leaderboard.csv: not a leaderboard \(missing eliminated_ci95\)"):
         build_report(tmp_path / "bad")
+
+
+def test_an_adversary_axis_adds_every_intruder_policy_and_the_worst_case(demo, tmp_path):
+    """`intruders: [drift, fewest_ahead]`: every allocator meets each intruder policy on the same
+    episodes; the drift rows are the suite's own (the default intruders) and each (scenario,
+    policy)'s worst case is its lowest eliminated mass over the intruder policies."""
+    out, store, _ = demo
+    config = load_suite_config(ROOT / "configs" / "suite_demo.yaml").model_copy(
+        update={"store": str(store), "scenarios": ["outnumbered_3x3"], "policies": ["spread_evenly", "intercept"],
+                "env": {"games": DEMO_GAMES}, "intruders": ["drift", "fewest_ahead"]})
+    board, _ = run_suite(config, tmp_path / "axis", episodes=2, show_progress=False)
+    assert list(zip(board["intruders"], board["policy"])) == [
+        ("drift", "spread_evenly"), ("drift", "intercept"), ("fewest_ahead", "spread_evenly"),
+        ("fewest_ahead", "intercept")]
+    own = pd.read_csv(out / "leaderboard.csv")
+    own = own[(own["scenario"] == "outnumbered_3x3") & own["policy"].isin(["spread_evenly", "intercept"])]
+    drift = board[board["intruders"] == "drift"]
+    np.testing.assert_array_equal(drift["eliminated_mean"].to_numpy(), own["eliminated_mean"].to_numpy())
+    for policy, g in board.groupby("policy"):
+        assert (g["worst_eliminated"] == g["eliminated_mean"].min()).all()
+        assert set(g["worst_intruders"]) == {g.loc[g["eliminated_mean"].idxmin(), "intruders"]}
+    from farm.studies.suite import format_leaderboard
+
+    assert "worst case" in format_leaderboard(board)
+    with pytest.raises(ValidationError, match="unknown intruder policy 'psychic'"):
+        SuiteConfig(name="x", intruders=["psychic"])

@@ -41,6 +41,9 @@ class SuiteConfig(StrictFile):
     env: dict[str, Any] = {}  # AllocConfig settings replacing every scenario's
     runs: dict[str, str] = {}  # scenario -> TD3 run folder
     skip_missing_runs: bool = False  # true: a run folder without model.zip is skipped; false: an error
+    # intruder policies every allocator meets (an adversary axis: the leaderboard's worst case over them);
+    # None: each scenario's own intruders
+    intruders: list[str] | None = None
 
     @field_validator("scenarios")
     @classmethod
@@ -67,6 +70,22 @@ class SuiteConfig(StrictFile):
             if name not in choices:
                 hint = "; trained runs come from `runs`" if name in policy_names("learned") else ""
                 raise ValueError(f"unknown policy {name!r} (choose from {_choices(choices)}){hint}")
+        _no_repeats(v)
+        return v
+
+    @field_validator("intruders")
+    @classmethod
+    def _known_intruders(cls, v):
+        from farm.alloc.intruders import intruder_names
+
+        if v is None:
+            return v
+        choices = intruder_names(("law", "heuristic"))
+        if not v:
+            raise ValueError(f"must name at least one intruder policy (choose from {_choices(choices)})")
+        for name in v:
+            if name not in choices:
+                raise ValueError(f"unknown intruder policy {name!r} (choose from {_choices(choices)})")
         _no_repeats(v)
         return v
 
@@ -104,13 +123,19 @@ class SuiteConfig(StrictFile):
             return list(self.policies)
         return policy_names(("baseline", "planner"), references=True)
 
-    def env_of(self, scenario: str) -> AllocConfig:
-        """The env settings of one scenario in this suite: the scenario's, `env` replacing them.
+    def intruder_axis(self) -> list[str | None]:
+        """The intruder policies of the adversary axis, [None] without one (each scenario's own)."""
+        return list(self.intruders) if self.intruders is not None else [None]
+
+    def env_of(self, scenario: str, intruders: str | None = None) -> AllocConfig:
+        """The env settings of one scenario in this suite: the scenario's, `env` replacing them, and
+        the intruder policy `intruders` (None: theirs).
 
         ValueError (one line, `env.<field>: ...`, naming the scenario) for a setting refused.
         """
+        settings = self.env if intruders is None else {**self.env, "intruders": intruders}
         try:
-            return SCENARIOS[scenario].config(**self.env)
+            return SCENARIOS[scenario].config(**settings)
         except ValidationError as e:
             raise ValueError(f"env.{first_line(e)} (in scenario {scenario})") from None
 

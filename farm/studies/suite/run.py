@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from farm.alloc.config import AllocConfig
+from farm.alloc.config import INTRUDER_FIELDS, AllocConfig
 from farm.alloc.lattice import lattice_groups, warm_lattices
 from farm.alloc.policies import PolicySpec, make_policy, policy_entry
 from farm.alloc.runs import RunFolder
@@ -44,8 +44,8 @@ def _run_folder(config: SuiteConfig, scenario: str, env: AllocConfig):
         raise ConfigError(f"{field}: {e}", field=field) from None
     ours, theirs = env.model_dump(), trained_config.env.model_dump()
     size_free = trained_config.learner.policy == "CellPolicy"  # its weights act on any map
-    for name in ([] if size_free else ours):
-        if name not in ("games", "seed") and ours[name] != theirs.get(name):
+    for name in ([] if size_free else ours):  # whatever intruders it trained against, it may meet others
+        if name not in ("games", "seed", *INTRUDER_FIELDS) and ours[name] != theirs.get(name):
             raise ConfigError(f"{field}: {run_dir} was trained on another env ({name}: {theirs.get(name)!r}, "
                               f"the scenario's {ours[name]!r})", field=field)
     try:
@@ -54,21 +54,25 @@ def _run_folder(config: SuiteConfig, scenario: str, env: AllocConfig):
         raise ConfigError(f"{field}: {e}", field=field) from None
 
 
-def _plan(config: SuiteConfig) -> tuple[dict[str, AllocConfig], list[tuple[str, PolicySpec]], dict]:
-    """(env settings by scenario, [(scenario, allocator spec)] in leaderboard order, skipped runs)."""
-    envs = {name: config.env_of(name) for name in config.scenario_names()}
+def _plan(config: SuiteConfig) -> tuple[dict[tuple, AllocConfig], list[tuple[tuple, PolicySpec]], dict]:
+    """(env settings by (scenario, intruder policy or None), [((scenario, intruders), allocator
+    spec)] in leaderboard order, skipped runs)."""
+    envs = {(name, intruders): config.env_of(name, intruders) for name in config.scenario_names()
+            for intruders in config.intruder_axis()}
     specs = [PolicySpec(policy_entry(name), dict(config.planner_options.get(name, {})))
              for name in config.policy_names()]
-    jobs, skipped = [], {}
-    for scenario, env in envs.items():
-        jobs += [(scenario, spec) for spec in specs]
+    jobs, skipped, trained = [], {}, {}
+    for key, env in envs.items():
+        scenario = key[0]
+        jobs += [(key, spec) for spec in specs]
         if scenario in config.runs:
-            trained = _run_folder(config, scenario, env)
-            if trained is None:
+            if scenario not in trained:
+                trained[scenario] = _run_folder(config, scenario, env)
+            if trained[scenario] is None:
                 skipped[scenario] = config.runs[scenario]
             else:
-                algo, policy = trained
-                jobs.append((scenario, PolicySpec(policy_entry(algo), {"policy": policy})))
+                algo, policy = trained[scenario]
+                jobs.append((key, PolicySpec(policy_entry(algo), {"policy": policy})))
     return envs, jobs, skipped
 
 
@@ -94,13 +98,14 @@ def run_suite(config: SuiteConfig, out, *, episodes: int | None = None, address:
     for scenario, path in skipped.items():
         print(f"farm suite: runs.{scenario}: {path} holds no trained model yet; skipped", file=sys.stderr)
     store = Path(config.store or default_store_path())
-    tasks = matchup_tasks([_cost(envs[scenario]) for scenario, _ in jobs], config.episodes)
+    tasks = matchup_tasks([_cost(envs[key]) for key, _ in jobs], config.episodes)
     info: dict = {"tasks": len(tasks), "cells": len(jobs), "skipped_runs": skipped, "warmed_cases": 0}
     t0 = time.perf_counter()
     results = _play_matchups(config, envs, jobs, tasks, store, info, address=address, workers=workers, warm=warm,
                              show_progress=show_progress)
-    rows = [{"scenario": jobs[j][0], "policy": jobs[j][1].name, **row}
-            for j, first, _ in sorted(tasks) for row in results[j, first]]
+    axis = config.intruders is not None
+    rows = [{"scenario": jobs[j][0][0], **({"intruders": jobs[j][0][1]} if axis else {}), "policy": jobs[j][1].name,
+             **row} for j, first, _ in sorted(tasks) for row in results[j, first]]
     per = pd.DataFrame(rows)
     board = leaderboard(per)
     info["seconds"] = time.perf_counter() - t0
@@ -159,12 +164,12 @@ def _play_matchups(config: SuiteConfig, envs: dict, jobs: list, tasks: list, sto
         try:
             def submit(task):
                 j, first, count = task
-                scenario, spec = jobs[j]
-                return remote_suite_matchup.remote(envs[scenario], spec, actor, count, config.seed + first)
+                key, spec = jobs[j]
+                return remote_suite_matchup.remote(envs[key], spec, actor, count, config.seed + first)
 
             for (j, first, count), ref in bounded(submit, order, n):
                 results[j, first] = [{**row, "episode": first + row["episode"]}
-                                     for row in _result(ray, ref, *jobs[j])]
+                                     for row in _result(ray, ref, _shown(jobs[j][0]), jobs[j][1])]
                 bar.update(count)
         finally:
             bar.close()
@@ -203,15 +208,21 @@ def _check_planners(jobs: list, envs: dict) -> None:
     from farm.core.errors import SwarmFarmError
     from farm.service.client import CaptureTimeClient
 
-    for scenario, spec in jobs:
+    for key, spec in jobs:
         if not spec.entry.options():
             continue
-        client = CaptureTimeClient(envs[scenario].game_settings(), backend=_Unasked())
+        client = CaptureTimeClient(envs[key].game_settings(), backend=_Unasked())
         try:
-            spec.make(envs[scenario], client)
+            spec.make(envs[key], client)
         except (SwarmFarmError, TypeError, ValueError) as e:
             problem = str(e).removeprefix(f"{spec.name}: ")
-            raise ConfigError(f"planner_options.{spec.name}: {problem} (scenario {scenario})") from None
+            raise ConfigError(f"planner_options.{spec.name}: {problem} (scenario {key[0]})") from None
+
+
+def _shown(key: tuple) -> str:
+    """A matchup's map as messages name it: the scenario, and the intruders of an adversary axis."""
+    scenario, intruders = key
+    return scenario if intruders is None else f"{scenario} against {intruders}"
 
 
 def _result(ray, ref, scenario: str, spec: PolicySpec) -> list[dict]:
@@ -269,10 +280,11 @@ def _write_manifest(config: SuiteConfig, envs: dict, jobs: list, skipped: dict, 
         "config": config.model_dump(mode="json", exclude_unset=True),
         "resolved": {
             "scenarios": {name: {"description": SCENARIOS[name].description, "gym_id": SCENARIOS[name].gym_id,
-                                 "env": env.model_dump(mode="json")} for name, env in envs.items()},
+                                 "env": config.env_of(name).model_dump(mode="json")}
+                          for name in config.scenario_names()},
             "policies": config.policy_names(),
             "planner_options": config.planner_options,
-            "runs": {scenario: config.runs[scenario] for scenario, spec in jobs if spec.entry.kind == "learned"},
+            "runs": {key[0]: config.runs[key[0]] for key, spec in jobs if spec.entry.kind == "learned"},
             "skipped_runs": skipped,
             "episodes": config.episodes,
             "seeds": [config.seed, config.seed + config.episodes - 1],
