@@ -160,3 +160,34 @@ def test_the_intruders_env_draws_its_mixture_opponent_per_episode():
     again.set_state(state)
     action = np.zeros(env.action_space.shape)
     assert env.step(action)[1] == again.step(action)[1]
+
+
+def test_a_mixture_of_mean_moves_plays_the_members_averaged_move_probabilities():
+    """draw: mean moves each cell's defenders by the weighted mean of the members' move
+    probabilities (to the action map's floor), deterministically; the intruders' by the mean routing."""
+    from farm.alloc.dynamics import Layout, move_probabilities, observe
+
+    cfg, client = config(action_map="shifted"), Answers()
+    members, weights = ["intercept", "spread_evenly"], [0.25, 0.75]
+    mean = make_policy("mixture", cfg, client, members=members, weights=weights, draw="mean")
+    layout = Layout(3)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        D, I = rng.random(9), rng.random(9) * (rng.random(9) < 0.5)
+        D /= D.sum()
+        obs = observe(D[None], I[None])[0]
+        want = sum(w * move_probabilities(layout, cfg, np.asarray(make_policy(m, cfg, client).predict(obs)[0],
+                                                                  dtype=np.float64)[None])[0]
+                   for m, w in zip(members, weights))
+        got = move_probabilities(layout, cfg, np.asarray(mean.predict(obs)[0], dtype=np.float64)[None])[0]
+        assert np.allclose(got, want, atol=1e-6)
+        assert np.array_equal(mean.predict(obs)[0], mean.predict(obs)[0])
+    played = play(cfg, mean, client, 4, SEED)
+    assert summaries(played) == summaries(play(cfg, mean, client, 4, SEED))
+    from farm.alloc.intruders import make_intruders
+
+    side = make_intruders("mixture", cfg, members=["fewest_ahead", "drift"], weights=[0.5, 0.5], draw="mean")
+    D, I = rng.random((2, 9)), rng.random((2, 9))
+    up, down = side.routing(D, I)
+    a, b = make_intruders("fewest_ahead", cfg).routing(D, I), make_intruders("drift", cfg).routing(D, I)
+    assert np.allclose(up, 0.5 * a[0] + 0.5 * b[0]) and np.allclose(down, 0.5 * a[1] + 0.5 * b[1])

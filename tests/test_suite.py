@@ -388,7 +388,7 @@ def test_an_adversary_axis_adds_every_intruder_policy_and_the_worst_case(demo, t
     own = own[(own["scenario"] == "outnumbered_3x3") & own["policy"].isin(["spread_evenly", "intercept"])]
     drift = board[board["intruders"] == "drift"]
     np.testing.assert_array_equal(drift["eliminated_mean"].to_numpy(), own["eliminated_mean"].to_numpy())
-    for policy, g in board.groupby("policy"):
+    for _, g in board.groupby("policy"):
         assert (g["worst_eliminated"] == g["eliminated_mean"].min()).all()
         assert set(g["worst_intruders"]) == {g.loc[g["eliminated_mean"].idxmin(), "intruders"]}
     from farm.studies.suite import format_leaderboard

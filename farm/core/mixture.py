@@ -9,7 +9,7 @@ from farm.core.errors import ConfigError
 
 __all__ = ["DRAWS", "mixture_members"]
 
-DRAWS = ("episode", "step")
+DRAWS = ("episode", "step", "mean")  # a member drawn per episode or per step, or the members' mean move
 
 
 def mixture_members(owner: str, members, weights, draw: str, key: str) -> tuple[list[tuple[str, dict]], np.ndarray]:

@@ -16,9 +16,10 @@ class IntruderMixture(IntruderPolicy):
     each step (draw `step`) plays one member, drawn with the weights.
 
     members: names or {intruders: NAME, options: {...}}; weights: None (uniform) or one number
-    >= 0 a member; draw: episode or step; seed: the generator of a caller that runs no episodes
-    (routing() then draws per row and call). An episode's draw is made by whoever runs the
-    episode, from the episode's generator (for_episode: the envs, farm.alloc.rollout.play).
+    >= 0 a member; draw: episode, step, or mean (the members' routings averaged); seed: the
+    generator of a caller that runs no episodes (routing() then draws per row and call). An
+    episode's draw is made by whoever runs the episode, from the episode's generator
+    (for_episode: the envs, farm.alloc.rollout.play).
     """
 
     def __init__(self, config, members=None, weights=None, draw: str = "episode", seed: int = 0):
@@ -39,6 +40,8 @@ class IntruderMixture(IntruderPolicy):
 
     def for_episode(self, rng: np.random.Generator):
         """The mixture as one episode plays it (see Mixture.for_episode)."""
+        if self.draw == "mean":
+            return self
         if self.draw == "episode":
             return _Member(self, int(self._pick(rng)))
         return _Draws(self, np.random.default_rng(rng.integers(2 ** 63)))
@@ -52,7 +55,12 @@ class IntruderMixture(IntruderPolicy):
         return _Draws(self, rng)
 
     def routing(self, D, I):
-        """Each row's routing by a member drawn from the mixture's own generator."""
+        """The members' routings averaged with the weights (draw mean), else each row's routing by a
+        member drawn from the mixture's own generator."""
+        if self.draw == "mean":
+            routings = [p.routing(np.atleast_2d(D), np.atleast_2d(I)) for p in self.players]
+            return (sum(w * up for w, (up, _) in zip(self.weights, routings)),
+                    sum(w * down for w, (_, down) in zip(self.weights, routings)))
         return self._rows(np.atleast_2d(D), np.atleast_2d(I), self._pick(self._rng, size=len(np.atleast_2d(I))))
 
     def _rows(self, D, I, members):

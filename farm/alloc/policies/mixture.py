@@ -1,4 +1,5 @@
-"""`mixture`: a mixed strategy over allocators, drawing one member per episode or per step."""
+"""`mixture`: a mixed strategy over allocators, drawing one member per episode or per step, or
+playing the members' mean move."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ __all__ = ["Mixture"]
 
 class Mixture:
     """A mixed strategy over allocators of the registry: each episode (draw `episode`) or each step
-    (draw `step`) plays one member, drawn with the weights from a seeded generator.
+    (draw `step`) plays one member, drawn with the weights from a seeded generator; or (draw
+    `mean`) every step moves each cell's defenders by the members' move probabilities averaged
+    with the weights (a deterministic policy: what a network distilled from the mixture learns).
 
     config, client: as every allocator's; members: names or {policy: NAME, options: {...}};
     weights: None (uniform) or one number >= 0 a member; draw: episode or step; seed: the
@@ -27,11 +30,17 @@ class Mixture:
         self.names = [name for name, _ in parsed]
         self.players = [make_policy(name, config, client, **options) for name, options in parsed]
         self.draw = draw
+        self.config = config
         self._rng = np.random.default_rng(seed)
+        from farm.alloc.dynamics import Layout
+
+        self._layout = Layout(config.grid_size)
 
     def for_episode(self, rng: np.random.Generator):
-        """The mixture as one episode plays it: a member drawn from rng (draw episode), or draws per
-        step from a generator of rng's (draw step)."""
+        """The mixture as one episode plays it: a member drawn from rng (draw episode), draws per
+        step from a generator of rng's (draw step), or itself (draw mean: it draws nothing)."""
+        if self.draw == "mean":
+            return self
         if self.draw == "episode":
             return _Member(self, int(rng.choice(len(self.players), p=self.weights)))
         return _Draws(self, np.random.default_rng(rng.integers(2 ** 63)))
@@ -45,9 +54,25 @@ class Mixture:
         return _Draws(self, rng)
 
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        """A member drawn from the mixture's own generator acts (see the class doc)."""
+        """The members' mean move (draw mean), else a member drawn from the mixture's own generator
+        acts (see the class doc)."""
+        if self.draw == "mean":
+            return self._mean_action(obs), state
         k = int(self._rng.choice(len(self.players), p=self.weights))
         return self.players[k].predict(obs, state, episode_start, deterministic)
+
+
+    def _mean_action(self, obs) -> np.ndarray:
+        """The action whose moves are the members' move probabilities averaged with the weights:
+        obs: (2 N^2,) float32 -> (A,) float32 (action_from_probabilities of the mean)."""
+        from farm.alloc.dynamics import move_probabilities
+        from farm.alloc.policies.planners.core import action_from_probabilities
+
+        layout = self._layout
+        actions = np.stack([np.asarray(p.predict(obs, deterministic=True)[0], dtype=np.float64)
+                            for p in self.players])
+        mean = self.weights @ move_probabilities(layout, self.config, actions)
+        return action_from_probabilities(self.config, mean, layout.start, layout.src)
 
 
 class _Member:

@@ -238,7 +238,7 @@ class PretrainParams(Strict):
     with the run's own (a curriculum of maps, for a policy whose weights fit any map:
     ppo.policy CellPolicy)."""
 
-    expert: str = "receding_horizon"  # the expert: a registered baseline or planner (farm.alloc.policies)
+    expert: str = "receding_horizon"  # the expert: a registered baseline, planner or mixture (farm.alloc.policies)
     expert_options: dict[str, Any] = {}  # the expert's options
     iterations: int = Field(4, ge=1, le=1000)  # DAgger iterations
     episodes: int = Field(16, ge=1)  # episodes played per iteration (on each map)
@@ -260,9 +260,10 @@ class PretrainParams(Strict):
     def _known_expert(cls, v):
         from farm.alloc.policies import policy_names
 
-        choices = policy_names(("baseline", "planner"))
+        choices = policy_names(("baseline", "planner", "mixture"))
         if v not in choices:
-            raise ValueError(f"unknown expert {v!r} (choose from the baselines and planners: {', '.join(choices)})")
+            raise ValueError(f"unknown expert {v!r} (choose from the baselines, the planners and mixture: "
+                             f"{', '.join(choices)})")
         return v
 
     @field_validator("expert_share")
