@@ -62,6 +62,12 @@ class RobustConfig(StrictFile):
     oracle: Literal["trained", "library"] = "trained"  # trained best responses, or the best of a fixed library
     library: LibraryParams = LibraryParams()  # the library oracle's candidates
     training: TrainingParams = TrainingParams()  # the trained oracles' settings
+    # one network distilled from the final allocators' mixture: dotted TrainConfig settings of a training
+    # DAgger-started from the mixture's mean move against the final intruders' mixture; None: none
+    distill: dict[str, Any] | None = {
+        "algo": "ppo", "ppo.n_timesteps": 20000, "ppo.n_steps": 256, "ppo.batch_size": 256, "n_envs": 8,
+        "pretrain": {"expert": "mixture", "iterations": 3, "episodes": 32, "expert_share": 0.5},
+        "repair": "levels", "keep": "best", "eval.freq": 5000}
     store: str | None = Field(None, min_length=1)  # the capture-time store; None: default_store_path()
 
     @field_validator("scenario")

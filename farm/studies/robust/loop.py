@@ -175,7 +175,17 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
                 print(f"robust {config.name}: iteration {k}: value {solution.value:.4f}, NashConv {it.nash_conv:.4f}",
                       file=sys.stderr)
             allocators, intruders = allocators + _new(it, "allocators"), intruders + _new(it, "intruders")
-        info["files"] = write_results(out, config, store, iterations) if iterations else []
+        distilled = None
+        if iterations and config.distill is not None:
+            from farm.studies.robust.oracles import distilled as distil
+
+            allocators, intruders = final_populations(iterations)
+            final = solve(payoff_matrix(store, config, allocators, intruders))
+            distilled = distil(config, out, allocators, intruders, final, address=address, workers=workers,
+                               show_progress=show_progress)
+            info["pairs_played"] += fill(store, env, [(distilled, b) for b in intruders], p.episodes, p.seed,
+                                         client, n)
+        info["files"] = write_results(out, config, store, iterations, distilled) if iterations else []
     info["seconds"] = time.perf_counter() - t0
     return iterations, info
 
@@ -186,11 +196,13 @@ def final_populations(iterations: list[Iteration]) -> tuple[list, list]:
     return last.allocators + _new(last, "allocators"), last.intruders + _new(last, "intruders")
 
 
-def write_results(out: Path, config: RobustConfig, store: PayoffStore, iterations: list[Iteration]) -> list[Path]:
+def write_results(out: Path, config: RobustConfig, store: PayoffStore, iterations: list[Iteration],
+                  distilled: Member | None = None) -> list[Path]:
     """The loop's files: nash_conv.csv (each iteration's value, both gains and NashConv), payoffs.csv
-    (the final populations' payoff matrix, allocators by row), mixture.yaml (the final meta-Nash
-    mixtures: the robust allocator as the registry's `mixture` with its options, and the
-    intruders' as theirs) and nash_conv.png; returns the paths."""
+    (the final populations' payoff matrix, allocators by row, the distilled network's row last),
+    mixture.yaml (the final meta-Nash mixtures: the robust allocator as the registry's `mixture`
+    with its options, the intruders' as theirs, and the distilled network as its registry name
+    and run) and nash_conv.png; returns the paths."""
     import pandas as pd
     import yaml
 
@@ -204,12 +216,17 @@ def write_results(out: Path, config: RobustConfig, store: PayoffStore, iteration
              "intruders": len(it.intruders)} for k, it in enumerate(iterations)]
     files = [out / "nash_conv.csv", out / "payoffs.csv", out / "mixture.yaml", out / "nash_conv.png"]
     pd.DataFrame(rows).to_csv(files[0], index=False)
-    pd.DataFrame(M, index=[a.shown() for a in allocators], columns=[b.shown() for b in intruders]).to_csv(files[1])
+    shown = pd.DataFrame(M, index=[a.shown() for a in allocators], columns=[b.shown() for b in intruders])
+    if distilled is not None:
+        shown.loc[distilled.shown()] = payoff_matrix(store, config, [distilled], intruders)[0]
+    shown.to_csv(files[1])
     mixture = {"value": float(final.value), "measure": config.payoffs.measure,
                "allocator": {"name": "mixture", "options": mixture_options(allocators, final.row)},
                "intruders": {"name": "mixture", "options": mixture_options(intruders, final.column)},
                "weights": {"allocators": {a.shown(): float(w) for a, w in zip(allocators, final.row)},
                            "intruders": {b.shown(): float(w) for b, w in zip(intruders, final.column)}}}
+    if distilled is not None:
+        mixture["distilled"] = {"name": distilled.name, "options": distilled.options}
     atomic_write_bytes(files[2], yaml.safe_dump(mixture, sort_keys=False).encode())
     _plot_nash_conv(rows, files[3], config.name)
     return files

@@ -9,7 +9,7 @@ from pathlib import Path
 from farm.studies.robust.config import RobustConfig
 from farm.studies.robust.members import Member, mixture_options
 
-__all__ = ["trained_responses", "iteration_experiment"]
+__all__ = ["trained_responses", "iteration_experiment", "distilled"]
 
 
 def iteration_experiment(config: RobustConfig, k: int, allocators: list, intruders: list, solution):
@@ -47,3 +47,28 @@ def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list,
     defenders, attackers = (storage.run_dir(t.key) for t in trials)
     return {"allocators": Member("allocators", RunFolder(defenders).learner(), {"run": str(defenders)}, f"br{k}"),
             "intruders": Member("intruders", "learned", {"run": str(attackers)}, f"br{k}")}
+
+
+def distilled(config: RobustConfig, out: Path, allocators: list, intruders: list, solution, *,
+              address: str | None = None, workers: int | None = None, show_progress: bool = True) -> Member:
+    """One network distilled from the final allocators' mixture (config.distill's training, run or
+    resumed in out/distilled): DAgger from the mixture's mean move (draw: mean) in the env whose
+    intruders are the final intruders' mixture, then RL there; the trained allocator as a Member."""
+    from farm.alloc.runs import RunFolder
+    from farm.studies.experiments.config import ExperimentConfig
+    from farm.studies.experiments.plan import plan
+    from farm.studies.experiments.run import run_experiment
+    from farm.studies.experiments.storage import ExperimentStorage
+
+    expert = {**mixture_options(allocators, solution.row), "draw": "mean"}
+    point = {"env.intruders": "mixture", "env.intruder_options": mixture_options(intruders, solution.column),
+             **config.distill, "pretrain.expert_options": expert}
+    shared = {f"env.{name}": value for name, value in config.env.items()}
+    experiment = ExperimentConfig(name=f"{config.name}-distilled", scenario=config.scenario, overrides=shared,
+                                  points=[{k: v for k, v in point.items() if k not in shared}],
+                                  seeds=[config.seed * 1000 + 999], episodes=3, eval_seed=config.payoffs.seed,
+                                  store=config.store)
+    where = out / "distilled"
+    run_experiment(experiment, where, address=address, workers=workers, show_progress=show_progress)
+    run = ExperimentStorage(where).run_dir(plan(experiment).trials[0].key)
+    return Member("allocators", RunFolder(run).learner(), {"run": str(run)}, "distilled")
