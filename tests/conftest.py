@@ -62,7 +62,7 @@ WITHOUT_RAY |= {"test_intruder_env", "test_pettingzoo_env", "test_intruders", "t
 # Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests
 # start no Ray, and run beside the Ray group as a group of their own (the Ray group is the
 # suite's critical path).
-MIXED = {"test_exact_search", "test_exploit", "test_refuses_store", "test_service", "test_suite", "test_sweep_ray",
+MIXED = {"test_exact_search", "test_exploit", "test_robust", "test_refuses_store", "test_service", "test_suite", "test_sweep_ray",
          "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
 
 

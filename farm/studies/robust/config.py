@@ -57,7 +57,7 @@ class RobustConfig(StrictFile):
     # the intruders' starting population: names or {name, options, label}
     intruders: list[Any] = ["drift", "fewest_ahead", "least_defended", "split_away"]
     iterations: int = Field(4, ge=0, le=100)  # oracle iterations at most
-    threshold: float = Field(0.0, ge=0)  # stop once NashConv is at most this
+    threshold: float | None = Field(None, ge=0)  # stop once NashConv is at most this; None: run every iteration
     payoffs: PayoffParams = PayoffParams()  # how a pair's payoff is played
     oracle: Literal["trained", "library"] = "trained"  # trained best responses, or the best of a fixed library
     library: LibraryParams = LibraryParams()  # the library oracle's candidates

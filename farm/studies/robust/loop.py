@@ -6,8 +6,8 @@ same seeded episodes (the missing ones as Ray tasks; farm.studies.robust.payoffs
 the zero-sum meta-game of their mean payoff is solved by LP (farm.core.matrix_game); each side's
 oracle answers the other side's meta-Nash mixture with a best response; the responses are played
 against the other population and NashConv (the sum of both sides' best-response gains) is
-recorded; the responses join the populations. The loop stops at `iterations` or once NashConv
-is at most `threshold`. The state is saved after each iteration (robust.json), so a run stopped
+recorded; the responses join the populations. The loop stops at `iterations`, or once NashConv
+is at most `threshold` when one is set. The state is saved after each iteration (robust.json), so a run stopped
 anywhere goes on from its last whole iteration; every payoff played before is kept, and the
 trained oracles' trials resume as an experiment's do.
 """
@@ -145,7 +145,7 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
             else config.population("allocators")
         intruders = iterations[-1].intruders + _new(iterations[-1], "intruders") if iterations \
             else config.population("intruders")
-        while len(iterations) < config.iterations and not (iterations and iterations[-1].nash_conv <= config.threshold):
+        while len(iterations) < config.iterations and not _converged(config, iterations):
             info["pairs_played"] += fill(store, env, [(a, b) for a in allocators for b in intruders], p.episodes,
                                          p.seed, client, n)
             M = payoff_matrix(store, config, allocators, intruders)
@@ -248,6 +248,11 @@ def _plot_nash_conv(rows: list[dict], path: Path, name: str) -> None:
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=100)
+
+
+def _converged(config: RobustConfig, iterations: list[Iteration]) -> bool:
+    """Whether the last iteration's NashConv is at most the config's threshold (never without one)."""
+    return config.threshold is not None and bool(iterations) and iterations[-1].nash_conv <= config.threshold
 
 
 def _new(it: Iteration, side: str) -> list:

@@ -1,0 +1,149 @@
+"""`farm robust`: the config's refusals, the library oracle's loop (each iteration's meta-game the
+LP's solution of the kept payoffs, each response a best reply, a rerun that plays nothing twice),
+and a driver killed mid-iteration whose rerun trains no trial twice and ends with the populations
+and payoffs of an uninterrupted run."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from pydantic import ValidationError
+
+from farm.core.config import first_line
+from farm.core.matrix_game import solve
+from farm.studies.robust import RobustConfig, run_robust
+from farm.studies.robust.loop import payoff_matrix
+from farm.studies.robust.payoffs import PayoffStore
+
+ROOT = Path(__file__).resolve().parent.parent
+GAMES = 8  # games per capture-time case: a cold store fills in seconds
+
+
+@pytest.mark.parametrize("settings, words", [
+    ({"scenario": "nowhere"}, "scenario: unknown scenario 'nowhere'"),
+    ({"allocators": []}, "allocators: the population needs one member at least"),
+    ({"intruders": ["telepathy"]}, "intruders: unknown intruder policy 'telepathy'"),
+    ({"allocators": [{"name": "intercept", "depth": 2}]}, "allocators[0]: a member is a name or"),
+    ({"library": {"allocators": ["nobody"]}}, "library.allocators: unknown allocator 'nobody'"),
+    ({"payoffs": {"measure": "style"}}, "payoffs.measure"),
+    ({"env": {"information": "psychic"}}, "information"),
+    ({"iterations": -1}, "iterations"),
+])
+def test_a_bad_robust_config_is_one_line_naming_its_field(settings, words):
+    with pytest.raises(ValidationError) as e:
+        RobustConfig(**{"name": "x", "scenario": "outnumbered_3x3", **settings})
+    assert words in first_line(e.value) and "\n" not in first_line(e.value)
+
+
+def library_config(tmp_path, iterations):
+    return RobustConfig(name="lib", scenario="outnumbered_3x3", env={"games": GAMES}, iterations=iterations,
+                        allocators=["spread_evenly"], intruders=["drift"], oracle="library",
+                        library={"allocators": ["intercept", "transport"], "intruders": ["fewest_ahead", "split_away"]},
+                        payoffs={"episodes": 3}, distill=None, store=str(tmp_path / "store.sqlite"))
+
+
+@pytest.mark.ray
+def test_the_library_oracles_loop_and_its_resumed_rerun(ray_local, tmp_path):
+    out = tmp_path / "out"
+    first, info = run_robust(library_config(tmp_path, 1), out, show_progress=False)
+    assert len(first) == 1 and info["iterations_before"] == 0
+    iterations, again = run_robust(library_config(tmp_path, 2), out, show_progress=False)
+    assert again["iterations_before"] == 1 and iterations[0].to_dict() == first[0].to_dict()
+    config, store = library_config(tmp_path, 2), PayoffStore(out / "payoffs")
+    files_before = len(list((out / "payoffs").iterdir()))
+    for it in iterations:
+        M = payoff_matrix(store, config, it.allocators, it.intruders)
+        solution = solve(M)
+        assert it.value == pytest.approx(solution.value, abs=1e-9) and it.nash_conv >= 0
+        # the library's responses are best replies to the mixtures, among the candidates and members
+        for side, opponents, mix in (("allocators", it.intruders, it.column), ("intruders", it.allocators, it.row)):
+            options = it.allocators + config.candidates("allocators") if side == "allocators" else \
+                it.intruders + config.candidates("intruders")
+            rows = payoff_matrix(store, config, options, opponents) if side == "allocators" else \
+                payoff_matrix(store, config, opponents, options).T
+            worth = rows @ np.asarray(mix)
+            best = worth.max() if side == "allocators" else worth.min()
+            chosen = worth[[m.key() for m in options].index(it.responses[side].key())]
+            assert chosen == pytest.approx(best)
+    # a finished run again: nothing played, the same files
+    _, third = run_robust(config, out, show_progress=False)
+    assert third["pairs_played"] == 0 and len(list((out / "payoffs").iterdir())) == files_before
+    table = pd.read_csv(out / "nash_conv.csv")
+    assert list(table["iteration"]) == list(range(len(iterations)))
+    mixture = yaml.safe_load((out / "mixture.yaml").read_text())
+    assert mixture["allocator"]["name"] == "mixture" and sum(mixture["allocator"]["options"]["weights"]) == \
+        pytest.approx(1.0)
+    with pytest.raises(Exception, match="holds a robust run of another config"):
+        run_robust(config.model_copy(update={"payoffs": config.payoffs.model_copy(update={"episodes": 4})}), out,
+                   show_progress=False)
+
+
+TINY = {"algo": "ppo", "ppo.n_timesteps": 256, "ppo.n_steps": 32, "ppo.batch_size": 64, "ppo.n_epochs": 2,
+        "n_envs": 2, "eval.freq": 128, "eval.episodes": 2, "checkpoint_freq": 64}
+
+
+def trained_config(tmp_path) -> Path:
+    config = {"name": "killed", "scenario": "outnumbered_3x3", "env": {"games": GAMES}, "iterations": 2,
+              "allocators": ["spread_evenly", "intercept"], "intruders": ["drift", "fewest_ahead"],
+              "payoffs": {"episodes": 3}, "distill": None, "store": str(tmp_path / "store.sqlite"),
+              "training": {"defenders": {**TINY, "pretrain": {"expert": "intercept", "iterations": 1, "episodes": 2}},
+                           "intruders": TINY}}
+    path = tmp_path / "robust.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return path
+
+
+def session_pids(sid: int) -> list[int]:
+    from conftest import session
+
+    return session(sid)
+
+
+@pytest.mark.ray
+@pytest.mark.slow
+def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(ray_local, tmp_path):
+    import ray
+
+    from farm.studies.robust import load_robust_config
+
+    path = trained_config(tmp_path)
+    whole, _ = run_robust(load_robust_config(path), tmp_path / "whole", show_progress=False)
+    out = tmp_path / "killed"
+    command = [sys.executable, "-m", "farm.cli", "robust", str(path), "--out", str(out), "--quiet",
+               "--address", ray.get_runtime_context().gcs_address]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env.pop("RAY_ADDRESS", None)
+    result = out / "iterations" / "1" / "trials"
+    driver = subprocess.Popen(command, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 600
+    try:
+        while not any(result.glob("*/result.json")) and driver.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        for pid in session_pids(driver.pid):
+            os.kill(pid, signal.SIGKILL)
+        driver.wait(timeout=60)
+    done = sorted(result.glob("*/result.json"))
+    assert done and not (out / "nash_conv.csv").exists(), "the driver was not killed mid-iteration 1"
+    state = json.loads((out / "robust.json").read_text())
+    assert len(state["iterations"]) == 1
+    before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in done}
+    rerun = subprocess.run(command, env=env, capture_output=True, text=True, timeout=900)
+    assert rerun.returncode == 0, rerun.stderr[-3000:]
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in done} == before  # never trained again
+    killed = json.loads((out / "robust.json").read_text())["iterations"]
+    assert [[m["label"] or m["name"] for m in it["allocators"]] for it in killed] == \
+        [[m.label or m.name for m in it.allocators] for it in whole]
+    for a, b in zip(killed, whole):
+        assert a["row"] == pytest.approx(b.row, abs=1e-12) and a["value"] == pytest.approx(b.value, abs=1e-12)
+    np.testing.assert_array_equal(pd.read_csv(out / "payoffs.csv", index_col=0).to_numpy(),
+                                  pd.read_csv(tmp_path / "whole" / "payoffs.csv", index_col=0).to_numpy())
