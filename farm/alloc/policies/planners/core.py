@@ -1,10 +1,11 @@
 """The planners' shared core: what every planner of farm.alloc.policies.planners builds on.
 
 action_from_probabilities (the action that realises wanted move probabilities),
-advance_matrix (the intruders' advance as a linear map), Levels and levels() (the games
-a target cell's defender count can play), the option checks, _Planner (the base class:
-the grid, predict(), Intercept's rule that every planner's unused mass follows) and
-_Rates (the capture-time statistics, one client call per batch and kept).
+advance_matrix (the intruders' advance as a linear map), plan_horizon, Levels and levels()
+(the games a target cell's defender count can play), the option checks, _Planner (the base
+class: the grid, predict(), Intercept's rule that every planner's unused mass follows, and
+the level programs of receding_horizon and minimax: flow_network, solve_levels, first_step)
+and _Rates (the capture-time statistics, one client call per batch and kept).
 
 Every density is a vector over the N x N cells in cell order, c = row * N + col; a
 defender count is a density times n_defenders.
@@ -22,7 +23,7 @@ from farm.alloc.env import moves
 from farm.alloc.model import LATTICE, EngagementModel, advance_intruders, snap_many
 from farm.core.errors import ConfigError, InputError
 
-__all__ = ["Levels", "levels", "action_from_probabilities", "advance_matrix"]
+__all__ = ["Levels", "levels", "action_from_probabilities", "advance_matrix", "plan_horizon"]
 
 _TINY = 1e-9  # a defender count below this is no mass
 
@@ -66,6 +67,23 @@ def advance_matrix(n: int, drift: float) -> tuple[np.ndarray, np.ndarray]:
         e[j] = 1.0
         A[:, j], b[j] = advance_intruders(e, n, drift)
     return A, b
+
+
+def plan_horizon(config: AllocConfig, I: np.ndarray, horizon: int | None) -> int:
+    """The steps a planner of `horizon` steps (None: no limit) plans for intruders I: (N^2,) float64.
+
+    0 without intruders. Else until the intruders now on the grid have breached (the
+    right-most column holding intruders, plus one), never past max_steps (the steps taken
+    are read from that column: the intruders start in the right-most one), and at most
+    `horizon`; at least 1.
+    """
+    n = config.grid_size
+    cols = np.flatnonzero(np.asarray(I).reshape(n, n).max(axis=0) > config.engage_min_mass)
+    if len(cols) == 0:
+        return 0
+    c_max = int(cols[-1])
+    left = config.max_steps - (n - 1 - c_max)
+    return max(1, min(horizon or c_max + 1, c_max + 1, left))
 
 
 class Levels:
@@ -125,10 +143,10 @@ def _positive_number(owner: str, name: str, value) -> float:
     return float(value)
 
 
-def _count(owner: str, name: str, value) -> int:
-    """value if it is an integer >= 1 (not a bool), else ConfigError naming owner.name."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ConfigError(f"{owner}: {name} must be an integer >= 1, got {value!r}")
+def _count(owner: str, name: str, value, minimum: int = 1) -> int:
+    """value if it is an integer >= minimum (not a bool), else ConfigError naming owner.name."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ConfigError(f"{owner}: {name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
 
 
@@ -487,6 +505,9 @@ class _Rates:
 
     def __init__(self, config: AllocConfig, client, estimates: bool):
         self.model = EngagementModel(config, client, estimates)
+        self._keys = np.zeros(0, dtype=np.int64)  # the n_e of table(), ascending, and their rows
+        self._removed = self._score = None
+        self._sizes = None
 
     def get(self, n_p, n_e) -> tuple[np.ndarray, np.ndarray]:
         """(removed, score): (k,) float64 each, of the games n_p, n_e: (k,) int (n_p >= 1)."""
@@ -498,3 +519,25 @@ class _Rates:
         P, E = np.meshgrid(sizes, n_e)
         removed, score = self.get(P.reshape(-1), E.reshape(-1))
         return removed.reshape(P.shape), score.reshape(P.shape)
+
+    def table(self, sizes: np.ndarray, n_e) -> tuple[np.ndarray, np.ndarray]:
+        """(removed, score): n_e.shape + (len(sizes),) float64 each, every size against each
+        n_e (int array of any shape). The rows are kept: only the n_e not asked before are
+        asked (one grid()); sizes must be the same at every call."""
+        n_e = np.asarray(n_e, dtype=np.int64)
+        sizes = np.asarray(sizes, dtype=np.int64)
+        if self._sizes is None:
+            self._sizes = sizes.copy()
+            self._removed = self._score = np.zeros((0, len(sizes)))
+        elif not np.array_equal(sizes, self._sizes):
+            raise ValueError("_Rates.table: sizes differ from the first call's")
+        new = np.setdiff1d(n_e, self._keys)
+        if len(new):
+            removed, score = self.grid(sizes, new)
+            keys = np.concatenate([self._keys, new])
+            order = np.argsort(keys)
+            self._keys = keys[order]
+            self._removed = np.concatenate([self._removed, removed])[order]
+            self._score = np.concatenate([self._score, score])[order]
+        at = np.searchsorted(self._keys, n_e)
+        return self._removed[at], self._score[at]

@@ -7,7 +7,7 @@ import numpy as np
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.model import team_sizes
-from farm.alloc.policies.planners.core import _count, _Planner, _positive_number
+from farm.alloc.policies.planners.core import _count, _Planner, _positive_number, plan_horizon
 
 __all__ = ["RecedingHorizon"]
 
@@ -79,13 +79,7 @@ class RecedingHorizon(_Planner):
 
     def plan_horizon(self, I: np.ndarray) -> int:
         """The steps to plan for intruders I: (N^2,) float64 (see the class's horizon); 0 with none."""
-        n = self.n
-        cols = np.flatnonzero(I.reshape(n, n).max(axis=0) > self.config.engage_min_mass)
-        if len(cols) == 0:
-            return 0
-        c_max = int(cols[-1])
-        left = self.config.max_steps - (n - 1 - c_max)
-        return max(1, min(self.horizon or c_max + 1, c_max + 1, left))
+        return plan_horizon(self.config, I, self.horizon)
 
     def probabilities(self, D, I):
         """The first step of the best plan found (see the class)."""
