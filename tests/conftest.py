@@ -50,7 +50,7 @@ def points_in(arena_vertices, shape, rng):
 WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "test_report", "test_alloc_td3", "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy",
                "test_claims", "test_cli", "test_compiled", "test_docs", "test_docstrings", "test_engine", "test_env_api",
                "test_escapes", "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners", "test_montecarlo",
-               "test_planners", "test_policy_registry", "test_reference_selfcheck", "test_refuses_cli", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
+               "test_planners", "test_minimax", "test_policy_registry", "test_reference_selfcheck", "test_refuses_cli", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
                "test_refuses_training", "test_refuses_workers", "test_repair", "test_resume_damaged", "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
                "test_workers_layout"}
 
