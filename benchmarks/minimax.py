@@ -7,6 +7,10 @@ Each planner plays the same seeded episodes (seeds 1000..1019 by default) of eac
   myopic          the follower's one-step best response: each step, of every pure routing of the
                   intruders' cells, the one whose engagements eliminate the least this step
                   (enumerated, when a state has at most --max-routings of them);
+  lookahead       the follower looking two steps ahead: each step, the pure routing minimising this
+                  step's eliminated mass plus the least the next step's routings leave to the
+                  allocator's actual reply (maps whose intruders have at most --max-lookahead
+                  pure routings a step);
   exact           the follower's best response over the whole episode: an exhaustive search over
                   the intruders' pure routings at every step, the allocator asked at every node (on
                   3x3 maps only: its tree grows as the routings' number to the power of the steps).
@@ -90,6 +94,48 @@ class Myopic:
         return up, down
 
 
+class Lookahead(Myopic):
+    """The follower looking two steps ahead against the allocator itself (registered as `lookahead` by
+    main, its allocator set before each play): of every pure routing, the one minimising this step's
+    eliminated mass plus the least the next step's pure routings leave to the allocator's actual
+    reply (the allocator asked at each routing's next state, the smallest first, while it can still
+    be the least)."""
+
+    allocator = None
+
+    def routing(self, D, I):
+        """Each episode's pure routing of the least two-step eliminated mass."""
+        from farm.alloc.dynamics import move_defenders, move_probabilities, observe, resolve
+
+        cfg, n = self.config, self.config.grid_size
+        D, I = np.atleast_2d(D), np.atleast_2d(I)
+        up, down = np.zeros(I.shape), np.zeros(I.shape)
+        for b in range(len(I)):
+            routes = pure_routings(n, I[b], cfg.engage_min_mass, Myopic.budget)
+            if routes is None:
+                continue
+            K = len(routes[0])
+            r = resolve(self.layout, cfg, self.model, np.repeat(D[b][None], K, 0), np.repeat(I[b][None], K, 0),
+                        routes)
+            best, pick = np.inf, 0
+            for k in np.argsort(r.eliminated, kind="stable"):
+                if r.eliminated[k] >= best:
+                    break
+                total = r.eliminated[k]
+                nxt = pure_routings(n, r.I[k], cfg.engage_min_mass, Myopic.budget)
+                if r.remaining[k] >= cfg.epsilon and nxt is not None:
+                    action, _ = Lookahead.allocator.predict(observe(r.D[k][None], r.I[k][None])[0])
+                    moved = move_defenders(self.layout, r.D[k][None],
+                                           move_probabilities(self.layout, cfg, np.asarray(action)[None]))
+                    J = len(nxt[0])
+                    total += resolve(self.layout, cfg, self.model, np.repeat(moved, J, 0),
+                                     np.repeat(r.I[k][None], J, 0), nxt).eliminated.min()
+                if total < best:
+                    best, pick = total, int(k)
+            up[b], down[b] = routes[0][pick], routes[1][pick]
+        return up, down
+
+
 class Timed:
     """An allocator whose predict() CPU seconds are kept (cpu: list of float)."""
 
@@ -149,6 +195,7 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--seed", type=int, default=1000)
     ap.add_argument("--max-routings", type=int, default=4096, help="myopic's enumeration budget per state")
+    ap.add_argument("--max-lookahead", type=int, default=200, help="lookahead on maps of at most this many routings")
     ap.add_argument("--skip-exact", action="store_true", help="no exhaustive search (it runs on 3x3 maps only)")
     a = ap.parse_args()
     from farm.alloc.intruders import register_intruders
@@ -164,12 +211,15 @@ def main() -> None:
     client, pairs, t_warm = memo_client(configs.values(), "local", a.store)
     Myopic.client, Myopic.budget = client, a.max_routings
     register_intruders("myopic", Myopic.make, kind="heuristic", replace=True)
+    register_intruders("lookahead", Lookahead.make, kind="heuristic", replace=True)
     print(f"store {a.store}: {len(pairs)} lattice pairs warm in {t_warm:.1f} s; {a.episodes} episodes each "
           f"(seeds {a.seed}..{a.seed + a.episodes - 1}); load average {os.getloadavg()[0]:.1f} on "
           f"{os.cpu_count()} cores")
     t0 = time.perf_counter()
     for scenario, config in configs.items():
-        sides = ["drift", *HEURISTICS, "myopic"] + (["exact"] if config.grid_size == 3 and not a.skip_exact else [])
+        n = config.grid_size
+        sides = ["drift", *HEURISTICS, "myopic"] + (["lookahead"] if 2 * 3 ** (n - 2) * 2 <= a.max_lookahead else [])
+        sides += ["exact"] if n == 3 and not a.skip_exact else []
         print(f"\n{scenario}: eliminated mass, mean over episodes; worst: the least of the followers' columns; "
               "ms, mean ms: median and mean CPU ms per step against drift")
         print(f"{'planner':<22}" + "".join(f"{s:>16}" for s in sides) + f"{'worst':>10}{'ms':>8}{'mean ms':>9}")
@@ -178,6 +228,7 @@ def main() -> None:
             for side in sides:
                 cfg = config if side in ("drift", "exact") else ALL[scenario].config(intruders=side)
                 policy = Timed(make_policy(name, cfg, client, **opts))
+                Lookahead.allocator = make_policy(name, cfg, client, **opts)
                 if side == "exact":
                     means[side] = float(exact_worst(cfg, client, policy, a.episodes, a.seed).mean())
                     continue

@@ -71,7 +71,7 @@ class Minimax(_Planner):
 
     config: AllocConfig; client: a CaptureTimeClient of config.game_settings(); horizon:
     int >= 1 or None (default: until the intruders now on the grid breach, plan_horizon);
-    robustness: r, a number in [0, 1] (default `0.5`); objective: "eliminated" (default)
+    robustness: r, a number in [0, 1] (default `0.35`); objective: "eliminated" (default)
     or "reward"; iterations: int >= 1 (default 4); scenarios: int >= 0 (default 256);
     routings: int >= 1 (default 4096); beam: int >= 1 (default 8); replies: intruder
     policy names (default the heuristics fewest_ahead, least_defended and split_away);
@@ -90,7 +90,7 @@ class Minimax(_Planner):
 
     name = "minimax"
 
-    def __init__(self, config: AllocConfig, client=None, *, horizon: int | None = None, robustness: float = 0.5,
+    def __init__(self, config: AllocConfig, client=None, *, horizon: int | None = None, robustness: float = 0.35,
                  objective: str = "eliminated", iterations: int = 4, scenarios: int = 256, routings: int = 4096,
                  beam: int = 8, replies: tuple | list = REPLIES, branch_levels: int = 0, rounds: int = 2,
                  time_limit: float = 10.0, ties: str = "split", estimates: bool = False, **unknown):
