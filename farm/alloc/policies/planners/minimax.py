@@ -111,7 +111,7 @@ class Minimax(_Planner):
         self.rounds = _count(self.name, "rounds", rounds)
         self.time_limit = _positive_number(self.name, "time_limit", time_limit)
         self.plan_on_rates(estimates)
-        self.heuristics = self._reply_policies(replies)
+        self.repliers = self._reply_policies(replies)
         n = self.n
         self.rows, self.cols = np.divmod(np.arange(n * n), n)
         self._probe = np.random.default_rng(0).random(n * n)  # a state's fingerprint: its product with this
@@ -177,7 +177,7 @@ class Minimax(_Planner):
                     keys.add(key)
                     up, down = np.concatenate([up, r_up[k][None]]), np.concatenate([down, r_down[k][None]])
                     added += 1
-            if not added and np.array_equal(levels, nominal):
+            if not added and (H == 1 or np.array_equal(levels, nominal)):  # with H = 1 the values are exact
                 break
             nominal = levels
         self.last["scenarios"] = len(up)
@@ -369,7 +369,7 @@ class Minimax(_Planner):
             for b in range(len(after)):
                 routes = self.pure_routings(after[b], self.routings)
                 if routes is None:
-                    h_up, h_down = zip(*(h.routing(D_plan[k][None], after[b][None]) for h in self.heuristics),
+                    h_up, h_down = zip(*(h.routing(D_plan[k][None], after[b][None]) for h in self.repliers),
                                        strict=True)
                     routes = (np.vstack([s_up, *h_up]), np.vstack([s_down, *h_down]))
                 parents.append(np.full(len(routes[0]), b))
@@ -394,11 +394,11 @@ class Minimax(_Planner):
         """Each registered heuristic intruder policy replying step by step to the plan's densities
         D_plan: (H+1, N^2) float64 (it sees the defenders after their move, as a follower):
         (up, down): (h, H, N^2) float64."""
-        h = len(self.heuristics)
+        h = len(self.repliers)
         up, down = np.zeros((h, H, len(I))), np.zeros((h, H, len(I)))
         after = np.tile(I, (h, 1))
         for k in range(1, H + 1):
-            for j, policy in enumerate(self.heuristics):
+            for j, policy in enumerate(self.repliers):
                 u, d = policy.routing(D_plan[k][None], after[j][None])
                 up[j, k - 1], down[j, k - 1] = u[0], d[0]
             M, _ = route_intruders_many(after, self.n, up[:, k - 1], down[:, k - 1])
