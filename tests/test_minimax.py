@@ -228,18 +228,17 @@ def test_robustness_traces_the_trade_off():
     assert seen[-1][0] > seen[0][0]
 
 
-@pytest.mark.parametrize("name", ["minimax"])
-def test_deterministic(name, rng):
+def test_deterministic():
     """The same obs twice, or to a fresh planner, gives the identical action, over an episode."""
     cfg = cfg_of(n_defenders=6, n_intruders=30, c_capture=1.5)
     client = curve_client(cfg, falling)
     env = env_at(cfg, client, np.eye(9)[3], np.zeros(9))
     obs, _ = env.reset(seed=3)
-    first = make_policy(name, cfg, client)
+    first = make_policy("minimax", cfg, client)
     for _ in range(4):
         a1, _ = first.predict(obs)
         a2, _ = first.predict(obs)
-        a3, _ = make_policy(name, cfg, client).predict(obs)
+        a3, _ = make_policy("minimax", cfg, client).predict(obs)
         assert np.array_equal(a1, a2) and np.array_equal(a1, a3)
         obs, _, term, trunc, _ = env.step(a1)
         if term or trunc:
@@ -258,6 +257,8 @@ def test_deterministic(name, rng):
     ({"routings": 0}, "routings"),
     ({"beam": 2.5}, "beam"),
     ({"branch_levels": "all"}, "branch_levels"),
+    ({"replies": ["nobody"]}, "replies"),
+    ({"replies": "fewest_ahead"}, "replies"),
     ({"rounds": 0}, "rounds"),
     ({"time_limit": 0}, "time_limit"),
     ({"estimates": 1}, "estimates"),
