@@ -56,14 +56,15 @@ WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "tes
                "test_refuses_training", "test_refuses_workers", "test_repair", "test_resume_damaged",
                "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
                "test_workers_layout"}
-WITHOUT_RAY |= {"test_intruder_env", "test_pettingzoo_env", "test_intruders", "test_mixtures", "test_matrix_game"}
+WITHOUT_RAY |= {"test_intruder_env", "test_pettingzoo_env", "test_intruders", "test_mixtures", "test_matrix_game",
+                "test_minimax"}
 
 
 # Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests
 # start no Ray, and run beside the Ray group as a group of their own (the Ray group is the
 # suite's critical path).
-MIXED = {"test_exact_search", "test_exploit", "test_robust", "test_refuses_store", "test_service", "test_suite", "test_sweep_ray",
-         "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
+MIXED = {"test_exact_search", "test_exploit", "test_robust", "test_refuses_store", "test_service", "test_suite",
+         "test_sweep_ray", "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
 
 
 # Modules whose Ray tests start Rays of their own only (`ray start` clusters and `farm`

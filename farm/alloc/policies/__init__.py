@@ -15,6 +15,7 @@ from farm.alloc.policies.mixture import Mixture
 from farm.alloc.policies.planners import (
                                           Intercept,
                                           MaxMarginalReturn,
+                                          Minimax,
                                           RecedingHorizon,
                                           SubRegions,
                                           Transport,
@@ -40,6 +41,7 @@ register_policy("intercept", Intercept, kind="planner")
 register_policy("mmr", MaxMarginalReturn, kind="planner")
 register_policy("receding_horizon", RecedingHorizon, kind="planner")
 register_policy("transport", Transport, kind="planner")
+register_policy("minimax", Minimax, kind="planner", reference=False)
 register_policy("subregions", SubRegions, kind="planner", reference=False)
 register_policy("td3", learned.td3, kind="learned")
 register_policy("ppo", learned.ppo, kind="learned")

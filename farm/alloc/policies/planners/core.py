@@ -1,10 +1,11 @@
 """The planners' shared core: what every planner of farm.alloc.policies.planners builds on.
 
 action_from_probabilities (the action that realises wanted move probabilities),
-advance_matrix (the intruders' advance as a linear map), Levels and levels() (the games
-a target cell's defender count can play), the option checks, _Planner (the base class:
-the grid, predict(), Intercept's rule that every planner's unused mass follows) and
-_Rates (the capture-time statistics, one client call per batch and kept).
+advance_matrix (the intruders' advance as a linear map), plan_horizon, Levels and levels()
+(the games a target cell's defender count can play), the option checks, _Planner (the base
+class: the grid, predict(), Intercept's rule that every planner's unused mass follows, and
+the level programs of receding_horizon and minimax: flow_network, solve_levels, first_step)
+and _Rates (the capture-time statistics, one client call per batch and kept).
 
 Every density is a vector over the N x N cells in cell order, c = row * N + col; a
 defender count is a density times n_defenders.
@@ -23,7 +24,7 @@ from farm.alloc.model import LATTICE, EngagementModel, advance_intruders, snap_m
 from farm.core.checks import is_positive, is_whole
 from farm.core.errors import ConfigError, InputError
 
-__all__ = ["Levels", "levels", "action_from_probabilities", "advance_matrix"]
+__all__ = ["Levels", "levels", "action_from_probabilities", "advance_matrix", "plan_horizon"]
 
 _TINY = 1e-9  # a defender count below this is no mass
 
@@ -67,6 +68,23 @@ def advance_matrix(n: int, drift: float) -> tuple[np.ndarray, np.ndarray]:
         e[j] = 1.0
         A[:, j], b[j] = advance_intruders(e, n, drift)
     return A, b
+
+
+def plan_horizon(config: AllocConfig, I: np.ndarray, horizon: int | None) -> int:
+    """The steps a planner of `horizon` steps (None: no limit) plans for intruders I: (N^2,) float64.
+
+    0 without intruders. Else until the intruders now on the grid have breached (the
+    right-most column holding intruders, plus one), never past max_steps (the steps taken
+    are read from that column: the intruders start in the right-most one), and at most
+    `horizon`; at least 1.
+    """
+    n = config.grid_size
+    cols = np.flatnonzero(np.asarray(I).reshape(n, n).max(axis=0) > config.engage_min_mass)
+    if len(cols) == 0:
+        return 0
+    c_max = int(cols[-1])
+    left = config.max_steps - (n - 1 - c_max)
+    return max(1, min(horizon or c_max + 1, c_max + 1, left))
 
 
 class Levels:
@@ -125,10 +143,10 @@ def _positive_number(owner: str, name: str, value) -> float:
     return float(value)
 
 
-def _count(owner: str, name: str, value) -> int:
-    """value if it is an integer >= 1 (not a bool), else ConfigError naming owner.name."""
-    if not is_whole(value) or value < 1:
-        raise ConfigError(f"{owner}: {name} must be an integer >= 1, got {value!r}")
+def _count(owner: str, name: str, value, minimum: int = 1) -> int:
+    """value if it is an integer >= minimum (not a bool), else ConfigError naming owner.name."""
+    if not is_whole(value) or value < minimum:
+        raise ConfigError(f"{owner}: {name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
 
 
@@ -293,12 +311,203 @@ class _Planner:
         return f / np.add.reduceat(f, self.start)[self.src]
 
 
+    # ----- the level programs (receding_horizon, minimax) ----------------------------
+    def flow_network(self, x: np.ndarray, target: np.ndarray):
+        """A program over a time-expanded network of the defenders' mass, a level chosen at each target.
+
+        x: (N^2,) float64 the defender counts now; target: (H+1, N^2) bool the (step, cell)s
+        where intruders may be engaged (row 0 unused). Nodes (k, cell) for k = 0..H hold the
+        mass after k steps; edges are the feasible moves of each step; the defenders start
+        where x has them. A target's inflow chooses one level (levels(): one-hot variables,
+        each level's count range enforced on the inflow). Only what can matter is in the
+        program: nodes reachable from the defenders that can still reach a target; mass may
+        leave the program only through a move to a cell outside it (never a target).
+
+        None when no defender can reach a target. Else a dict: targets (T, 2) int64 (step,
+        cell); T; m (the levels); edges (E, 3) int64 (step, from, to); E; matrix, lb, ub (the
+        constraints: conservation, then per target the one-hot row and the inflow's range);
+        upper (E + T (m + 1),) float64 the variables' upper bounds; inflow (T, E) sparse;
+        first (E,) bool the first step's edges and first_moves their action indices.
+        """
+        from scipy import sparse
+
+        n2, L = self.n * self.n, self.levels
+        H = len(target) - 1
+        target = np.asarray(target, dtype=bool).copy()
+        target[0] = False
+
+        def dilate(mask):
+            return np.bincount(self.src, weights=mask[self.dst].astype(float), minlength=n2) > 0
+
+        reach = np.zeros((H + 1, n2), dtype=bool)
+        reach[0] = x > _TINY
+        for k in range(1, H + 1):
+            reach[k] = dilate(reach[k - 1])
+        useful = np.zeros_like(reach)
+        useful[H] = target[H]
+        for k in range(H - 1, -1, -1):
+            useful[k] = target[k] | dilate(useful[k + 1])
+        node = reach & useful
+        tk, tc = np.nonzero(node & target)
+        if len(tk) == 0:
+            return None
+        T, m = len(tk), len(L.sizes)
+        edges = np.concatenate([np.stack([np.full(int(sel.sum()), k), self.src[sel], self.dst[sel]], axis=1)
+                                for k in range(1, H + 1)
+                                for sel in [node[k - 1][self.src] & node[k][self.dst]]]).astype(np.int64)
+        E = len(edges)
+        node_id = np.full((H + 1, n2), -1)
+        node_id[node] = np.arange(int(node.sum()))
+        out_node = node_id[edges[:, 0] - 1, edges[:, 1]]
+        in_node = node_id[edges[:, 0], edges[:, 2]]
+        n_nodes = int(node.sum())
+        # conservation, one row per node with outgoing edges: out - in <= 0 (x at step 0); = when closed
+        outs = np.bincount(out_node, minlength=n_nodes)
+        rows_of = np.full(n_nodes, -1)
+        has_out = np.flatnonzero(outs > 0)
+        rows_of[has_out] = np.arange(len(has_out))
+        e_idx = np.arange(E)
+        in_row = rows_of[in_node]
+        rows = [rows_of[out_node], in_row[in_row >= 0]]
+        cols = [e_idx, e_idx[in_row >= 0]]
+        vals = [np.ones(E), -np.ones(int((in_row >= 0).sum()))]
+        node_k, node_c = np.nonzero(node)
+        n_moves = self.ends - self.start
+        closed = outs[has_out] == n_moves[node_c[has_out]]
+        rhs = np.where(node_k[has_out] == 0, x[node_c[has_out]], 0.0)
+        lb = [np.where(closed, rhs, -np.inf)]
+        ub = [rhs]
+        r0 = len(has_out)
+        # targets: one-hot; inflow - sum lo z >= 0; inflow - sum hi z <= 0
+        cap = np.array([x[self.cheb[c] <= k].sum() for k, c in zip(tk, tc, strict=True)])  # the most a target can get
+        lo = np.concatenate([[0.0], L.lo])
+        t_of = np.full((H + 1, n2), -1)
+        t_of[tk, tc] = np.arange(T)
+        e_t = t_of[edges[:, 0], edges[:, 2]]
+        into = np.flatnonzero(e_t >= 0)
+        z = E + np.arange(T * (m + 1)).reshape(T, m + 1)
+        hi = np.concatenate([np.full((T, 1), L.zero_hi), np.minimum(L.hi[None, :], cap[:, None] + 1.0)], axis=1)
+        t_rows = np.repeat(np.arange(T), m + 1)
+        rows += [r0 + t_rows, r0 + T + e_t[into], r0 + T + t_rows, r0 + 2 * T + e_t[into], r0 + 2 * T + t_rows]
+        cols += [z.reshape(-1), into, z.reshape(-1), into, z.reshape(-1)]
+        vals += [np.ones(T * (m + 1)), np.ones(len(into)), -np.tile(lo, T), np.ones(len(into)), -hi.reshape(-1)]
+        lb += [np.ones(T), np.zeros(T), np.full(T, -np.inf)]
+        ub += [np.ones(T), np.full(T, np.inf), np.zeros(T)]
+        matrix = sparse.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                  shape=(r0 + 3 * T, E + T * (m + 1)))
+        upper = np.full(E + T * (m + 1), np.inf)
+        fillable = np.concatenate([np.ones((T, 1)), lo[None, 1:] <= cap[:, None] + 1e-9], axis=1)
+        upper[E:] = fillable.reshape(-1)
+        first = edges[:, 0] == 1
+        inflow = sparse.csr_array((np.ones(len(into)), (e_t[into], into)), shape=(T, E))
+        return {"targets": np.stack([tk, tc], axis=1), "T": T, "m": m, "edges": edges, "E": E, "matrix": matrix,
+                "lb": np.concatenate(lb), "ub": np.concatenate(ub), "upper": upper, "inflow": inflow,
+                "first": first, "first_moves": self.move_index(edges[first, 1], edges[first, 2])}
+
+    def solve_levels(self, net, V: np.ndarray, exact: bool, rounds: int, time_limit: float, extra=None):
+        """Maximise the targets' level values over a flow_network, by branch and bound or relax-and-fix.
+
+        V: (T, m + 1) float64 each target's levels' values (column 0: no game). extra: None,
+        or more continuous variables and rows, a dict: c (q,) float64 their values (added to
+        the objective), rows (r, E + T (m + 1) + q) sparse, lb, ub (r,) float64, lower,
+        upper (q,) float64 their bounds. exact: HiGHS's branch and bound
+        (scipy.optimize.milp, time_limit seconds, then its best plan); else the LP
+        relaxation (a target's value the concave envelope of its levels' values) rounded by
+        relax-and-fix: every target whose levels come out mixed is fixed at the highest
+        level its planned inflow fills, the others may only go up, and the LP is solved
+        again; after `rounds` rounds every target is fixed (a fix that leaves no feasible
+        plan is undone and the target capped there instead). Counts the programs solved in
+        self.last["programs"] when self.last has it.
+
+        Returns (choice: (T,) int64 the chosen levels, flows: (E,) float64, y: (q,) float64
+        the extra variables) or (None, None, None) when no plan was found.
+        """
+        from scipy import sparse
+        from scipy.optimize import Bounds, LinearConstraint, milp
+
+        E, m, T = net["E"], net["m"], net["T"]
+        q = 0 if extra is None else len(extra["c"])
+        objective = np.concatenate([V.reshape(-1), [] if extra is None else extra["c"]])
+        c = np.concatenate([np.zeros(E), -objective / max(float(np.abs(objective).max()), 1e-300)])
+        matrix, lb, ub = net["matrix"], net["lb"], net["ub"]
+        if extra is not None:
+            matrix = sparse.vstack([sparse.hstack([matrix, sparse.csr_array((matrix.shape[0], q))]),
+                                    sparse.csr_array(extra["rows"])], format="csr")
+            lb, ub = np.concatenate([lb, extra["lb"]]), np.concatenate([ub, extra["ub"]])
+        constraints = LinearConstraint(matrix, lb, ub)
+        integrality = np.concatenate([np.zeros(E), np.full(T * (m + 1), 1 if exact else 0), np.zeros(q)])
+        lower = np.concatenate([np.zeros(E + T * (m + 1)), [] if extra is None else extra["lower"]])
+        upper = np.concatenate([net["upper"], [] if extra is None else extra["upper"]])
+        lo = np.concatenate([[0.0], self.levels.lo])
+        fixed = np.zeros(T, dtype=bool)
+        undo, done = None, 0
+        options = {"time_limit": time_limit, "mip_rel_gap": 0.0} if exact else {"presolve": False}
+        z0 = E  # the level variables' offset
+        while True:
+            res = milp(c, constraints=constraints, integrality=integrality, bounds=Bounds(lower, upper),
+                       options=options)
+            if "programs" in getattr(self, "last", {}):
+                self.last["programs"] += 1
+            if res.x is None:
+                if undo is None:
+                    return None, None, None
+                lower, upper, fixed, just_fixed = undo  # cap the targets just fixed instead
+                for i, a in just_fixed:
+                    upper[z0 + i * (m + 1) + a + 1: z0 + (i + 1) * (m + 1)] = 0.0
+                undo = None
+                continue
+            zs = res.x[z0:z0 + T * (m + 1)].reshape(T, m + 1)
+            mixed = (zs.max(axis=1) < 1 - 1e-6) & ~fixed
+            if exact or not mixed.any():
+                return np.argmax(zs, axis=1), res.x[:E], res.x[E + T * (m + 1):]
+            done += 1
+            inflow = net["inflow"] @ res.x[:E]
+            undo = (lower.copy(), upper.copy(), fixed.copy(), [])
+            if done >= rounds:
+                mixed = ~fixed  # the last round fixes every target
+            else:
+                for i in np.flatnonzero(~mixed & ~fixed):  # whole levels may only go up
+                    upper[z0 + i * (m + 1): z0 + i * (m + 1) + int(np.argmax(zs[i]))] = 0.0
+            for i in np.flatnonzero(mixed):
+                allowed = np.flatnonzero(upper[z0 + i * (m + 1): z0 + (i + 1) * (m + 1)] > 0)
+                filled = allowed[lo[allowed] <= inflow[i] + 1e-9]
+                a = int(filled.max()) if len(filled) else int(allowed.min())
+                upper[z0 + i * (m + 1): z0 + (i + 1) * (m + 1)] = 0.0
+                upper[z0 + i * (m + 1) + a] = lower[z0 + i * (m + 1) + a] = 1.0
+                fixed[i] = True
+                undo[3].append((i, a))
+
+    def first_step(self, x: np.ndarray, net, flows: np.ndarray, I: np.ndarray) -> np.ndarray:
+        """The move probabilities of a plan's first step: (A,) float64 (place()).
+
+        x: (N^2,) float64 the defender counts; net: the plan's flow_network; flows: (E,)
+        float64 its edges' flows; I: (N^2,) float64 the intruders. The first step's planned
+        flows are kept; the mass the plan does not use moves as Intercept would, landing on a
+        first step's target only where that leaves the target's game the planned one.
+        """
+        first = np.zeros(len(self.src))
+        np.add.at(first, net["first_moves"], flows[net["first"]])
+        count = np.bincount(self.dst, weights=first, minlength=len(x))
+        on_target = set(net["targets"][net["targets"][:, 0] == 1, 1].tolist())
+
+        def keep(s, d, amount):  # on a first-step target only when its game stays the planned one
+            if d in on_target and self.levels.of([count[d] + amount])[0] != self.levels.of([count[d]])[0]:
+                return False
+            count[d] += amount
+            return True
+
+        return self.place(x, first, I, keep)
+
+
 class _Rates:
     """The capture-time statistics a planner needs, one client call per batch
     (EngagementModel.rates; the client's memo answers a pair it has seen without a call)."""
 
     def __init__(self, config: AllocConfig, client, estimates: bool):
         self.model = EngagementModel(config, client, estimates)
+        self._keys = np.zeros(0, dtype=np.int64)  # the n_e of table(), ascending, and their rows
+        self._removed = self._score = None
+        self._sizes = None
 
     def get(self, n_p, n_e) -> tuple[np.ndarray, np.ndarray]:
         """(removed, score): (k,) float64 each, of the games n_p, n_e: (k,) int (n_p >= 1)."""
@@ -310,3 +519,25 @@ class _Rates:
         P, E = np.meshgrid(sizes, n_e)
         removed, score = self.get(P.reshape(-1), E.reshape(-1))
         return removed.reshape(P.shape), score.reshape(P.shape)
+
+    def table(self, sizes: np.ndarray, n_e) -> tuple[np.ndarray, np.ndarray]:
+        """(removed, score): n_e.shape + (len(sizes),) float64 each, every size against each
+        n_e (int array of any shape). The rows are kept: only the n_e not asked before are
+        asked (one grid()); sizes must be the same at every call."""
+        n_e = np.asarray(n_e, dtype=np.int64)
+        sizes = np.asarray(sizes, dtype=np.int64)
+        if self._sizes is None:
+            self._sizes = sizes.copy()
+            self._removed = self._score = np.zeros((0, len(sizes)))
+        elif not np.array_equal(sizes, self._sizes):
+            raise ValueError("_Rates.table: sizes differ from the first call's")
+        new = np.setdiff1d(n_e, self._keys)
+        if len(new):
+            removed, score = self.grid(sizes, new)
+            keys = np.concatenate([self._keys, new])
+            order = np.argsort(keys)
+            self._keys = keys[order]
+            self._removed = np.concatenate([self._removed, removed])[order]
+            self._score = np.concatenate([self._score, score])[order]
+        at = np.searchsorted(self._keys, n_e)
+        return self._removed[at], self._score[at]
