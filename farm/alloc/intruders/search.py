@@ -278,8 +278,12 @@ def exact_response(config: AllocConfig, policy, client, seed: int, *, objective:
 
     shares: the share grid (whole number >= 1); max_nodes: the most states the search may expand,
     checked on its bound (tree_bound) before it starts. ConfigError (one line naming the field)
-    for a bad objective, shares or max_nodes, or a tree that could exceed max_nodes.
+    for a bad objective, shares or max_nodes, a tree that could exceed max_nodes, or an
+    allocator that draws its moves (a mixture but of mean moves).
     """
+    if getattr(policy, "for_episode", None) is not None and getattr(policy, "draw", None) != "mean":
+        raise ConfigError("allocator: the exact search answers a deterministic allocator; this one draws its moves "
+                          "(search a mixture's members one by one)", field="allocator")
     D, I = episode_start(config, seed)
     check_search(config, I, objective=objective, shares=shares, max_nodes=max_nodes, seed=seed)
     search = _Search(config, policy, client, objective, int(shares))
