@@ -1,0 +1,76 @@
+"""`farm robust` (farm.studies.robust.run_robust): one iteration on 2 workers against 1.
+
+One iteration of policy-space response oracles on outnumbered_3x3 (the planners and
+spread_evenly against drift and the heuristic intruders): its payoff rollouts (every pair, then
+the responses' pairs) and its two best-response trainings (the defenders' DAgger-started from
+intercept, the intruders', --steps PPO steps each), run with workers=1 (one task or trial at a
+time) and with workers=2, each into its own folder, on one local 2-CPU Ray started here and one
+capture-time store warmed first (neither timed run computes a game). Target: 2 workers at
+least 1.8x as fast as 1. Both runs must give the same iteration (populations, mixtures, payoffs).
+Usage: python benchmarks/robust.py [--steps 8192] [--episodes 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+# benchmarks/farm.py would shadow the farm package: drop this folder from the path.
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
+TARGET = 1.8
+
+
+def config(store: Path, steps: int, episodes: int):
+    """One iteration's RobustConfig: `steps` PPO steps a best response, `episodes` a payoff."""
+    from farm.studies.robust import RobustConfig
+
+    ppo = {"algo": "ppo", "ppo.n_timesteps": steps, "ppo.n_steps": 128, "ppo.batch_size": 256, "n_envs": 8,
+           "eval.freq": steps, "eval.episodes": 5}
+    return RobustConfig(name="bench", scenario="outnumbered_3x3", iterations=1, distill=None,
+                        allocators=["intercept", "mmr", "receding_horizon", "transport", "spread_evenly"],
+                        intruders=["drift", "fewest_ahead", "least_defended", "split_away"],
+                        payoffs={"episodes": episodes},
+                        training={"defenders": {**ppo, "pretrain": {"expert": "intercept", "iterations": 1,
+                                                                    "episodes": 16}, "repair": "levels"},
+                                  "intruders": ppo},
+                        store=str(store))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=8192, help="PPO steps of each best response")
+    parser.add_argument("--episodes", type=int, default=20, help="episodes of each payoff")
+    args = parser.parse_args()
+
+    from farm.alloc.lattice import lattice_groups, warm_lattices
+    from farm.runtime import ray_cluster
+    from farm.service.client import open_client
+    from farm.studies.robust import run_robust
+
+    with tempfile.TemporaryDirectory(prefix="bench-robust-") as tmp, ray_cluster(num_cpus=2):
+        tmp = Path(tmp)
+        store = tmp / "store.sqlite"
+        cfg = config(store, args.steps, args.episodes)
+        with open_client(cfg.alloc_config().game_settings(), mode="ray", store=store) as client:
+            warm_lattices(client, lattice_groups([cfg.alloc_config()]), show_progress=False)
+            seconds, states = {}, {}
+            for workers in (2, 1):
+                t0 = time.perf_counter()
+                iterations, _ = run_robust(cfg, tmp / f"w{workers}", workers=workers, show_progress=False)
+                seconds[workers] = time.perf_counter() - t0
+                it = iterations[0]
+                states[workers] = (it.row, it.column, it.value, it.gains)
+                print(f"workers={workers}: {seconds[workers]:.1f} s (value {it.value:.4f}, NashConv "
+                      f"{it.nash_conv:.4f})")
+    same = states[1] == states[2]
+    ratio = seconds[1] / seconds[2]
+    print(f"speed-up of 2 workers over 1: {ratio:.2f}x (target >= {TARGET}); the same iteration: {same}")
+    return 0 if ratio >= TARGET and same else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
