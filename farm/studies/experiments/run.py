@@ -68,8 +68,8 @@ def _prepare(config: ExperimentConfig, out, source: str, workers: int | None, wa
     """(plan, storage, MLflow callback or None, keys of the trials finished before): the
     experiment planned, its storage checked to hold this experiment or none (its digest) and its
     manifest written; all before Ray starts, so that bad input (workers, a folder that cannot be
-    written, a tracking URI that cannot work) is one line. Without warm, no trial warms the
-    lattice."""
+    written, object storage that cannot work, a tracking URI that cannot) is one line. Without
+    warm, no trial warms the lattice."""
     from farm.runtime import check_workers
 
     check_workers(workers)
@@ -77,6 +77,7 @@ def _prepare(config: ExperimentConfig, out, source: str, workers: int | None, wa
         check_writable_folder(out, "out")  # before Ray, the lattice and the trials
     the_plan = plan(config, source)
     storage = ExperimentStorage(out)
+    storage.check()  # a URI's storage: supported, picklable, answering, its bucket there
     tracker = _mlflow_callback(config, the_plan, storage)
     if not warm:
         for t in the_plan.trials:
