@@ -1,8 +1,7 @@
 """Optional experiment tracking: the `tracking:` block of training and experiment configs
-(TrackingParams; its one tracker, MLflow: MlflowParams) and what both share (the check of a
-tracking URI and the MLflow experiment it logs into, open_experiment; MLflow's calls while a
-run goes on, guarded; a config flattened into MLflow params). TensorBoard (SB3's, in every run
-folder) stays on; MLflow is used, and imported, only when `tracking.mlflow` is set.
+(TrackingParams; its one tracker, MLflow: MlflowParams) and what both share (a tracking URI
+checked and its MLflow experiment, open_experiment; MLflow's calls while a run goes on, Guard;
+a config as MLflow params). TensorBoard (SB3's) stays on; MLflow is imported only when set.
 
     tracking:
       mlflow:

@@ -287,7 +287,7 @@ class ExperimentStorage:
         with tempfile.TemporaryDirectory(prefix="farm-experiment-") as stage:
             stage = Path(stage)
             with self._failing(f"reading {MANIFEST}"):
-                if not self._exists(MANIFEST):  # written before Ray started
+                if not self._exists(MANIFEST):  # run_experiment wrote it first
                     raise StorageError(f"out: {self.uri}: {MANIFEST} is missing: the experiment's objects were "
                                        f"deleted while it ran; run it again")
                 self._download(MANIFEST, stage / MANIFEST)
