@@ -12,7 +12,6 @@ import pytest
 import yaml
 from conftest import S3_ENV, farm_main, free_port, s3_bucket
 
-from farm.core.errors import StorageError
 from farm.studies.experiments.storage import ExperimentStorage
 
 REPO = Path(__file__).resolve().parents[1]
@@ -121,6 +120,8 @@ def test_objects_deleted_mid_run_name_the_experiment_and_what_is_missing(s3, tmp
     from pyarrow import fs
     from ray import tune
 
+    from farm.core.errors import StorageError
+
     storage = ExperimentStorage("s3://farm/lost")
     storage.write_manifest({"name": "smoke", "digest": "abc", "trials": [], "fields": []})
     storage.write_result("p0_s0", {"trial": "p0_s0"})
@@ -148,3 +149,28 @@ def test_objects_deleted_mid_run_name_the_experiment_and_what_is_missing(s3, tmp
     assert str(e.value) == ("out: the trial's checkpoint s3://farm/lost/tune/p0_s0/checkpoint_000001 is missing or "
                             "empty: the experiment's objects were deleted while it ran; run it again into another "
                             "folder")
+
+
+def test_an_exploit_s_learned_storage_is_checked_before_any_game(tmp_path, monkeypatch):
+    """farm exploit's learned best responses run as an experiment after the fixed adversaries and
+    the exact search: a storage of theirs that cannot work is refused before any of it (before
+    Ray: conftest's RAY_ADDRESS is a closed port), naming learned.storage."""
+    from farm.core.errors import ConfigError
+    from farm.studies.exploit.config import ExploitConfig
+    from farm.studies.exploit.run import run_exploit
+
+    for name, value in S3_ENV.items():
+        monkeypatch.setenv(name, value)
+    closed = f"s3://farm/x?endpoint_override=127.0.0.1:{free_port()}&scheme=http"
+    for storage, words in [("mock:///x", "learned.storage: mock:///x: mock:// is not a storage an experiment can "
+                                         "live in"),
+                           (closed, f"learned.storage: {closed}: reaching it: no answer within 5 s (")]:
+        config = ExploitConfig(name="small", scenarios=["outnumbered_3x3"], allocators=["spread_evenly"],
+                               heuristics=["fewest_ahead"], episodes=3, learned={"storage": storage},
+                               store=str(tmp_path / "store.sqlite"), env={"games": 8})
+        t0 = time.perf_counter()
+        with pytest.raises(ConfigError) as e:
+            run_exploit(config, tmp_path / "out", show_progress=False)
+        assert time.perf_counter() - t0 < SECONDS
+        assert str(e.value).startswith(words) and "\n" not in str(e.value)
+        assert not (tmp_path / "out").exists() and not (tmp_path / "store.sqlite").exists()

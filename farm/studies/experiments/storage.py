@@ -49,8 +49,9 @@ def is_uri(out) -> bool:
 
 
 class ExperimentStorage:
-    """An experiment's storage: out, a local folder (str or Path) or a URI. ConfigError (one
-    line, field out) for a URI pyarrow cannot open.
+    """An experiment's storage: out, a local folder (str or Path) or a URI; field: what names it
+    in messages. ConfigError (one line, naming field) for a URI of a scheme not in SCHEMES, one
+    pyarrow cannot open or one that names no bucket.
 
     With a local folder nothing is staged: the driver reads and writes ExperimentFolder(out) and
     every trial trains in its run folder there (a cluster then needs that folder on a shared file
@@ -69,25 +70,26 @@ class ExperimentStorage:
       local folder, and uploads them.
     """
 
-    def __init__(self, out):
+    def __init__(self, out, *, field: str = "out"):
         # a local folder by its absolute path: trials run in Tune's own working folders, where a
         # relative one would name another place than the driver's
         self.uri = str(out) if is_uri(out) else str(Path(out).resolve())
+        self.field = field  # what names it in messages: --out, or a config's field
         if is_uri(out):
             from pyarrow import fs
 
             scheme = out.split("://", 1)[0].lower()
             if scheme not in SCHEMES:
-                raise ConfigError(f"out: {out}: {scheme}:// is not a storage an experiment can live in (a local "
-                                  f"folder, or {', '.join(f'{s}://' for s in SCHEMES)})", field="out")
+                raise ConfigError(f"{field}: {out}: {scheme}:// is not a storage an experiment can live in (a local "
+                                  f"folder, or {', '.join(f'{s}://' for s in SCHEMES)})", field=field)
             try:
                 self.fs, self.root = fs.FileSystem.from_uri(out)
             except Exception as e:  # pyarrow's ArrowInvalid, OSError of the filesystem's client
-                raise ConfigError(f"out: cannot open {out}: {_first_line(e)}", field="out") from None
+                raise ConfigError(f"{field}: cannot open {out}: {_first_line(e)}", field=field) from None
             self.root = self.root.rstrip("/")
             if scheme in _BUCKETS and not self.root.split("/")[0]:
-                raise ConfigError(f"out: {out} names no bucket (it would be the root of every bucket); give "
-                                  f"{scheme}://BUCKET/FOLDER", field="out")
+                raise ConfigError(f"{field}: {out} names no bucket (it would be the root of every bucket); give "
+                                  f"{scheme}://BUCKET/FOLDER", field=field)
             self.local = self.folder = None
         else:
             self.fs, self.local = None, Path(out).resolve()
@@ -115,12 +117,12 @@ class ExperimentStorage:
         try:
             pickle.dumps(self.fs)
         except Exception as e:  # noqa: BLE001 - pyarrow's TypeError, or any a filesystem's pickling raises
-            raise ConfigError(f"out: {self.uri}: its filesystem ({self.fs.type_name}) cannot be handed to Ray's "
-                              f"workers: it does not pickle ({_first_line(e)})", field="out") from None
+            raise ConfigError(f"{self.field}: {self.uri}: its filesystem ({self.fs.type_name}) cannot be handed to "
+                              f"Ray's workers: it does not pickle ({_first_line(e)})", field=self.field) from None
         if self.fs.type_name == "local":
             from farm.core.output import check_writable_folder
 
-            check_writable_folder(self.root, "out")
+            check_writable_folder(self.root, self.field)
             with self._failing("making its folder", refuse=True):
                 self.fs.create_dir(self.root, recursive=True)
             return
@@ -134,8 +136,8 @@ class ExperimentStorage:
         except OSError:  # credentials that may read objects but not the bucket's own metadata: not known
             return
         if not found:
-            raise ConfigError(f"out: {self.uri}: bucket {bucket!r} does not exist; make it first, or name another",
-                              field="out")
+            raise ConfigError(f"{self.field}: {self.uri}: bucket {bucket!r} does not exist; make it first, or name "
+                              f"another", field=self.field)
 
     @contextlib.contextmanager
     def _failing(self, doing: str, refuse: bool = False):
@@ -152,8 +154,8 @@ class ExperimentStorage:
         except (OSError, ArrowException) as e:
             problem = _storage_problem(e, self.fs.type_name)
             if refuse:
-                raise ConfigError(f"out: {self.uri}: {doing}: {problem}", field="out") from None
-            raise StorageError(f"out: {self.uri}: {doing}: {problem}") from None
+                raise ConfigError(f"{self.field}: {self.uri}: {doing}: {problem}", field=self.field) from None
+            raise StorageError(f"{self.field}: {self.uri}: {doing}: {problem}") from None
 
     def _parents(self, *paths: str) -> None:
         """Make the folders of paths, on a filesystem that needs them (not object storage)."""
@@ -198,7 +200,7 @@ class ExperimentStorage:
         from pyarrow import fs
 
         if self._info().type == fs.FileType.File:
-            raise ConfigError(f"out: {self.uri} exists and is not a folder", field="out")
+            raise ConfigError(f"{self.field}: {self.uri} exists and is not a folder", field=self.field)
         if self._exists(MANIFEST):
             with tempfile.TemporaryDirectory(prefix="farm-check-") as stage:
                 self._download(MANIFEST, Path(stage) / MANIFEST)
@@ -206,11 +208,11 @@ class ExperimentStorage:
                 try:
                     folder.check_for(digest)
                 except ConfigError as e:
-                    raise ConfigError(str(e).replace(stage, self.uri), field="out") from None
+                    raise ConfigError(str(e).replace(stage, self.uri), field=self.field) from None
         elif self._info().type == fs.FileType.Directory and self.fs.get_file_info(
                 fs.FileSelector(self._path(), recursive=False)):
-            raise ConfigError(f"out: {self.uri} is not empty and holds no experiment ({MANIFEST}); choose another "
-                              f"folder", field="out")
+            raise ConfigError(f"{self.field}: {self.uri} is not empty and holds no experiment ({MANIFEST}); choose "
+                              f"another folder", field=self.field)
 
     def write_manifest(self, doc: dict) -> None:
         """Write experiment.json once (an existing one stays)."""
@@ -288,8 +290,8 @@ class ExperimentStorage:
             stage = Path(stage)
             with self._failing(f"reading {MANIFEST}"):
                 if not self._exists(MANIFEST):  # run_experiment wrote it first
-                    raise StorageError(f"out: {self.uri}: {MANIFEST} is missing: the experiment's objects were "
-                                       f"deleted while it ran; run it again")
+                    raise StorageError(f"{self.field}: {self.uri}: {MANIFEST} is missing: the experiment's objects "
+                                       f"were deleted while it ran; run it again")
                 self._download(MANIFEST, stage / MANIFEST)
             yield stage
 
