@@ -58,6 +58,7 @@ WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "tes
                "test_workers_layout"}
 WITHOUT_RAY |= {"test_intruder_env", "test_pettingzoo_env", "test_intruders", "test_mixtures", "test_matrix_game",
                 "test_minimax"}
+WITHOUT_RAY |= {"test_tracking_faults", "test_storage_faults"}
 
 
 # Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests

@@ -180,9 +180,12 @@ def test_a_trial_in_a_bucket_uploads_its_run_without_its_state_then_its_result(s
         "trial/trials/p0_s0/result.json", "trial/trials/p0_s0/run/best/best_model.zip",
         "trial/trials/p0_s0/run/config.yaml", "trial/trials/p0_s0/run/evaluations.npz"]
     assert not run.parent.exists()
+    manifest = {"name": "smoke", "digest": "abc", "trials": [], "fields": []}
+    storage.write_manifest(manifest)  # before Ray, as run_experiment does
     with storage.staged() as stage:
         storage.stage_results(stage, ["p0_s0", "p1_s0"])
-        assert files(stage) == {"trials/p0_s0/result.json": json.dumps({"trial": "p0_s0", "x": 1.5}, indent=2) + "\n",
+        assert files(stage) == {"experiment.json": json.dumps(manifest, indent=2) + "\n",
+                                "trials/p0_s0/result.json": json.dumps({"trial": "p0_s0", "x": 1.5}, indent=2) + "\n",
                                 "trials/p0_s0/run/best/best_model.zip": "best/best_model.zip",
                                 "trials/p0_s0/run/config.yaml": "config.yaml",
                                 "trials/p0_s0/run/evaluations.npz": "evaluations.npz"}
@@ -193,8 +196,11 @@ def test_a_trial_in_a_bucket_uploads_its_run_without_its_state_then_its_result(s
 
 
 def test_a_uri_pyarrow_cannot_open_is_one_line():
-    with pytest.raises(ConfigError, match=r"^out: cannot open nosuch://x/y: ") as e:
+    with pytest.raises(ConfigError, match=r"^out: nosuch://x/y: nosuch:// is not a storage an ") as e:
         ExperimentStorage("nosuch://x/y")
+    assert "\n" not in str(e.value)
+    with pytest.raises(ConfigError, match=r"^out: cannot open s3:///x: Missing bucket name") as e:
+        ExperimentStorage("s3:///x")
     assert "\n" not in str(e.value)
 
 

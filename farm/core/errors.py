@@ -7,7 +7,8 @@ or a Case); the CLI catches that one base class.
 from workers.errors import InputError, SwarmFarmError
 
 __all__ = ["SwarmFarmError", "InputError", "ConfigError", "ClusterError", "SweepError", "StoreCorruptError",
-           "NotAStoreError", "ReportError", "ResultsError", "CliError", "ActionError", "TrainingDiverged", "ModelError"]
+           "NotAStoreError", "ReportError", "ResultsError", "CliError", "ActionError", "TrainingDiverged", "ModelError",
+           "StorageError"]
 
 
 class ConfigError(SwarmFarmError, ValueError):
@@ -54,3 +55,8 @@ class TrainingDiverged(SwarmFarmError):
 
 class ModelError(SwarmFarmError):
     """A run folder's model.zip that stable-baselines3 cannot load, or whose parameters are not finite."""
+
+
+class StorageError(SwarmFarmError):
+    """An experiment's storage that failed, or lost objects, while the experiment ran: names the
+    storage (its URI), the object and what is wrong."""

@@ -5,20 +5,23 @@ as SB3's callback_after_eval: eval/mean_return, eval/std_return, eval/mean_ep_le
 timestep), and at the end metrics.json's numbers and the run's files as artifacts.
 
 It reads the training's public state only (EvalCallback's history) and draws no random
-number, so a tracked run computes what an untracked one does. This module imports mlflow
-when a run is opened; train() imports it only when tracking is configured.
+number, so a tracked run computes what an untracked one does; and MLflow failing while the run
+goes on (its store damaged or made read-only, its server gone) is one warning, and the run goes
+on untracked and finishes as an untracked one (farm.core.tracking.Guard). This module imports
+mlflow when a run is opened; train() imports it only when tracking is configured.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import warnings
 from pathlib import Path
 
 from stable_baselines3.common.callbacks import BaseCallback
 
 from farm.alloc.runs import CONFIG, EVALUATIONS, METRICS, MODEL
-from farm.core.tracking import flat_params, mlflow_client, mlflow_experiment
+from farm.core.tracking import CHECK_HTTP, Guard, TrackingWarning, flat_params, mlflow_http, open_experiment, refused
 
 __all__ = ["MlflowRun", "EvalLogger", "RUN_FILE", "EVAL_METRICS"]
 
@@ -32,12 +35,14 @@ _BATCH = 100  # MLflow's most params in one log_batch
 
 class MlflowRun:
     """One training run's MLflow run (open it with MlflowRun.open). client: an MlflowClient;
-    run_id: the MLflow run's id."""
+    run_id: the MLflow run's id. Its calls while the run goes on go through guard (a Guard): the
+    first that fails turns tracking off for the rest of the run, with one TrackingWarning."""
 
     def __init__(self, client, run_id: str):
         self.client, self.run_id = client, run_id
         self.logged_steps: set[int] = {int(m.step) for m in client.get_metric_history(run_id, EVAL_METRICS[0])}
         self.eval_logger = EvalLogger(self)  # the run's EvalCallback's callback_after_eval (its parent then)
+        self.guard = Guard("the run")
 
     @classmethod
     def open(cls, config, run_dir, resume: bool) -> MlflowRun:
@@ -45,14 +50,22 @@ class MlflowRun:
         run_dir: on resume the one run_dir's RUN_FILE names (when it is on the same tracking
         URI and not deleted), else a new one (its id written to RUN_FILE); the config's params
         not logged yet are logged (a resume's changed length or threads keep their first value).
-        ConfigError, one line, when MLflow cannot open the store."""
+        ConfigError, one line naming tracking.mlflow.tracking_uri, when the URI cannot work
+        (farm.core.tracking.open_experiment: checked before any work, the capture-time store
+        refused as a tracking store) or MLflow fails here."""
+        from farm.alloc.training.config import store_of
+
+        params = config.tracking.mlflow
+        client, experiment_id = open_experiment(params, config.name, store=store_of(config))
+        with mlflow_http(CHECK_HTTP), refused(params.tracking_uri):
+            return cls._open(client, experiment_id, config, Path(run_dir), resume)
+
+    @classmethod
+    def _open(cls, client, experiment_id: str, config, run_dir: Path, resume: bool) -> MlflowRun:
         from mlflow.entities import Param
         from mlflow.exceptions import MlflowException
 
         params = config.tracking.mlflow
-        client = mlflow_client(params)
-        experiment_id = mlflow_experiment(client, params, config.name)
-        run_dir = Path(run_dir)
         saved = _read_run_file(run_dir / RUN_FILE) if resume else None
         run = None
         if saved is not None and saved.get("tracking_uri") == params.tracking_uri:
@@ -87,7 +100,12 @@ class MlflowRun:
 
     def log_evaluations(self) -> None:
         """Log the evaluation's points not logged yet (by step: a resumed run's redone
-        evaluations, the same numbers, are not logged twice)."""
+        evaluations, the same numbers, are not logged twice); never raises (guard)."""
+        e = self.evaluation
+        step = int(e.evaluations_timesteps[-1]) if e is not None and e.evaluations_timesteps else 0
+        self.guard(f"logging the evaluation of step {step}", self._log_evaluations)
+
+    def _log_evaluations(self) -> None:
         import numpy as np
         from mlflow.entities import Metric
 
@@ -109,10 +127,14 @@ class MlflowRun:
     def finish(self, metrics: dict, run_dir) -> None:
         """The run has trained: the rest of the curve, metrics.json's numbers (at step= its
         timesteps), the run folder's files (ARTIFACTS, and the curve as evaluations.csv), then
-        the MLflow run ends FINISHED."""
+        the MLflow run ends FINISHED; never raises (guard)."""
+        self.log_evaluations()
+        self.guard("logging the run's metrics and files", self._finish, metrics, run_dir)
+
+    def _finish(self, metrics: dict, run_dir) -> None:
         from mlflow.entities import Metric
 
-        self.log_evaluations()
+        self._log_evaluations()
         step, now = int(metrics.get("timesteps") or 0), _now_ms()
         numbers = [Metric(k, float(v), now, step) for k, v in metrics.items()
                    if isinstance(v, (int, float)) and not isinstance(v, bool)]
@@ -129,11 +151,15 @@ class MlflowRun:
     def end(self, status: str) -> None:
         """End the MLflow run with status (FAILED, KILLED) after the training stopped; a
         failure of MLflow itself then is not raised (the training's error is the one to see)."""
-        try:
-            self.log_evaluations()
-            self.client.set_terminated(self.run_id, status)
-        except Exception:  # noqa: BLE001 - the training's own error is being raised
-            pass
+        if self.guard.off:
+            return
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", TrackingWarning)  # the training's own error is being raised
+            self.guard(f"ending the run {status}", self._end, status)
+
+    def _end(self, status: str) -> None:
+        self._log_evaluations()
+        self.client.set_terminated(self.run_id, status)
 
 
 class EvalLogger(BaseCallback):

@@ -68,7 +68,8 @@ def _prepare(config: ExperimentConfig, out, source: str, workers: int | None, wa
     """(plan, storage, MLflow callback or None, keys of the trials finished before): the
     experiment planned, its storage checked to hold this experiment or none (its digest) and its
     manifest written; all before Ray starts, so that bad input (workers, a folder that cannot be
-    written, a store MLflow refuses) is one line. Without warm, no trial warms the lattice."""
+    written, object storage that cannot work, a tracking URI that cannot) is one line. Without
+    warm, no trial warms the lattice."""
     from farm.runtime import check_workers
 
     check_workers(workers)
@@ -76,7 +77,8 @@ def _prepare(config: ExperimentConfig, out, source: str, workers: int | None, wa
         check_writable_folder(out, "out")  # before Ray, the lattice and the trials
     the_plan = plan(config, source)
     storage = ExperimentStorage(out)
-    tracker = _mlflow_callback(config, the_plan.name, storage)
+    storage.check()  # a URI's storage: supported, picklable, answering, its bucket there
+    tracker = _mlflow_callback(config, the_plan, storage)
     if not warm:
         for t in the_plan.trials:
             t.config["service"]["warm_lattice"] = False
@@ -169,20 +171,21 @@ def _write_claims_and_curves(out: Path) -> dict:
             "learning_curves": write_learning_curves(out)}
 
 
-def _mlflow_callback(config: ExperimentConfig, name: str, storage: ExperimentStorage):
+def _mlflow_callback(config: ExperimentConfig, the_plan: Plan, storage: ExperimentStorage):
     """The MLflow logger (farm.studies.experiments.tracking.TrialRuns) for config.tracking.mlflow
     (None when it is not set): every trial an MLflow run of the experiment named there (default:
-    the experiment's name), made here first (farm.core.tracking.mlflow_experiment: an SQLite
-    store keeps its artifacts beside its database). ConfigError (one line) when MLflow cannot
-    open the store."""
+    the experiment's name), made here first (farm.core.tracking.open_experiment: the URI checked,
+    the plan's capture-time store refused as a tracking store; an SQLite store keeps its artifacts
+    beside its database). ConfigError (one line) when the URI cannot work."""
     params = config.tracking.mlflow
     if params is None:
         return None
-    from farm.core.tracking import mlflow_client, mlflow_experiment
+    from farm.core.tracking import open_experiment
     from farm.studies.experiments.tracking import TrialRuns
 
+    name = the_plan.name
     experiment = params.experiment or name
-    mlflow_experiment(mlflow_client(params), params, experiment)
+    open_experiment(params, experiment, store=the_plan.store)
     return TrialRuns(params, experiment, storage.uri.split("?")[0],
                      tags={"farm.kind": "experiment", "farm.experiment": name})
 

@@ -7,7 +7,9 @@ instance (`farm.instance`, drawn when the experiment starts and kept in Tune's s
 callback, so an experiment made again in the same folder logs into runs of its own). Its params are the trial's
 config flattened by "/" (`spec/trial/seed`, `spec/trial/config/env/c_capture`, ...), its
 metrics each report's numbers (bools as 0/1, the config left out: it is in the params) at
-step = the report's `timesteps_total`, else its `training_iteration`.
+step = the report's `timesteps_total`, else its `training_iteration`. MLflow failing while the
+experiment goes on is one warning, and the experiment goes on untracked: a Tune callback that
+raised would stop it (farm.core.tracking.Guard).
 
 Why not Ray's MLflowLoggerCallback: TrialRuns' docstring.
 """
@@ -22,6 +24,7 @@ import numpy as np
 from ray.tune.logger import LoggerCallback
 
 from farm.core.tracking import (
+    Guard,
     MlflowParams,
     flattened,
     mlflow_client,
@@ -61,7 +64,9 @@ class TrialRuns(LoggerCallback):
     returns its result at once: it reopens its run, it does not open a second), where Ray's
     logger, whose trial-to-run map lives only in the driver's memory, opened a second one. It
     changes no process-wide MLflow setting. Tune saves its callbacks with the experiment's
-    state, so TrialRuns pickles without its client.
+    state, so TrialRuns pickles without its client. Every call to MLflow goes through its guard
+    (a Guard): the first that fails turns tracking off for the rest of the experiment with one
+    TrackingWarning, and no callback raises (Tune would stop the experiment).
     """
 
     def __init__(self, params: MlflowParams, experiment: str, storage: str, tags: dict[str, str]):
@@ -71,9 +76,13 @@ class TrialRuns(LoggerCallback):
         self._client = None
         self._experiment_id: str | None = None
         self._runs: dict[str, str] = {}  # trial name -> MLflow run id
+        self.guard = Guard("the experiment")
 
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_client": None, "_runs": {}}
+        return {**self.__dict__, "_client": None, "_runs": {}, "guard": Guard("the experiment")}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update({"guard": Guard("the experiment"), **state})  # a logger pickled without one
 
     @property
     def client(self):
@@ -96,7 +105,10 @@ class TrialRuns(LoggerCallback):
 
     def log_trial_start(self, trial) -> None:
         """The trial's run: its run of this experiment (a trial run again, reopened), else a new
-        one; the config's params it has not logged yet, in batches."""
+        one; the config's params it has not logged yet, in batches. Never raises (guard)."""
+        self.guard(f"opening trial {trial}'s run", self._start, trial)
+
+    def _start(self, trial) -> None:
         from mlflow.entities import Param
 
         name = str(trial)
@@ -115,11 +127,15 @@ class TrialRuns(LoggerCallback):
             self.client.log_batch(run.info.run_id, params=new[i:i + _MAX_PARAMS])
 
     def log_trial_result(self, iteration: int, trial, result: dict) -> None:
-        """The report's numbers (report_metrics) in one log_batch, at its step (the module doc)."""
+        """The report's numbers (report_metrics) in one log_batch, at its step (the module doc).
+        Never raises (guard)."""
+        self.guard(f"logging trial {trial}'s report", self._result, trial, result)
+
+    def _result(self, trial, result: dict) -> None:
         from mlflow.entities import Metric
 
         if str(trial) not in self._runs:
-            self.log_trial_start(trial)
+            self._start(trial)
         step = int(result.get("timesteps_total") or result.get("training_iteration") or 0)
         now = int(time.time() * 1000)
         metrics = [Metric(k, v, now, step) for k, v in report_metrics(result).items()]
@@ -127,7 +143,8 @@ class TrialRuns(LoggerCallback):
             self.client.log_batch(self._runs[str(trial)], metrics=metrics[i:i + _MAX_METRICS])
 
     def log_trial_end(self, trial, failed: bool = False) -> None:
-        """The trial's run ends FINISHED, or FAILED."""
+        """The trial's run ends FINISHED, or FAILED. Never raises (guard)."""
         run_id = self._runs.pop(str(trial), None)
         if run_id is not None:
-            self.client.set_terminated(run_id, "FAILED" if failed else "FINISHED")
+            self.guard(f"ending trial {trial}'s run", lambda: self.client.set_terminated(
+                run_id, "FAILED" if failed else "FINISHED"))
