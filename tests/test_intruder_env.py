@@ -395,7 +395,7 @@ def test_an_intruders_run_is_a_learned_intruder_policy(intruders_run):
     run, _ = intruders_run
     written = yaml.safe_load((run / "config.yaml").read_text())
     assert written["side"] == "intruders" and written["opponent"] == {"name": "intercept", "options": {},
-                                                                     "reward": "eliminated"}
+                                                                     "actions": "shares", "reward": "eliminated"}
     policy = make_intruders("learned", AllocConfig(**SMALL), run=run)
     D, I = np.full((2, 9), 0.1), np.full((2, 9), 0.05)
     up, down = policy.routing(D, I)
@@ -470,3 +470,57 @@ def test_a_learned_intruder_routes_around_a_static_base(tmp_path):
                   for name, c in (("drift", env), ("learned", learned))}
     client.close()
     assert eliminated["drift"] > 0.2 and eliminated["learned"] < 0.1 * eliminated["drift"], eliminated
+
+
+def test_pure_actions_route_each_cells_whole_mass_along_its_chosen_route(client):
+    """actions: pure: one route a cell (MultiDiscrete), the step the dynamics pieces composed with
+    pure_routing; the batched env's episodes the single env's; bad choices refused in one line."""
+    from farm.alloc.dynamics import Layout, check_pure_routes, pure_routing, resolve
+
+    cfg = AllocConfig(**C3)
+    layout = Layout(3)
+    env = SwarmIntruderEnv(cfg, opponent="intercept", actions="pure", client=client)
+    venv = SwarmIntruderVectorEnv(cfg, num_envs=3, opponent="intercept", actions="pure", client=client)
+    assert isinstance(env.action_space, gymnasium.spaces.MultiDiscrete)
+    assert list(env.action_space.nvec) == [2] * 3 + [3] * 3 + [2] * 3
+    rng = np.random.default_rng(4)
+    obs_b, _ = venv.reset(seed=11)
+    for k in range(3):
+        obs, _ = env.reset(seed=11 + k)
+        assert np.array_equal(obs, obs_b[k])
+    obs, _ = env.reset(seed=11)
+    done = False
+    while not done:
+        choice = np.array([rng.integers(n) for n in layout.n_routes])
+        before = env.get_state()
+        up, down = pure_routing(layout, check_pure_routes(layout, choice, (9,), "x"))
+        assert set(np.unique(up + down)) <= {0.0, 1.0}
+        rows = np.repeat(np.arange(3), 3)
+        assert np.all(up[0][rows == 0] == 0) and np.all(down[0][rows == 2] == 0)
+        moved = env.moved[None].copy()
+        want = resolve(layout, cfg, env.model, moved, before["I"][None], (up, down))
+        obs, reward, terminated, truncated, _ = env.step(choice)
+        assert reward == -float(want.eliminated[0]) and np.array_equal(env.I, want.I[0])
+        done = terminated or truncated
+    for bad, words in ((np.zeros(8, dtype=int), "got shape (8,)"), (np.full(9, 3), "out of a cell's routes"),
+                       (np.full(9, 0.5), "got dtype float64"), (np.r_[np.zeros(8), -1], "out of a cell's routes")):
+        env.reset(seed=3)
+        state = env.get_state()
+        with pytest.raises(ActionError) as e:
+            env.step(bad)
+        assert str(e.value).startswith("intruder action: ") and words in str(e.value)
+        assert np.array_equal(env.get_state()["I"], state["I"])
+    with pytest.raises(ConfigError, match="actions: must be one of shares, pure"):
+        SwarmIntruderEnv(cfg, actions="mixed", client=client)
+
+
+def test_a_pure_intruders_run_is_a_learned_intruder_policy(tmp_path):
+    from farm.alloc.intruders import make_intruders
+    from farm.alloc.training import train
+
+    config = intruders_config(tmp_path / "store.sqlite", opponent={"name": "intercept", "actions": "pure"})
+    train(config, tmp_path / "run", show_progress=False)
+    policy = make_intruders("learned", AllocConfig(**SMALL), run=tmp_path / "run")
+    D, I = np.full((2, 9), 0.1), np.full((2, 9), 0.05)
+    up, down = policy.routing(D, I)
+    assert set(np.unique(up + down)) <= {0.0, 1.0} and policy.pure

@@ -26,7 +26,8 @@ from farm.alloc.model import EngagementModel, advance_intruders_many, route_intr
 from farm.core.errors import ActionError
 
 __all__ = ["moves", "routes", "n_actions", "Layout", "check_actions", "move_probabilities", "route_probabilities",
-           "routing_of", "intruder_routing", "move_defenders", "defenders_move", "start_densities", "observe",
+           "routing_of", "intruder_routing", "check_pure_routes", "pure_routing", "move_defenders", "defenders_move",
+           "start_densities", "observe",
            "episode_end", "StepResult", "step", "resolve"]
 
 
@@ -203,6 +204,33 @@ def intruder_routing(layout: Layout, config: AllocConfig, action: np.ndarray) ->
     """The intruders' routing of their actions: action: (B, R) float, clipped to [-1, 1] ->
     (up, down): (B, N^2) float64 (route_probabilities, then routing_of)."""
     return routing_of(layout, route_probabilities(layout, config, action))
+
+
+def check_pure_routes(layout: Layout, choice, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """Pure routes as (B, N^2) int64 (one route index a cell, 0 .. its routes - 1), or ActionError
+    naming name for anything else (another shape, not whole numbers, out of a cell's range)."""
+    expected = f"{name}: expected shape {tuple(shape)} of route indices (0 .. a cell's routes - 1)"
+    try:
+        a = np.asarray(choice)
+    except (TypeError, ValueError, OverflowError):
+        raise ActionError(f"{expected}, got a {type(choice).__name__}") from None
+    if a.shape != tuple(shape):
+        raise ActionError(f"{expected}, got shape {a.shape}")
+    whole = a.dtype.kind in "iu" or (a.dtype.kind == "f" and bool(np.all(np.isfinite(a)))
+                                     and bool(np.all(a == np.round(a))))
+    if not whole:
+        raise ActionError(f"{expected}, got dtype {a.dtype}")
+    a = a.astype(np.int64).reshape(-1, layout.cells)
+    if np.any(a < 0) or np.any(a >= layout.n_routes[None, :]):
+        raise ActionError(f"{expected}, got an index out of a cell's routes")
+    return a
+
+
+def pure_routing(layout: Layout, choice: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The routing of pure routes: choice: (B, N^2) int64 each cell's route index (its routes in
+    the routes() order) -> (up, down): (B, N^2) float64 of 0s and 1s."""
+    d_row = layout.route_row[layout.route_start[None, :] + np.asarray(choice)]
+    return (d_row == -1).astype(np.float64), (d_row == 1).astype(np.float64)
 
 
 def move_defenders(layout: Layout, D: np.ndarray, p: np.ndarray) -> np.ndarray:

@@ -25,9 +25,11 @@ from farm.alloc.dynamics import (
     Layout,
     StepResult,
     check_actions,
+    check_pure_routes,
     defenders_move,
     intruder_routing,
     observe,
+    pure_routing,
     resolve,
 )
 from farm.alloc.env import GridEnv
@@ -36,8 +38,9 @@ from farm.alloc.policies.registry import policy_entry
 from farm.alloc.vector_env import GridVectorEnv
 from farm.core.errors import ConfigError
 
-__all__ = ["DEFAULT_OPPONENT", "REWARDS", "Opponent", "SwarmIntruderEnv", "SwarmIntruderVectorEnv"]
+__all__ = ["ACTIONS", "DEFAULT_OPPONENT", "REWARDS", "Opponent", "SwarmIntruderEnv", "SwarmIntruderVectorEnv"]
 
+ACTIONS = ("shares", "pure")  # the intruders' action: each cell's shares of its routes, or one route a cell
 REWARDS = ("eliminated", "zero_sum")  # the intruders' reward: minus the mass eliminated, or minus the defenders'
 DEFAULT_OPPONENT = "intercept"  # the frozen allocator when none is named
 
@@ -78,6 +81,28 @@ class Opponent:
         actions = [player.predict(o, deterministic=True)[0] for player, o in zip(players, obs)]
         a = check_actions(actions, (len(obs), len(self.layout.src)), "opponent action")
         return defenders_move(self.layout, self.config, D, a)
+
+
+def _check_actions_kind(actions) -> str:
+    """actions as one of ACTIONS, or a one-line ConfigError naming `actions`."""
+    if not isinstance(actions, str) or actions not in ACTIONS:
+        raise ConfigError(f"actions: must be one of {', '.join(ACTIONS)}, got {actions!r}", field="actions")
+    return actions
+
+
+def _action_space(layout, actions: str):
+    """The intruders' single action space: Box(-1, 1, (R,)) of route shares, or MultiDiscrete of
+    each cell's routes (pure)."""
+    if actions == "pure":
+        return gym.spaces.MultiDiscrete(layout.n_routes)
+    return gym.spaces.Box(-1.0, 1.0, shape=(len(layout.route_src),), dtype=np.float32)
+
+
+def _routing(layout, config: AllocConfig, actions: str, action, shape: tuple, name: str):
+    """The routing of a batch of intruder actions, each checked (ActionError naming name)."""
+    if actions == "pure":
+        return pure_routing(layout, check_pure_routes(layout, action, shape, name))
+    return intruder_routing(layout, config, check_actions(action, shape, name).reshape(-1, len(layout.route_src)))
 
 
 def _check_reward(reward) -> str:
@@ -169,7 +194,11 @@ class SwarmIntruderEnv(GridEnv):
     - `opponent`: str, the frozen allocator's name in farm.alloc.policies' registry (default
       `intercept`); `opponent_options`: dict or None, its options (a learned allocator's
       `run`), ConfigError naming `opponent` or `opponent_options` when refused (Opponent);
-    - `reward`: `eliminated` or `zero_sum`, else ConfigError naming `reward`.
+    - `reward`: `eliminated` or `zero_sum`, else ConfigError naming `reward`;
+    - `actions`: `shares` (the default: Box(-1, 1, (R,)), each cell's shares of its routes mapped
+      by the config's action_map) or `pure` (MultiDiscrete: one route a cell, each cell's routes
+      in the routes() order, the family the exact search answers in), else ConfigError naming
+      `actions`.
 
     The config's `intruders` must be `drift` (the agent routes them; ConfigError naming
     `intruders` otherwise). get_state() and set_state() save and restore what the defenders'
@@ -182,10 +211,12 @@ class SwarmIntruderEnv(GridEnv):
     """
 
     def __init__(self, config: AllocConfig | None = None, *, opponent: str = DEFAULT_OPPONENT,
-                 opponent_options: dict | None = None, reward: str = "eliminated", client=None,
-                 store: str | None = None, render_mode: str | None = None, estimates: bool | str = False, **kwargs):
+                 opponent_options: dict | None = None, reward: str = "eliminated", actions: str = "shares",
+                 client=None, store: str | None = None, render_mode: str | None = None, estimates: bool | str = False,
+                 **kwargs):
         """Make the env; the class docstring's Arguments section describes each argument."""
         self.reward = _check_reward(reward)
+        self.actions = _check_actions_kind(actions)
         super().__init__("SwarmIntruderEnv", config, client, store, render_mode, estimates, kwargs)
         try:
             _check_intruders(self.config)
@@ -193,7 +224,7 @@ class SwarmIntruderEnv(GridEnv):
         except BaseException:
             self.close()  # the client it made
             raise
-        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.layout.route_src),), dtype=np.float32)
+        self.action_space = _action_space(self.layout, self.actions)
         self.follower = self.config.information == "follower"
         self.moved: np.ndarray | None = None
         self._episode_opponent = self.opponent.policy  # the episode's draw of an allocator that draws per episode
@@ -208,10 +239,10 @@ class SwarmIntruderEnv(GridEnv):
         """
         if not self._reset_done:
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
-        a = check_actions(action, self.action_space.shape, "intruder action")
+        routing = _routing(self.layout, self.config, self.actions, action, self.action_space.shape, "intruder action")
         D, I = self.D[None], self.I[None]
         moved = self.opponent.moves(D, I, [self._episode_opponent]) if self.moved is None else self.moved[None]
-        r = resolve(self.layout, self.config, self.model, moved, I, intruder_routing(self.layout, self.config, a[None]))
+        r = resolve(self.layout, self.config, self.model, moved, I, routing)
         self.moved = None
         return self._record(r)
 
@@ -280,10 +311,12 @@ class SwarmIntruderVectorEnv(GridVectorEnv):
     STATE_FIELDS = (*GridVectorEnv.STATE_FIELDS, "moved")
 
     def __init__(self, config: AllocConfig | None = None, num_envs: int = 1, *, opponent: str = DEFAULT_OPPONENT,
-                 opponent_options: dict | None = None, reward: str = "eliminated", client=None,
-                 store: str | None = None, render_mode: str | None = None, estimates: bool | str = False, **kwargs):
+                 opponent_options: dict | None = None, reward: str = "eliminated", actions: str = "shares",
+                 client=None, store: str | None = None, render_mode: str | None = None, estimates: bool | str = False,
+                 **kwargs):
         """Make the env; the class docstring's Arguments describe each argument."""
         self.reward = _check_reward(reward)
+        self.actions = _check_actions_kind(actions)
         super().__init__("SwarmIntruderVectorEnv", config, num_envs, client, store, render_mode, estimates, kwargs)
         try:
             _check_intruders(self.config)
@@ -291,7 +324,7 @@ class SwarmIntruderVectorEnv(GridVectorEnv):
         except BaseException:
             self.close_extras()  # the client it made
             raise
-        self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.layout.route_src),), dtype=np.float32)
+        self.single_action_space = _action_space(self.layout, self.actions)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.follower = self.config.information == "follower"
         self.moved = np.zeros_like(self.D)
@@ -307,10 +340,10 @@ class SwarmIntruderVectorEnv(GridVectorEnv):
         """
         if not self.started.all():
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
-        a = check_actions(actions, self.action_space.shape, "intruder actions")
+        routing = _routing(self.layout, self.config, self.actions, actions, self.action_space.shape,
+                           "intruder actions")
         moved = self.moved if self.follower else self.opponent.moves(self.D, self.I, self._episode_opponents)
-        return self._record(resolve(self.layout, self.config, self.model, moved, self.I,
-                                    intruder_routing(self.layout, self.config, a)))
+        return self._record(resolve(self.layout, self.config, self.model, moved, self.I, routing))
 
     def _prepare(self, episodes: np.ndarray) -> None:
         """Under follower, the allocator moves from the states of the episodes (indices, (m,) int64)."""

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
-from farm.alloc.dynamics import observe, route_probabilities, routing_of
+from farm.alloc.dynamics import observe, pure_routing, route_probabilities, routing_of
 from farm.alloc.intruders.base import IntruderPolicy
 from farm.core.errors import ConfigError
 
@@ -35,8 +36,11 @@ class LearnedIntruders(IntruderPolicy):
             raise ConfigError(f"intruder_options: {run} holds no intruders' training run (farm train with "
                               f"side: intruders)", field="intruder_options")
         self.model = load_model(run, values.get("algo", "ppo"))
+        self.pure = isinstance(self.model.action_space, gym.spaces.MultiDiscrete)  # one route a cell
         shape, routes = self.model.observation_space.shape, len(self.layout.route_src)
-        if shape != (2 * self.n * self.n,) or self.model.action_space.shape != (routes,):
+        fits = np.array_equal(self.model.action_space.nvec, self.layout.n_routes) if self.pure \
+            else self.model.action_space.shape == (routes,)
+        if shape != (2 * self.n * self.n,) or not fits:
             trained = int(round((shape[0] / 2) ** 0.5))
             raise ConfigError(f"intruder_options: {run} was trained on a {trained}x{trained} map, not this "
                               f"{self.n}x{self.n} one", field="intruder_options")
@@ -51,4 +55,6 @@ class LearnedIntruders(IntruderPolicy):
         """The model's action on each episode's observation, as routes."""
         obs = observe(np.atleast_2d(D), np.atleast_2d(I))
         action, _ = self.model.policy.predict(obs, deterministic=self.deterministic)
+        if self.pure:
+            return pure_routing(self.layout, np.asarray(action, dtype=np.int64).reshape(len(obs), -1))
         return routing_of(self.layout, route_probabilities(self.layout, self.config, action))

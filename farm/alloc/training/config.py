@@ -294,6 +294,8 @@ class OpponentParams(Strict):
 
     name: str = DEFAULT_OPPONENT  # the frozen allocator (farm.alloc.policies' registry)
     options: dict[str, Any] = {}  # its options (a learned allocator's run folder: run)
+    # the intruders' action: shares (each cell's shares of its routes) or pure (one route a cell)
+    actions: Literal["shares", "pure"] = "shares"
     reward: Literal[REWARDS] = "eliminated"  # eliminated: minus the mass eliminated; zero_sum: minus the defenders'
 
     @field_validator("name")

@@ -149,7 +149,7 @@ def single_env(config: TrainConfig, client):
 
         o = config.opponent
         return SwarmIntruderEnv(config.env, opponent=o.name, opponent_options=o.options, reward=o.reward,
-                                client=client, estimates=config.service.estimates)
+                                actions=o.actions, client=client, estimates=config.service.estimates)
     return SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
 
 
@@ -168,8 +168,8 @@ def training_envs(config: TrainConfig, client):
 
         o = config.opponent
         monitor = monitored(SwarmIntruderVectorEnv(config.env, num_envs=config.n_envs, opponent=o.name,
-                                                   opponent_options=o.options, reward=o.reward, client=client,
-                                                   estimates=config.service.estimates))
+                                                   opponent_options=o.options, reward=o.reward, actions=o.actions,
+                                                   client=client, estimates=config.service.estimates))
     else:
         monitor = make_vec_env(config.env, config.n_envs, client, config.service.estimates)
     return monitor, monitor.venv.env, monitor
