@@ -139,7 +139,7 @@ def test_a_damaged_pretraining_iteration_goes_on_from_the_one_before(reference, 
     lines = err.strip().splitlines()
     assert len(lines) == len(damaged), err
     for i, line in zip(damaged, lines):
-        assert f"pretrain/iteration_{i}.pkl is damaged (UnpicklingError); moved to pretrain/damaged/, {then}" in line
+        assert f"pretrain/iteration_{i}.pkl is damaged (fails its checksum); moved to pretrain/damaged/, {then}" in line
     assert sorted(p.name for p in (run / "pretrain" / "damaged").iterdir()) == sorted(
         f"iteration_{i}.pkl" for i in damaged)
     resumed_after = json.loads((run / "metrics.json").read_text())["pretrain_resumed_after"]
