@@ -12,6 +12,7 @@
 The pretrainings are tiny: 3 iterations of 2 episodes of a 3x3 map, 2 epochs; the runs 200 steps.
 """
 
+import json
 import pickle
 import shutil
 from pathlib import Path
@@ -19,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from stable_baselines3.common.callbacks import BaseCallback
 
 from farm.alloc.training import TrainConfig
 
@@ -178,3 +180,43 @@ def test_every_iteration_damaged_starts_the_pretraining_again_as_exact(store, cl
                            *[(k, "is damaged") for k in (2, 1, 0)])
     assert done.resumed_after is None
     assert_same_pretraining(whole, policy, done)
+
+
+# ----- class 2: the pretraining's figures survive a resume from an RL checkpoint ------------------
+
+class Stop(Exception):
+    """Raised by StopAt: the run ends as if killed."""
+
+
+class StopAt(BaseCallback):
+    """Raises Stop at the step's on_step."""
+
+    def __init__(self, step: int):
+        super().__init__()
+        self.step = step
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps == self.step:
+            raise Stop()
+        return True
+
+
+FIGURES = ("pretrain_states", "pretrain_loss", "pretrained_eval_mean_return", "pretrain_resumed_after")
+
+
+@pytest.mark.parametrize("algo", ["td3", "ppo"])
+def test_a_run_resumed_after_its_first_checkpoint_keeps_the_pretrainings_figures(store, tmp_path, algo):
+    from farm.alloc.training import train
+
+    cfg = config(store, algo)
+    uninterrupted = train(cfg, tmp_path / "whole", show_progress=False)
+    assert all(uninterrupted[k] is not None for k in FIGURES if k != "pretrain_resumed_after")
+    with pytest.raises(Stop):
+        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[StopAt(120)])
+    assert (tmp_path / "stopped" / "checkpoints").is_dir() and not (tmp_path / "stopped" / "metrics.json").exists()
+    metrics = train(cfg, tmp_path / "stopped", resume=True, show_progress=False)
+    assert metrics["resumed_from"] == 96
+    assert {k: metrics[k] for k in FIGURES} == {k: uninterrupted[k] for k in FIGURES}
+    assert metrics["pretrain_seconds"] is not None and metrics["pretrain_seconds"] > 0
+    written = json.loads((tmp_path / "stopped" / "metrics.json").read_text())
+    assert {k: written[k] for k in FIGURES} == {k: uninterrupted[k] for k in FIGURES}

@@ -250,7 +250,8 @@ def _start(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         model = make_model(config, env, run_dir)
         if config.pretrain is not None:
             pretrained = pretrain(model, config, client, run_dir, show_progress=show_progress, on_progress=on_pretrain)
-            _evaluate_pretrained(model, evaluation, eval_vec, config, run_dir)
+            returns = _evaluate_pretrained(model, evaluation, eval_vec, config, run_dir)
+            state.pretrain = _pretrain_figures(pretrained, returns)  # every checkpoint keeps them
     return _Training(model, env, train_env, evaluation, timer, state, done_steps, bool(checkpoint), pretrained)
 
 
@@ -296,7 +297,7 @@ def _finish(training: _Training, config: TrainConfig, run_dir: Path) -> dict:
         t.model.save(run.model_path())
     evals = run.evaluations()
     steps, results = evals if evals is not None else (None, None)
-    previous = run.read_metrics() if t.resumed else None  # a resumed run keeps its pretraining's figures
+    previous = run.read_metrics() if t.resumed else None  # a checkpoint without the figures: metrics.json's
     metrics = RunMetrics(**{
         "name": config.name,
         "algo": config.algo,
@@ -312,7 +313,7 @@ def _finish(training: _Training, config: TrainConfig, run_dir: Path) -> dict:
         "final_eval_std_return": float(results[-1].std()) if evals is not None else None,
         "best_eval_mean_return": float(results.mean(axis=1).max()) if evals is not None else None,
         "kept": kept,
-        **_pretrain_metrics(t.pretrained, previous, evals),
+        **_pretrain_metrics(t.state.pretrain, previous),
     })
     run.write_metrics(metrics)
     if evals is not None:
@@ -387,31 +388,44 @@ def _damage(path: Path, e: BaseException) -> str:
     return f"{path.name}: {type(e.__cause__ or e).__name__}"
 
 
-def _evaluate_pretrained(model, evaluation: EvalCallback, eval_vec, config: TrainConfig, run_dir: Path) -> None:
+def _evaluate_pretrained(model, evaluation: EvalCallback, eval_vec, config: TrainConfig, run_dir: Path) -> float:
     """Evaluate the pretrained model as EvalCallback would (its episodes, from the eval env's
     generator) and put it first in the evaluation's history, at step 0, as the best so far (so
-    that `keep: best` keeps it unless RL does better)."""
+    that `keep: best` keeps it unless RL does better); returns its mean return."""
     from stable_baselines3.common.evaluation import evaluate_policy
 
     returns, lengths = evaluate_policy(model, eval_vec, n_eval_episodes=config.eval.episodes, deterministic=True,
                                        return_episode_rewards=True)
+    evaluated = float(np.mean(returns))
     evaluation.evaluations_timesteps.append(0)
     evaluation.evaluations_results.append(list(returns))
     evaluation.evaluations_length.append(list(lengths))
     np.savez(evaluation.log_path, timesteps=evaluation.evaluations_timesteps,
              results=evaluation.evaluations_results, ep_lengths=evaluation.evaluations_length)
-    evaluation.best_mean_reward = evaluation.last_mean_reward = float(np.mean(returns))
+    evaluation.best_mean_reward = evaluation.last_mean_reward = evaluated
     (run_dir / "best").mkdir(parents=True, exist_ok=True)
     model.save(run_dir / "best" / "best_model.zip")
+    return evaluated
 
 
-def _pretrain_metrics(pretrained, previous, evals) -> dict:
-    if pretrained is not None:
-        return {"pretrain_states": pretrained.states, "pretrain_seconds": pretrained.seconds,
-                "pretrain_loss": pretrained.loss,
-                "pretrained_eval_mean_return": float(evals[1][0].mean()) if evals is not None else None,
-                "pretrain_resumed_after": pretrained.resumed_after}
+PRETRAIN_FIGURES = ("pretrain_states", "pretrain_seconds", "pretrain_loss", "pretrained_eval_mean_return",
+                    "pretrain_resumed_after")  # metrics.json's fields of the pretraining
+
+
+def _pretrain_figures(pretrained, evaluated: float) -> dict:
+    """metrics.json's PRETRAIN_FIGURES of a pretraining (pretrain's Pretrained) whose model's
+    evaluation had the mean return `evaluated`."""
+    return {"pretrain_states": pretrained.states, "pretrain_seconds": pretrained.seconds,
+            "pretrain_loss": pretrained.loss, "pretrained_eval_mean_return": evaluated,
+            "pretrain_resumed_after": pretrained.resumed_after}
+
+
+def _pretrain_metrics(figures: dict | None, previous) -> dict:
+    """The PRETRAIN_FIGURES metrics.json gets: figures (the RunState's: set when this process
+    pretrained, or restored with the checkpoint resumed from), else those of a previous
+    metrics.json (a checkpoint that holds no figures), else none."""
+    if figures is not None:
+        return {k: figures.get(k) for k in PRETRAIN_FIGURES}
     if previous is not None:
-        return {k: getattr(previous, k) for k in ("pretrain_states", "pretrain_seconds", "pretrain_loss",
-                                                  "pretrained_eval_mean_return", "pretrain_resumed_after")}
+        return {k: getattr(previous, k) for k in PRETRAIN_FIGURES}
     return {}
