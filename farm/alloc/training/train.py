@@ -57,6 +57,10 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     on_pretrain(episodes, total, saved): the pretraining's progress (pretrain's on_progress)."""
     import torch
 
+    from farm.alloc.training.config import check_allocators, check_pretrain_memory
+
+    check_allocators(config)  # before anything is written: a bad expert option names its field
+    check_pretrain_memory(config)
     run_dir = check_writable_folder(run_dir, "out")  # before the service, the lattice and the steps
     run = RunFolder(run_dir)
     if run.is_run() and not resume:
