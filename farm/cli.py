@@ -153,11 +153,16 @@ def cmd_game(args) -> int:
     if args.positions or args.pursuers:  # the start is given: no initial-position law applies
         settings = {**settings, "law": {"kind": "uniform"}}
     case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
-    res = simulate_case(case, p, e, record=bool(args.plot or args.animate))
+    res = simulate_case(case, p, e, record=args.plot is not None or args.animate is not None)
+    if args.animate is not None and args.frame_stride is not None:  # its frames fit, before anything is shown
+        from farm.core.game_animation import check_game_frames
+
+        with flags("frame_stride"):
+            check_game_frames(int(res.steps[0]), args.frame_stride)
     _print_game(case, res, e)
-    if args.plot:
+    if args.plot is not None:
         _plot_game(args, res)
-    if args.animate:
+    if args.animate is not None:
         _animate_game(args, case, res)
     return 0
 

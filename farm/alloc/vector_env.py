@@ -46,7 +46,7 @@ from farm.alloc.model import EngagementModel, row_sums
 from farm.core.checks import is_whole, whole
 from farm.core.errors import ConfigError
 
-__all__ = ["GridVectorEnv", "SwarmAllocationVectorEnv", "INFO_KEYS"]
+__all__ = ["GridVectorEnv", "SwarmAllocationVectorEnv", "INFO_KEYS", "batch_bytes", "check_batch"]
 
 # The single env's info entries, in its order, with the dtype gymnasium batches each one as.
 INFO_KEYS = (("breached_step", np.float64), ("breached", np.float64), ("eliminated_step", np.float64),
@@ -59,9 +59,34 @@ _STATE_FIELDS = ("num_envs", "D", "I", "steps", "breached", "eliminated", "start
                  "estimated")
 
 
+EPISODE_CELL_FLOATS = 32  # float64 values a cell of one episode holds at most: its state, bounds, a step's
+EPISODE_MOVE_FLOATS = 8  # ... and per feasible move (its actions and move probabilities)
+EPISODE_BYTES = 4096  # ... and beyond them: its generator, its infos' entries (generous)
+
+
 def _num_envs(value) -> int:
     """num_envs as an int >= 1, or a one-line ConfigError naming it."""
     return whole("num_envs", value, 1, numpy=True)
+
+
+def batch_bytes(num_envs: int, layout: Layout) -> int:
+    """What num_envs episodes of layout's grid hold in memory at most, in bytes: the batched
+    env's arrays and one step's (EPISODE_CELL_FLOATS, EPISODE_MOVE_FLOATS, EPISODE_BYTES)."""
+    moves = max(len(layout.src), len(layout.route_src))
+    return num_envs * (8 * (EPISODE_CELL_FLOATS * layout.cells + EPISODE_MOVE_FLOATS * moves) + EPISODE_BYTES)
+
+
+def check_batch(num_envs: int, layout: Layout) -> None:
+    """ConfigError (one line naming num_envs) when num_envs episodes (batch_bytes) need more than
+    half of this machine's memory (farm.games.sizes.memory_limit): refused before any array."""
+    from farm.games.sizes import memory_limit
+
+    needed, limit = batch_bytes(num_envs, layout), memory_limit()
+    if needed > limit:
+        raise ConfigError(f"num_envs: {num_envs:,} episodes of a {layout.n} x {layout.n} grid need about "
+                          f"{needed / 2**30:,.1f} GiB in memory, more than half of this machine's "
+                          f"({limit / 2**30:,.1f} GiB); step at most {max(1, limit // batch_bytes(1, layout)):,} "
+                          f"at once", field="num_envs")
 
 
 class GridVectorEnv(VectorEnv):
@@ -97,6 +122,7 @@ class GridVectorEnv(VectorEnv):
         self.num_envs = B
         n = self.config.grid_size
         self.layout = Layout(n)
+        check_batch(B, self.layout)
         self.single_observation_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, B)
         self._owns_client = client is None  # close() closes a client the env made, never one it was given
@@ -338,7 +364,8 @@ class SwarmAllocationVectorEnv(GridVectorEnv):
     reports every key; after a reset with a reset_mask only the reset episodes are in it).
 
     Arguments: those of SwarmAllocationEnv (config or AllocConfig keyword arguments, client,
-    store, estimates) and num_envs: int >= 1 (else a one-line ConfigError naming `num_envs`);
+    store, estimates) and num_envs: int >= 1, episodes that fit in half of this machine's memory
+    (check_batch; else a one-line ConfigError naming `num_envs`);
     render_mode: None only (no rendering). A client is shared by the B episodes; close()
     closes it only when the env made it.
 
