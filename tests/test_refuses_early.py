@@ -8,11 +8,17 @@ no Ray.
   an evaluation that would write over one holding more policies is refused before any episode.
 - An empty value of any flag is refused, one rule for `farm game --animate ''` and `farm eval
   --animate ''` (and --plot, --out, ...), never read as the flag left out.
+- set_state with a damaged generator state is one line naming set_state, the env unchanged
+  (the single env, the batched env, the intruders' envs).
 """
 
+import copy
+
+import numpy as np
 import pandas as pd
 import pytest
 
+from farm.alloc import AllocConfig
 from farm.core.errors import ConfigError
 
 from conftest import farm_main, train_tiny_run
@@ -127,3 +133,51 @@ def test_an_empty_value_of_a_flag_is_refused_never_read_as_left_out(tmp_path, mo
     monkeypatch.chdir(tmp_path)
     status, out, err = farm_main(*argv)
     one_line(status, err, f"{flag}: an empty value")
+
+
+# ----- set_state of a damaged generator state -------------------------------------------------------
+
+def envs(tmp_path):
+    from farm.alloc.env import SwarmAllocationEnv
+    from farm.alloc.intruder_env import SwarmIntruderEnv, SwarmIntruderVectorEnv
+    from farm.alloc.vector_env import SwarmAllocationVectorEnv
+
+    cfg = AllocConfig(grid_size=3, n_defenders=10, n_intruders=5, games=3)
+    store = str(tmp_path / "s.sqlite")
+    return {"single": SwarmAllocationEnv(cfg, store=store), "batched": SwarmAllocationVectorEnv(cfg, 2, store=store),
+            "intruders": SwarmIntruderEnv(cfg, store=store), "intruders batched": SwarmIntruderVectorEnv(cfg, 2,
+                                                                                                      store=store)}
+
+
+def damaged_generators(state: dict) -> list[dict]:
+    """Copies of state with its generator state damaged in several ways."""
+    key = "rng" if "rng" in state else "rngs"
+    one = state[key] if key == "rng" else state[key][0]
+    bad = [{**one, "state": None}, {**one, "bit_generator": "MT19937"}, {**one, "state": {"state": "x", "inc": 1}},
+           "not a state"]
+    out = []
+    for b in bad:
+        s = copy.deepcopy(state)
+        if key == "rng":
+            s[key] = b
+        else:
+            s[key][0] = b
+        out.append(s)
+    return out
+
+
+@pytest.mark.parametrize("kind", ["single", "batched", "intruders", "intruders batched"])
+def test_set_state_with_a_damaged_generator_state_is_one_line_the_env_unchanged(tmp_path, kind):
+    env = envs(tmp_path)[kind]
+    try:
+        env.reset(seed=3)
+        before = env.get_state()
+        for bad in damaged_generators(before):
+            with pytest.raises(ConfigError) as e:
+                env.set_state(bad)
+            assert str(e.value).startswith("set_state: the state's rng") and "\n" not in str(e.value)
+            after = env.get_state()
+            assert np.array_equal(after["D"], before["D"]) and after["steps"] is not None
+            assert repr(after.get("rng", after.get("rngs"))) == repr(before.get("rng", before.get("rngs")))
+    finally:
+        env.close()

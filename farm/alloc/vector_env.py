@@ -34,7 +34,7 @@ from farm.alloc.dynamics import (
     start_densities,
     step,
 )
-from farm.alloc.env import check_env_arguments, env_client
+from farm.alloc.env import check_env_arguments, check_state, env_client
 from farm.alloc.intruders.play import (
     EpisodeIntruders,
     configured_intruders,
@@ -293,15 +293,13 @@ class GridVectorEnv(VectorEnv):
     def set_state(self, state: dict) -> None:
         """Take a state get_state() returned (of an env of the same grid and num_envs): every
         episode goes on from there, each generator draws what the saved one would have.
-        ConfigError (one line) for a state of another grid or batch size or a field missing."""
-        missing = [name for name in self.STATE_FIELDS if name not in state]
-        if missing:
-            raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
-        B, cells = self.num_envs, self.layout.cells
-        if state["num_envs"] != B or np.shape(state["D"]) != (B, cells) or np.shape(state["I"]) != (B, cells) \
-                or len(state["rngs"]) != B:
-            raise ConfigError(f"set_state: the state is of {state['num_envs']} episodes of densities "
-                              f"{np.shape(state['D'])}, this env has {B} episodes of {cells} cells", field="set_state")
+        ConfigError (one line) for a state of another batch size, or one the single env's rule
+        refuses (farm.alloc.env.check_state: another grid, a field missing, densities that are
+        not finite numbers >= 0, a damaged generator state); the env is unchanged then."""
+        if isinstance(state, dict) and "num_envs" in state and state["num_envs"] != self.num_envs:
+            raise ConfigError(f"set_state: the state is of {state['num_envs']!r} episodes, this env has "
+                              f"{self.num_envs}", field="set_state")
+        check_state(state, self.STATE_FIELDS, (self.num_envs, self.layout.cells), "rngs")
         rngs = []
         for saved in state["rngs"]:
             if saved is None:
