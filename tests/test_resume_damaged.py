@@ -63,11 +63,11 @@ def garbage(path: Path) -> None:
     path.write_bytes(b"not a pickle, only bytes\x00\xff" * 10)
 
 
-DAMAGES = {  # the damage: (which of checkpoint_files, how, the damaged file's error)
-    "a model zip cut short": (0, cut_short, "BadZipFile"),
-    "a model zip with a bad CRC": (0, flip_a_byte, "BadZipFile"),
-    "a garbage replay buffer": (1, garbage, "UnpicklingError"),
-    "a RunState cut short": (2, cut_short, "UnpicklingError"),
+DAMAGES = {  # the damage: (which of checkpoint_files, how, the damaged file's problem)
+    "a model zip cut short": (0, cut_short, "fails its checksum"),
+    "a model zip with a bad CRC": (0, flip_a_byte, "fails its checksum"),
+    "a garbage replay buffer": (1, garbage, "fails its checksum"),
+    "a RunState cut short": (2, cut_short, "fails its checksum"),
 }
 
 

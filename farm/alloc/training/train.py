@@ -24,7 +24,8 @@ from farm.alloc.env import SwarmAllocationEnv
 from farm.alloc.lattice import lattice_groups, warm_lattices
 from farm.alloc.policies.learned import algorithm_class
 from farm.alloc.policies.repair import RepairedActions
-from farm.alloc.runs import DAMAGED, RunFolder, RunMetrics, checkpoint_files, move_damaged, whole_checkpoints
+from farm.alloc.runs import (DAMAGED, STATE_MAGIC, RunFolder, RunMetrics, checkpoint_files, move_damaged,
+                             whole_checkpoints)
 from farm.alloc.training.callbacks import Checkpointer, DivergenceGuard, StepProgress, UpdateTimer
 from farm.alloc.training.config import TrainConfig, store_of
 from farm.alloc.training.dagger.loop import pretrain
@@ -357,9 +358,26 @@ def _resume_point(cls, config: TrainConfig, run_dir: Path, env):
 
 def _load_checkpoint(cls, config: TrainConfig, run_dir: Path, steps: int, env):
     """(the model with its replay buffer, the RunState's dict, None) of the checkpoint of `steps`,
-    or (None, None, what is damaged: its file's name and the error's type). ConfigError when
-    its model was trained on another map than config's (an edited config.yaml)."""
+    or (None, None, what is damaged: its file's name and the error's type, or "fails its
+    checksum"). A sealed RunState (farm.core.sealed) is checked first, and the model's and the
+    replay buffer's files against the checksums its header holds, before anything is loaded; a
+    RunState written without a seal is read as it is (its model zip's own CRCs still hold).
+    ConfigError when its model was trained on another map than config's (an edited config.yaml)."""
+    from farm.core.sealed import SealProblem, is_sealed, unseal
+
     model_file, buffer, state_file = checkpoint_files(run_dir, steps)
+    try:
+        payload = state_file.read_bytes()
+    except OSError as e:
+        return None, None, _damage(state_file, e)
+    if is_sealed(payload, STATE_MAGIC):
+        try:
+            header, payload = unseal(payload, STATE_MAGIC)
+        except SealProblem as e:
+            return None, None, f"{state_file.name}: {e}"
+        problem = _files_problem(header.get("files"), state_file, (model_file, buffer))
+        if problem is not None:
+            return None, None, problem
     # force_reset=False keeps the saved last observation: training goes on with the episode in progress
     try:
         model = cls.load(model_file, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
@@ -378,12 +396,29 @@ def _load_checkpoint(cls, config: TrainConfig, run_dir: Path, steps: int, env):
         except _CHECKPOINT_DAMAGE as e:
             return None, None, _damage(buffer, e)
     try:
-        saved = pickle.loads(state_file.read_bytes())
+        saved = pickle.loads(payload)
     except _CHECKPOINT_DAMAGE as e:
         return None, None, _damage(state_file, e)
     if not isinstance(saved, dict):
         return None, None, f"{state_file.name}: not a RunState"
     return model, saved, None
+
+
+def _files_problem(files, state_file: Path, own: tuple[Path, ...]) -> str | None:
+    """What is wrong with a checkpoint's files against a sealed RunState's header's `files`
+    ({file name: SHA-256}, names of its own checkpoint's files only): a file missing or
+    failing its checksum; None when each is whole."""
+    from farm.core.sealed import file_sha256
+
+    names = {p.name: p for p in own}
+    if not isinstance(files, dict) or not files or any(name not in names for name in files):
+        return f"{state_file.name}: its header"
+    for name, digest in files.items():
+        if not names[name].exists():
+            return f"{name}: missing"
+        if file_sha256(names[name]) != digest:
+            return f"{name}: fails its checksum"
+    return None
 
 
 def _damage(path: Path, e: BaseException) -> str:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from farm.alloc.training.dagger.labels import FIELDS
+from farm.core.sealed import SealProblem, seal, unseal
 
 __all__ = ["MAGIC", "iteration_file", "saved_iterations", "latest_iteration", "run_digest", "write_iteration",
            "read_iteration", "check_state", "resume_iteration", "IterationProblem"]
@@ -64,16 +65,13 @@ def run_digest(config) -> str:
 
 
 def write_iteration(run_dir, state: dict, digest: str) -> Path:
-    """Write an iteration's state (a dict of STATE_KEYS) to its file, atomically: MAGIC, a JSON
-    line {"iteration", "run": digest, "sha256", "bytes"} and the pickled state, the checksum
-    and length being the pickle's; returns the path."""
+    """Write an iteration's state (a dict of STATE_KEYS) to its file, atomically, sealed
+    (farm.core.sealed: MAGIC, a JSON line {"iteration", "run": digest, "sha256", "bytes"}, the
+    pickled state, the checksum and length being the pickle's); returns the path."""
     from farm.core.output import atomic_write_bytes
 
-    payload = pickle.dumps(state)
-    header = {"iteration": int(state["iteration"]), "run": digest, "sha256": hashlib.sha256(payload).hexdigest(),
-              "bytes": len(payload)}
     path = iteration_file(run_dir, state["iteration"])
-    atomic_write_bytes(path, MAGIC + json.dumps(header).encode() + b"\n" + payload)
+    atomic_write_bytes(path, seal(MAGIC, pickle.dumps(state), iteration=int(state["iteration"]), run=digest))
     return path
 
 
@@ -87,18 +85,14 @@ def read_iteration(path: Path, iteration: int | None = None, digest: str | None 
         data = Path(path).read_bytes()
     except OSError as e:
         raise IterationProblem(f"is unreadable ({type(e).__name__})") from None
-    if not data.startswith(MAGIC):
-        raise IterationProblem("has no checksum (an iteration file without one cannot be verified)")
-    line_end = data.find(b"\n", len(MAGIC))
     try:
-        header = json.loads(data[len(MAGIC): line_end]) if line_end > 0 else None
-    except (UnicodeDecodeError, ValueError):
-        header = None
-    if not isinstance(header, dict) or not {"iteration", "run", "sha256", "bytes"} <= set(header):
+        header, payload = unseal(data, MAGIC)
+    except SealProblem as e:
+        if str(e) == "no checksum":
+            raise IterationProblem("has no checksum (an iteration file without one cannot be verified)") from None
+        raise IterationProblem(f"is damaged ({e})") from None
+    if not {"iteration", "run"} <= set(header):
         raise IterationProblem("is damaged (its header)")
-    payload = memoryview(data)[line_end + 1:]
-    if len(payload) != header["bytes"] or hashlib.sha256(payload).hexdigest() != header["sha256"]:
-        raise IterationProblem("is damaged (fails its checksum)")
     if digest is not None and header["run"] != digest:
         raise IterationProblem(f"is another run's (config digest {header['run']}, not {digest})")
     if iteration is not None and header["iteration"] != iteration:
