@@ -57,6 +57,8 @@ WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "tes
                "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
                "test_workers_layout"}
 WITHOUT_RAY |= {"test_intruder_env", "test_pettingzoo_env", "test_intruders", "test_mixtures", "test_matrix_game"}
+WITHOUT_RAY |= {"test_pretrain_files", "test_checkpoint_seal", "test_refuses_costs", "test_refuses_early",
+                "test_env_state"}
 
 
 # Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests
