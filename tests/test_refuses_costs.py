@@ -10,7 +10,8 @@ planner would ask is stood in for).
 - The subregions planner with more band actors than the Ray has CPUs (less those its task holds).
 - The transport planner with a large power: every unit to the heaviest row, never 0/0;
   min_count and mmr's chunk above the defenders there are: refused.
-- A pretraining whose labels would not fit in memory: refused before any episode.
+- A pretraining whose labels would not fit in memory, and a `farm eval` whose tables would not:
+  refused before any episode.
 """
 
 import numpy as np
@@ -19,7 +20,7 @@ import pytest
 from farm.alloc import AllocConfig
 from farm.core.errors import ConfigError
 
-from conftest import farm_main
+from conftest import farm_main, train_tiny_run
 
 LONG_GAME = ("--t-max", "600", "--evader-speed", "3", "--n-pursuers", "1")  # an evader no pursuer catches
 
@@ -178,3 +179,17 @@ def test_a_pretraining_whose_labels_do_not_fit_is_refused_before_any_episode(tmp
     one_line(status, err, f"{config}: pretrain.episodes: 1000 iterations of 100,000,000 episodes on 1 map(s) label "
                           "up to ", "GiB, more than half of this machine's memory")
     assert not (tmp_path / "run").exists()
+
+
+def test_farm_eval_refuses_more_episodes_than_its_tables_fit_before_any_episode(tmp_path, monkeypatch):
+    import farm.alloc.evaluation as evaluation
+
+    def refuse(*args, **kwargs):
+        raise Labelled()  # an episode was about to be played
+
+    monkeypatch.setattr(evaluation, "evaluate_trained", refuse)
+    run = train_tiny_run(tmp_path)
+    status, out, err = farm_main("eval", run, "--episodes", 10**12, "--references", "none")
+    one_line(status, err, "--episodes: 1,000,000,000,000 episodes of 1 allocators keep up to ",
+             "GiB of tables in memory, more than half of this machine's")
+    assert not (run / "eval_table.csv").exists()

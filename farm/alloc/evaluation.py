@@ -94,7 +94,8 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     compare with, by name (default: every one; [] none). ConfigError (one line naming the
     field) for bad input, before any episode: not a run, a run of the intruders (side:
     intruders), episodes or seed not whole numbers
-    >= 1 (>= 0), an unknown fidelity, scenario or reference, a model that cannot act on the
+    >= 1 (>= 0), more episodes than memory holds the tables of (_check_memory), an unknown
+    fidelity, scenario or reference, a model that cannot act on the
     scenario's map, a run folder the tables cannot be written into, an animate path that is not
     a .gif or .mp4. animate: also write an animation of the trained allocator's first episode
     there (farm.alloc.episode_animation; under fidelity "games" with one engaged cell's game inset),
@@ -109,6 +110,7 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     config = _on_scenario(_allocator_config(run, run_dir), scenario)
     _check_arguments(episodes, seed, fidelity, references)
     specs = None if references is None else [PolicySpec(policy_entry(name)) for name in references]
+    _check_memory(episodes, 1 + len(reference_specs() if specs is None else specs), config.env.max_steps)
     learned = _trained_allocator(run, config, scenario, repair)
     folder, animate = _output_paths(run, config, scenario, repair, animate, references)
     if folder != run.path:
@@ -144,6 +146,23 @@ def _check_arguments(episodes, seed, fidelity, references) -> None:
         if name not in choices:
             raise ConfigError(f"references: {name!r} is not a baseline or planner (choose from {', '.join(choices)}, "
                               f"or none)", field="references")
+
+
+STEP_BYTES = 256  # an evaluated step in memory: its measures and its rows of eval_steps.csv's table (generous)
+EPISODE_BYTES = 1024  # an evaluated episode beyond its steps: its summary and its row of eval_episodes.csv
+
+
+def _check_memory(episodes: int, policies: int, max_steps: int) -> None:
+    """ConfigError naming episodes when the evaluation's per-step and per-episode tables
+    (STEP_BYTES, EPISODE_BYTES; every episode at max_steps steps) of `policies` allocators would
+    need more than half of this machine's memory, before any episode."""
+    from farm.games.sizes import memory_limit
+
+    needed, limit = episodes * policies * (max_steps * STEP_BYTES + EPISODE_BYTES), memory_limit()
+    if needed > limit:
+        raise ConfigError(f"episodes: {episodes:,} episodes of {policies} allocators keep up to "
+                          f"{needed / 2**30:,.1f} GiB of tables in memory, more than half of this machine's "
+                          f"({limit / 2**30:,.1f} GiB); evaluate fewer", field="episodes")
 
 
 def _trained_allocator(run: RunFolder, config, scenario: str | None, repair: str | None):
