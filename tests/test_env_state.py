@@ -112,3 +112,34 @@ def test_a_state_that_is_not_a_dict_is_one_line(store, kind):
             env.set_state([1, 2, 3])
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("batched", [False, True])
+@pytest.mark.parametrize("draw", [{"member": 7}, {"member": "x"}, {"rng": {"bit_generator": "PCG64", "state": None}}])
+def test_a_damaged_draw_of_a_mixture_is_one_line_the_env_unchanged(store, batched, draw):
+    """Intruders drawn per episode from a mixture of two: a draw of a member that is not one, or of
+    a generator state that is not one, is refused before anything of the state is taken."""
+    from farm.alloc.env import SwarmAllocationEnv
+    from farm.alloc.vector_env import SwarmAllocationVectorEnv
+
+    cfg = CFG.model_copy(update={"intruders": "mixture",
+                                 "intruder_options": {"members": ["fewest_ahead", "split_away"]}})
+    env = SwarmAllocationVectorEnv(cfg, 2, store=store) if batched else SwarmAllocationEnv(cfg, store=store)
+    try:
+        env.reset(seed=0)
+        before = env.get_state()
+        key = "intruder_draws" if batched else "intruder_draw"
+        assert key in before
+        bad = copy.deepcopy(before)
+        bad["D"] = np.asarray(bad["D"]) * 0.5
+        if batched:
+            bad[key][0] = draw
+        else:
+            bad[key] = draw
+        with pytest.raises(ConfigError) as e:
+            env.set_state(bad)
+        assert str(e.value).startswith("set_state: the state's draw of the frozen side is damaged (")
+        assert_unchanged(env, before)
+        assert repr(env.get_state()[key]) == repr(before[key])
+    finally:
+        env.close()

@@ -44,7 +44,7 @@ from farm.core.config import error_field, first_line
 from farm.core.errors import ConfigError
 
 __all__ = ["GridEnv", "SwarmAllocationEnv", "moves", "n_actions", "check_env_arguments", "env_client", "check_state",
-           "STATE_FIELDS"]
+           "resume_draws", "STATE_FIELDS"]
 
 log = logging.getLogger(__name__)
 
@@ -124,6 +124,17 @@ def check_state(state, fields: tuple[str, ...], shape: tuple[int, ...], generato
         except (TypeError, ValueError, KeyError, OverflowError) as e:
             raise ConfigError(f"set_state: the state's {generators} is not a generator's state ({type(e).__name__})",
                               field="set_state") from None
+
+
+def resume_draws(env, state: dict) -> None:
+    """env._resume_draw(state) (the frozen side's draws of the episodes, a mixture's), its
+    damage (a member that is not one, a generator state that is not one) a ConfigError naming
+    set_state; the hooks assign last, so a damaged draw leaves env as it was."""
+    try:
+        env._resume_draw(state)
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError) as e:
+        raise ConfigError(f"set_state: the state's draw of the frozen side is damaged ({type(e).__name__})",
+                          field="set_state") from None
 
 
 def env_client(config: AllocConfig, store):
@@ -254,6 +265,7 @@ class GridEnv(gym.Env):
         field missing, with densities that are not finite numbers >= 0, counters that are not
         numbers, or a damaged generator state; the env is unchanged then."""
         check_state(state, STATE_FIELDS, (self.n * self.n,), "rng")
+        resume_draws(self, state)  # first: a damaged draw leaves the env as it was
         self.D = np.array(state["D"], dtype=np.float64)
         self.I = np.array(state["I"], dtype=np.float64)
         self.steps = int(state["steps"])
@@ -263,7 +275,6 @@ class GridEnv(gym.Env):
         self.np_random.bit_generator.state = state["rng"]
         self.engagements = int(state["engagements"])
         self.estimated = int(state["estimated"])
-        self._resume_draw(state)
 
     def _obs(self) -> np.ndarray:
         """The observation: (2 N^2,) float32 [D, I] clipped to [0, 1]."""

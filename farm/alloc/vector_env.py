@@ -34,7 +34,7 @@ from farm.alloc.dynamics import (
     start_densities,
     step,
 )
-from farm.alloc.env import check_env_arguments, check_state, env_client
+from farm.alloc.env import check_env_arguments, check_state, env_client, resume_draws
 from farm.alloc.intruders.play import (
     EpisodeIntruders,
     configured_intruders,
@@ -300,6 +300,7 @@ class GridVectorEnv(VectorEnv):
             raise ConfigError(f"set_state: the state is of {state['num_envs']!r} episodes, this env has "
                               f"{self.num_envs}", field="set_state")
         check_state(state, self.STATE_FIELDS, (self.num_envs, self.layout.cells), "rngs")
+        resume_draws(self, state)  # first: a damaged draw leaves the env as it was
         rngs = []
         for saved in state["rngs"]:
             if saved is None:
@@ -317,7 +318,6 @@ class GridVectorEnv(VectorEnv):
         self._rngs = rngs
         self.engagements = int(state["engagements"])
         self.estimated = int(state["estimated"])
-        self._resume_draw(state)
 
     def render(self):
         """Nothing: the batched env has no render mode (render_mode None)."""
