@@ -153,11 +153,16 @@ def cmd_game(args) -> int:
     if args.positions or args.pursuers:  # the start is given: no initial-position law applies
         settings = {**settings, "law": {"kind": "uniform"}}
     case = _case({"n_pursuers": p.shape[1], "n_evaders": e.shape[1], **settings})
-    res = simulate_case(case, p, e, record=bool(args.plot or args.animate))
+    res = simulate_case(case, p, e, record=args.plot is not None or args.animate is not None)
+    if args.animate is not None and args.frame_stride is not None:  # its frames fit, before anything is shown
+        from farm.core.game_animation import check_game_frames
+
+        with flags("frame_stride"):
+            check_game_frames(int(res.steps[0]), args.frame_stride)
     _print_game(case, res, e)
-    if args.plot:
+    if args.plot is not None:
         _plot_game(args, res)
-    if args.animate:
+    if args.animate is not None:
         _animate_game(args, case, res)
     return 0
 
@@ -168,9 +173,10 @@ def _checked_settings(args) -> dict:
     other, and flags that need one not given; all before the game is played."""
     from farm.core.output import check_writable_file
 
-    if args.plot and Path(args.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
+    # a flag is given when it is not None: an empty path is refused as a path, never read as "not given"
+    if args.plot is not None and Path(args.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
         raise CliError(f"--plot: {args.plot!r} must end in .png, .pdf or .svg")
-    if args.plot:
+    if args.plot is not None:
         with flags("plot"):
             check_writable_file(args.plot, "plot")  # before the game: a read-only place is found now
     settings = _game_settings(args)
@@ -178,11 +184,11 @@ def _checked_settings(args) -> dict:
                         ("positions", "n_evaders"), ("positions", "seed"), ("positions", "law"),
                         ("pursuers", "n_pursuers"), ("evaders", "n_evaders"), ("pursuers", "seed"),
                         ("evaders", "seed"), ("pursuers", "law"), ("evaders", "law")])
-    if args.plot_times is not None and not args.plot:
+    if args.plot_times is not None and args.plot is None:
         raise CliError("--plot-times: is for the figure of --plot, which is not given")
-    if args.frame_stride is not None and not args.animate:
+    if args.frame_stride is not None and args.animate is None:
         raise CliError("--frame-stride: is for the animation of --animate, which is not given")
-    if args.animate:
+    if args.animate is not None:
         from farm.core.game_animation import check_animation_path
 
         with flags("animate"):
@@ -354,8 +360,6 @@ def cmd_table(args) -> int:
             if getattr(args, flag) not in (None, False):
                 raise CliError(f"--{flag}: `farm table show` only reads the store; --{flag} is for `farm table`")
     _contradictions(args, [("address", "workers")])
-    if args.store is not None and not args.store.strip():
-        raise CliError("--store: an empty path; name the SQLite store, or leave --store out for the config's")
     config = load_table_config(words[0])
     if not show:
         from farm.games.sizes import check_size
@@ -401,13 +405,12 @@ def cmd_train(args) -> int:
             raise CliError(f"--timesteps: {args.timesteps} steps, but {config.algo}.learning_starts is {starts}: "
                            f"the model would never be updated")
         config = config.with_timesteps(args.timesteps)
-    else:
-        from farm.alloc.training.config import check_trainable
+    from farm.alloc.training.config import check_trainable
 
-        try:
-            check_trainable(config)
-        except SwarmFarmError as e:
-            raise CliError(f"{args.config}: {e}") from None
+    try:
+        check_trainable(config)  # with --timesteps applied: its own check above named the flag
+    except SwarmFarmError as e:
+        raise CliError(f"{args.config}: {e}") from None
     if args.service:
         config = config.model_copy(update={"service": config.service.model_copy(update={"mode": args.service})})
     if args.threads is not None:
@@ -422,12 +425,27 @@ def cmd_train(args) -> int:
     return 0
 
 
+def _references(text: str) -> list[str]:
+    """--references' names: `none` alone for none; CliError for an empty entry, a name given
+    twice, or `none` beside names (which it would contradict)."""
+    names = [n.strip() for n in text.split(",")]
+    if any(not n for n in names):
+        raise CliError(f"--references: an empty entry in {text!r}")
+    if "none" in names and len(names) > 1:
+        other = next(n for n in names if n != "none")
+        raise CliError(f"--references: 'none' and {other!r} contradict each other; give none alone, or the names")
+    twice = next((n for k, n in enumerate(names) if n in names[:k]), None)
+    if twice is not None:
+        raise CliError(f"--references: {twice!r} is named twice")
+    return [] if names == ["none"] else names
+
+
 def cmd_eval(args) -> int:
     """`farm eval RUN_DIR`: the trained policy, the baselines and the planners on the same seeded episodes."""
     from farm.alloc.evaluation import evaluate_run, fidelity_lines
 
     run_dir = Path(args.run_dir)
-    references = None if args.references is None else [n for n in args.references.split(",") if n and n != "none"]
+    references = None if args.references is None else _references(args.references)
     with flags("episodes", "seed", "fidelity", "scenario", "references", "repair"):
         result = evaluate_run(run_dir, episodes=args.episodes, seed=args.seed, fidelity=args.fidelity,
                               scenario=args.scenario, references=references, animate=args.animate,
@@ -808,6 +826,23 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
         print(f"farm: warning: {message}", file=sys.stderr)
 
 
+def _refuse_empty_values(parser: argparse.ArgumentParser, args) -> None:
+    """CliError naming the flag (or argument) given an empty value (`--animate ''`, `--out ''`):
+    a flag given is never read as left out, nor an empty path as the current folder."""
+    chosen = [parser]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            chosen.append(action.choices[args.command])
+    for p in chosen:
+        for action in p._actions:
+            value = getattr(args, action.dest, None)
+            if isinstance(value, str) and not value.strip():
+                if action.option_strings:
+                    name = max(action.option_strings, key=len)
+                    raise CliError(f"{name}: an empty value; give one, or leave {name} out")
+                raise CliError(f"{action.dest}: an empty value")
+
+
 def main(argv=None) -> int:
     """Run the `farm` command line; returns the exit status (2 for bad input, one line on stderr).
     `farm --debug ...` (the flag anywhere) or SWARM_FARM_DEBUG=1 lets errors through with their traceback."""
@@ -818,7 +853,9 @@ def main(argv=None) -> int:
         with warnings.catch_warnings():
             if not debug:
                 warnings.showwarning = _one_line_warning  # restored when the block ends
-            args = build_parser().parse_args(argv)
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            _refuse_empty_values(parser, args)
             return args.func(args)
     except KeyboardInterrupt:
         if debug:

@@ -59,6 +59,8 @@ WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "tes
 WITHOUT_RAY |= {"test_intruder_env", "test_pettingzoo_env", "test_intruders", "test_mixtures", "test_matrix_game",
                 "test_minimax"}
 WITHOUT_RAY |= {"test_tracking_faults", "test_storage_faults"}
+WITHOUT_RAY |= {"test_pretrain_files", "test_checkpoint_seal", "test_refuses_costs", "test_refuses_early",
+                "test_env_state"}
 
 
 # Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests

@@ -11,7 +11,6 @@ their exact resume, in process (`service.mode: local`), no Ray.
 - Bad `algo`, `pretrain` and `n_envs` settings are one line naming the field.
 """
 
-import pickle
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ from farm.alloc import AllocConfig
 from farm.alloc.policies import make_policy
 from farm.alloc.training import TrainConfig, train
 from farm.alloc.training.dagger import loop as pretrain_module
+from farm.alloc.training.dagger.iterations import read_iteration
 from farm.alloc.training.dagger.labels import play_labelled
 from farm.alloc.training.dagger.loop import fit_actor, latest_iteration
 from farm.service import CaptureTimeClient
@@ -205,8 +205,8 @@ def test_a_pretrain_resumed_after_a_stop_is_bit_identical(store, tmp_path, monke
     monkeypatch.setattr(pretrain_module, "label_all", real)
     resumed = train(cfg, tmp_path / "stopped", resume=True, show_progress=False)
     for k in range(PRETRAIN["iterations"]):
-        a = pickle.loads(pretrain_module.iteration_file(tmp_path / "whole", k).read_bytes())
-        b = pickle.loads(pretrain_module.iteration_file(tmp_path / "stopped", k).read_bytes())
+        a = read_iteration(pretrain_module.iteration_file(tmp_path / "whole", k))
+        b = read_iteration(pretrain_module.iteration_file(tmp_path / "stopped", k))
         for name in a["data"]:
             np.testing.assert_array_equal(a["data"][name], b["data"][name])
         assert all(torch.equal(a["policy"][p], b["policy"][p]) for p in a["policy"])

@@ -2,13 +2,12 @@
 played and labelled in Ray tasks, a batch of episodes each, and the data set, the fitted policy
 and the trained model are the same as in process, whatever the tasks' size."""
 
-import pickle
 
 import numpy as np
 import torch
 
 from farm.alloc.training import TrainConfig, train
-from farm.alloc.training.dagger.loop import iteration_file
+from farm.alloc.training.dagger.iterations import iteration_file, read_iteration
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, team_sizes="lattice")
 
@@ -27,8 +26,8 @@ def test_labels_on_ray_tasks_equal_labels_in_process(ray_local, tmp_path):
     train(config(store, "local", 6), tmp_path / "local", show_progress=False)
     train(config(store, "ray", 2), tmp_path / "ray", show_progress=False)  # 3 tasks an iteration on 2 CPUs
     for k in range(2):
-        a = pickle.loads(iteration_file(tmp_path / "local", k).read_bytes())
-        b = pickle.loads(iteration_file(tmp_path / "ray", k).read_bytes())
+        a = read_iteration(iteration_file(tmp_path / "local", k))
+        b = read_iteration(iteration_file(tmp_path / "ray", k))
         assert len(a["data"]["obs"]) == len(b["data"]["obs"]) > 0
         for name in a["data"]:
             np.testing.assert_array_equal(a["data"][name], b["data"][name])

@@ -194,7 +194,7 @@ def test_an_empty_store_path_is_refused_not_read_as_the_default(tmp_path, kind, 
     status, out, err = farm_cli(*argv)
     one_line(status, err, "store: String should have at least 1 character")
     status, out, err = farm_cli("table", "configs/table_small.yaml", "--store", "")
-    one_line(status, err, "--store: an empty path")
+    one_line(status, err, "--store: an empty value")
 
 
 # ----- a run folder whose files were damaged or edited -------------------------------------

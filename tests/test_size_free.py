@@ -134,9 +134,8 @@ def test_games_are_packed_into_tasks_of_about_the_target(costs, target):
 
 
 def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_path, monkeypatch):
-    import pickle
-
     from farm.alloc.training.dagger import loop as pretrain_module
+    from farm.alloc.training.dagger.iterations import read_iteration
     from test_learners import Stop, assert_same
 
     raw = yaml.safe_load((REPO / "configs" / "train" / "tiny_size_free.yaml").read_text())
@@ -147,7 +146,7 @@ def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_pat
 
     cfg = TrainConfig(**raw)
     whole = train(cfg, tmp_path / "whole", show_progress=False)
-    state = pickle.loads(pretrain_module.iteration_file(tmp_path / "whole", 1).read_bytes())
+    state = read_iteration(pretrain_module.iteration_file(tmp_path / "whole", 1))
     sizes = [d["obs"].shape[1] for d in state["data"]]
     assert sizes == [2 * 8 * 8, 2 * 3 * 3, 2 * 16 * 16]  # the run's map first, then the curriculum's
     assert all(len(d["obs"]) == len(d["labels"]) > 0 for d in state["data"])

@@ -115,7 +115,10 @@ def test_a_run_stopped_after_a_checkpoint_and_resumed_equals_an_uninterrupted_on
     metrics = train(config, run, resume=True, show_progress=False)
     assert metrics["resumed_from"] == 210 and metrics["timesteps"] == STEPS
     assert_same_run(uninterrupted, run)
-    earlier = pickle.loads(checkpoint_files(run, 210)[2].read_bytes())  # the timings go on from the checkpoint's
+    from farm.alloc.runs import STATE_MAGIC
+    from farm.core.sealed import unseal
+
+    earlier = pickle.loads(unseal(checkpoint_files(run, 210)[2].read_bytes(), STATE_MAGIC)[1])  # the timings go on
     assert metrics["wall_seconds"] > earlier["wall_seconds"] > 0
     assert metrics["update_seconds"] > earlier["update_seconds"]
 

@@ -43,9 +43,12 @@ from farm.alloc.model import EngagementModel, row_sums
 from farm.core.config import error_field, first_line
 from farm.core.errors import ConfigError
 
-__all__ = ["GridEnv", "SwarmAllocationEnv", "moves", "n_actions", "check_env_arguments", "env_client"]
+__all__ = ["GridEnv", "SwarmAllocationEnv", "moves", "n_actions", "check_env_arguments", "env_client", "check_state",
+           "resume_draws", "STATE_FIELDS"]
 
 log = logging.getLogger(__name__)
+
+STATE_FIELDS = ("D", "I", "steps", "breached", "eliminated", "started", "rng", "engagements", "estimated")
 
 
 def check_env_arguments(name: str, config: AllocConfig | None, estimates, kwargs: dict) -> AllocConfig:
@@ -67,6 +70,71 @@ def check_env_arguments(name: str, config: AllocConfig | None, estimates, kwargs
         return AllocConfig(**kwargs)
     except ValidationError as e:  # gym.make(id, **settings) lands here: one line, not pydantic's dump
         raise ConfigError(first_line(e), field=error_field(e)) from None
+
+
+def check_state(state, fields: tuple[str, ...], shape: tuple[int, ...], generators: str) -> None:
+    """ConfigError (one line naming set_state) unless state is a state the env's get_state()
+    could have returned, so that set_state takes all of it or none: the one rule of the single
+    env (shape (N^2,)) and the batched one (shape (B, N^2)).
+
+    state: a dict holding every name of fields; D, I: densities of `shape`, finite numbers >=
+    0; steps: whole numbers >= 0 and breached, eliminated: finite numbers, of shape[:-1] (one
+    each per episode); started: bools of that shape; engagements, estimated: whole numbers >= 0;
+    state[generators]: a generator's bit_generator.state (the single env's `rng`), or a list of
+    one per episode, None for an episode never reset (the batched env's `rngs`), each one a
+    PCG64 takes."""
+    from gymnasium.utils import seeding
+
+    from farm.core.checks import is_whole
+
+    if not isinstance(state, dict):
+        raise ConfigError(f"set_state: expected the dict get_state() returns, got {type(state).__name__}",
+                          field="set_state")
+    missing = [name for name in fields if name not in state]
+    if missing:
+        raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
+    if np.shape(state["D"]) != shape or np.shape(state["I"]) != shape:
+        raise ConfigError(f"set_state: the state's densities are of shape {np.shape(state['D'])}, this env's are "
+                          f"of shape {shape}", field="set_state")
+    for side in ("D", "I"):
+        values = np.asarray(state[side])
+        if values.dtype.kind not in "iuf" or not np.all(np.isfinite(values)) or np.any(values < 0):
+            raise ConfigError(f"set_state: the state's densities {side} must be finite numbers >= 0",
+                              field="set_state")
+    episodes = shape[:-1]
+    for name, kinds, what in (("steps", "iu", "whole numbers >= 0"), ("breached", "iuf", "finite numbers"),
+                              ("eliminated", "iuf", "finite numbers"), ("started", "b", "true or false")):
+        values = np.asarray(state[name])
+        if values.shape != episodes or values.dtype.kind not in kinds or (
+                kinds != "b" and not np.all(np.isfinite(values))) or (name == "steps" and np.any(values < 0)):
+            raise ConfigError(f"set_state: the state's {name} must be {what}, one per episode", field="set_state")
+    for name in ("engagements", "estimated"):
+        if not is_whole(state[name], numpy=True) or state[name] < 0:
+            raise ConfigError(f"set_state: the state's {name} must be a whole number >= 0, got {state[name]!r}",
+                              field="set_state")
+    saved = state[generators] if episodes else [state[generators]]
+    if not isinstance(saved, (list, tuple)) or len(saved) != (episodes[0] if episodes else 1):
+        raise ConfigError(f"set_state: the state's {generators} must hold one generator state per episode",
+                          field="set_state")
+    for g in saved:
+        if g is None and episodes:
+            continue
+        try:
+            seeding.np_random(0)[0].bit_generator.state = g
+        except (TypeError, ValueError, KeyError, OverflowError) as e:
+            raise ConfigError(f"set_state: the state's {generators} is not a generator's state ({type(e).__name__})",
+                              field="set_state") from None
+
+
+def resume_draws(env, state: dict) -> None:
+    """env._resume_draw(state) (the frozen side's draws of the episodes, a mixture's), its
+    damage (a member that is not one, a generator state that is not one) a ConfigError naming
+    set_state; the hooks assign last, so a damaged draw leaves env as it was."""
+    try:
+        env._resume_draw(state)
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError) as e:
+        raise ConfigError(f"set_state: the state's draw of the frozen side is damaged ({type(e).__name__})",
+                          field="set_state") from None
 
 
 def env_client(config: AllocConfig, store):
@@ -193,21 +261,11 @@ class GridEnv(gym.Env):
     def set_state(self, state: dict) -> None:
         """Take a state get_state() returned (of an env of the same grid): the episode goes on
         from there, the generator draws what the saved one would have, the counters go on.
-        ConfigError (one line) for a state of another grid size, with a field missing, or with
-        densities that are not finite numbers >= 0; the env is unchanged then."""
-        cells = self.n * self.n
-        missing = sorted({"D", "I", "steps", "breached", "eliminated", "started", "rng", "engagements",
-                          "estimated"} - set(state))
-        if missing:
-            raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
-        if np.shape(state["D"]) != (cells,) or np.shape(state["I"]) != (cells,):
-            raise ConfigError(f"set_state: the state's densities are of shape {np.shape(state['D'])}, "
-                              f"this env's grid has {cells} cells", field="set_state")
-        for side in ("D", "I"):
-            values = np.asarray(state[side])
-            if values.dtype.kind not in "iuf" or not np.all(np.isfinite(values)) or np.any(values < 0):
-                raise ConfigError(f"set_state: the state's densities {side} must be finite numbers >= 0",
-                                  field="set_state")
+        ConfigError (one line) for a state check_state refuses: of another grid size, with a
+        field missing, with densities that are not finite numbers >= 0, counters that are not
+        numbers, or a damaged generator state; the env is unchanged then."""
+        check_state(state, STATE_FIELDS, (self.n * self.n,), "rng")
+        resume_draws(self, state)  # first: a damaged draw leaves the env as it was
         self.D = np.array(state["D"], dtype=np.float64)
         self.I = np.array(state["I"], dtype=np.float64)
         self.steps = int(state["steps"])
@@ -217,7 +275,6 @@ class GridEnv(gym.Env):
         self.np_random.bit_generator.state = state["rng"]
         self.engagements = int(state["engagements"])
         self.estimated = int(state["estimated"])
-        self._resume_draw(state)
 
     def _obs(self) -> np.ndarray:
         """The observation: (2 N^2,) float32 [D, I] clipped to [0, 1]."""

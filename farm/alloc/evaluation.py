@@ -94,7 +94,8 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     compare with, by name (default: every one; [] none). ConfigError (one line naming the
     field) for bad input, before any episode: not a run, a run of the intruders (side:
     intruders), episodes or seed not whole numbers
-    >= 1 (>= 0), an unknown fidelity, scenario or reference, a model that cannot act on the
+    >= 1 (>= 0), more episodes than memory holds the tables of (_check_memory), an unknown
+    fidelity, scenario or reference, a model that cannot act on the
     scenario's map, a run folder the tables cannot be written into, an animate path that is not
     a .gif or .mp4. animate: also write an animation of the trained allocator's first episode
     there (farm.alloc.episode_animation; under fidelity "games" with one engaged cell's game inset),
@@ -102,13 +103,16 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
     its steps, games and games/s on stderr (evaluate_fidelity). repair: the trained allocator's
     output, `none` (its network alone) or `levels` (farm.alloc.policies.repair); None: the run's
     config's. One other than the run's own writes into repair_<value>/ of the folder the
-    tables go into, so the run's own evaluation there is kept."""
+    tables go into, so the run's own evaluation there is kept. An evaluation already in the
+    folder the tables go into that holds a policy this one leaves out (references) is never
+    written over: ConfigError naming references, before any episode."""
     run = RunFolder(run_dir)
     config = _on_scenario(_allocator_config(run, run_dir), scenario)
     _check_arguments(episodes, seed, fidelity, references)
     specs = None if references is None else [PolicySpec(policy_entry(name)) for name in references]
+    _check_memory(episodes, 1 + len(reference_specs() if specs is None else specs), config.env.max_steps)
     learned = _trained_allocator(run, config, scenario, repair)
-    folder, animate = _output_paths(run, config, scenario, repair, animate)
+    folder, animate = _output_paths(run, config, scenario, repair, animate, references)
     if folder != run.path:
         run = RunFolder(folder)  # where this evaluation's files go
         run.path.mkdir(parents=True, exist_ok=True)
@@ -144,6 +148,23 @@ def _check_arguments(episodes, seed, fidelity, references) -> None:
                               f"or none)", field="references")
 
 
+STEP_BYTES = 256  # an evaluated step in memory: its measures and its rows of eval_steps.csv's table (generous)
+EPISODE_BYTES = 1024  # an evaluated episode beyond its steps: its summary and its row of eval_episodes.csv
+
+
+def _check_memory(episodes: int, policies: int, max_steps: int) -> None:
+    """ConfigError naming episodes when the evaluation's per-step and per-episode tables
+    (STEP_BYTES, EPISODE_BYTES; every episode at max_steps steps) of `policies` allocators would
+    need more than half of this machine's memory, before any episode."""
+    from farm.games.sizes import memory_limit
+
+    needed, limit = episodes * policies * (max_steps * STEP_BYTES + EPISODE_BYTES), memory_limit()
+    if needed > limit:
+        raise ConfigError(f"episodes: {episodes:,} episodes of {policies} allocators keep up to "
+                          f"{needed / 2**30:,.1f} GiB of tables in memory, more than half of this machine's "
+                          f"({limit / 2**30:,.1f} GiB); evaluate fewer", field="episodes")
+
+
 def _trained_allocator(run: RunFolder, config, scenario: str | None, repair: str | None):
     """The run's trained allocator for config's map, with its output repaired as repair says,
     loaded before any service starts: a model.zip that cannot be loaded is one line. A model
@@ -158,17 +179,20 @@ def _trained_allocator(run: RunFolder, config, scenario: str | None, repair: str
                           f"edited?)", field="run_dir") from None
 
 
-def _output_paths(run: RunFolder, config, scenario: str | None, repair: str | None, animate):
+def _output_paths(run: RunFolder, config, scenario: str | None, repair: str | None, animate,
+                  references: list[str] | None = None):
     """(folder, animate): the folder this evaluation's tables and figures go into (the run's,
     its scenarios/<scenario>/, and repair_<repair>/ of that for a repair other than the run's
     own), and the animation's path in it (None without animate). Both are checked writable now,
-    before any episode, so that a read-only run folder is found at once, not at the end."""
+    before any episode, so that a read-only run folder is found at once, not at the end; and
+    the evaluation already there is checked to lose nothing (_check_kept of references)."""
     from farm.core.output import check_writable_folder
 
     folder = run.path if scenario is None else run.path / "scenarios" / scenario
     if repair is not None and repair != config.repair:
         folder = folder / f"repair_{repair}"  # the run's own evaluation stays where it is
     check_writable_folder(folder, "run_dir")
+    _check_kept(folder, config.algo, references)
     if animate is not None:
         from farm.core.game_animation import check_animation_path
         from farm.core.output import check_writable_file
@@ -176,6 +200,25 @@ def _output_paths(run: RunFolder, config, scenario: str | None, repair: str | No
         animate = folder / check_animation_path(animate)
         check_writable_file(animate, "animate")
     return folder, animate
+
+
+def _check_kept(folder: Path, algo: str, references: list[str] | None) -> None:
+    """ConfigError naming references when folder's eval_table.csv holds the evaluation of a
+    policy this one (the trained allocator algo and references, None: every reference) leaves
+    out: it would be written over and lost. An unreadable table holds nothing to keep."""
+    table = folder / "eval_table.csv"
+    if not table.is_file():
+        return
+    try:
+        held = [str(p) for p in pd.read_csv(table)["policy"]]
+    except (OSError, UnicodeDecodeError, ValueError, LookupError):  # pandas' parser errors are ValueErrors
+        return
+    names = policy_names(("baseline", "planner"), references=True) if references is None else references
+    lost = [p for p in held if p not in [algo, *names]]
+    if lost:
+        raise ConfigError(f"references: {table} holds the evaluation of {', '.join(lost)} too, which this one "
+                          f"would write over; evaluate them again (leave references out, or name them), or move "
+                          f"that evaluation aside first", field="references")
 
 
 def _evaluate(run: RunFolder, config, learned, specs, episodes: int, seed: int, fidelity: str, *, animate,

@@ -129,6 +129,8 @@ def _intruder_rewards(reward: str, r: StepResult) -> np.ndarray:
 def _check_moved(state: dict, shape: tuple, optional: bool) -> None:
     """ConfigError (one line naming set_state) unless state["moved"] holds the defenders after
     the allocator's move: finite numbers >= 0 of shape (None too when optional)."""
+    if not isinstance(state, dict):
+        return  # GridEnv's and GridVectorEnv's set_state refuse it (check_state)
     if "moved" not in state:
         raise ConfigError("set_state: the state has no 'moved'", field="set_state")
     moved = state["moved"]

@@ -8,7 +8,7 @@ ResultsError naming it, never a traceback).
     training_curve.png the curve of evaluations.npz
     DIVERGED           written, with the reason, into a run that diverged: not a result
     checkpoints/       rl_model_<n>_steps.zip, rl_model_replay_buffer_<n>_steps.pkl, rl_model_state_<n>_steps.pkl
-                       (checkpoints/damaged/: the files of checkpoints --resume could not load, kept, never read)
+                       (the RunState sealed with the others' SHA-256; damaged/: those --resume could not load)
     best/, tb/         SB3's best model and TensorBoard logs
     eval_table.csv, eval_episodes.csv, eval_steps.csv          farm eval (and an experiment's trial)
     eval_table_games.csv, fidelity_differences.csv            farm eval --fidelity games
@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict
 from farm.core.errors import ConfigError, ResultsError
 
 __all__ = ["RunFolder", "RunMetrics", "checkpoint_files", "latest_checkpoint", "whole_checkpoints", "move_damaged",
-           "CONFIG", "MODEL", "METRICS", "EVALUATIONS", "DIVERGED", "LEARNER", "DAMAGED"]
+           "CONFIG", "MODEL", "METRICS", "EVALUATIONS", "DIVERGED", "LEARNER", "DAMAGED", "STATE_MAGIC"]
 
 CONFIG = "config.yaml"
 MODEL = "model.zip"
@@ -41,6 +41,7 @@ EVALUATIONS = "evaluations.npz"
 DIVERGED = "DIVERGED"
 LEARNER = "td3"  # the learner of a run whose config has no `algo` (RunFolder.learner)
 DAMAGED = "damaged"  # checkpoints/damaged/, pretrain/damaged/: files a resume could not load (move_damaged)
+STATE_MAGIC = b"swarm-farm checkpoint state\n"  # a sealed RunState's first line (farm.core.sealed)
 
 # What a damaged or unreadable evaluations.npz raises on np.load and reading its arrays:
 # OSError (missing, a folder, unreadable), EOFError (empty), zipfile.BadZipFile (cut short,

@@ -34,7 +34,7 @@ from farm.alloc.dynamics import (
     start_densities,
     step,
 )
-from farm.alloc.env import check_env_arguments, env_client
+from farm.alloc.env import check_env_arguments, check_state, env_client, resume_draws
 from farm.alloc.intruders.play import (
     EpisodeIntruders,
     configured_intruders,
@@ -46,7 +46,7 @@ from farm.alloc.model import EngagementModel, row_sums
 from farm.core.checks import is_whole, whole
 from farm.core.errors import ConfigError
 
-__all__ = ["GridVectorEnv", "SwarmAllocationVectorEnv", "INFO_KEYS"]
+__all__ = ["GridVectorEnv", "SwarmAllocationVectorEnv", "INFO_KEYS", "batch_bytes", "check_batch"]
 
 # The single env's info entries, in its order, with the dtype gymnasium batches each one as.
 INFO_KEYS = (("breached_step", np.float64), ("breached", np.float64), ("eliminated_step", np.float64),
@@ -59,9 +59,34 @@ _STATE_FIELDS = ("num_envs", "D", "I", "steps", "breached", "eliminated", "start
                  "estimated")
 
 
+EPISODE_CELL_FLOATS = 32  # float64 values a cell of one episode holds at most: its state, bounds, a step's
+EPISODE_MOVE_FLOATS = 8  # ... and per feasible move (its actions and move probabilities)
+EPISODE_BYTES = 4096  # ... and beyond them: its generator, its infos' entries (generous)
+
+
 def _num_envs(value) -> int:
     """num_envs as an int >= 1, or a one-line ConfigError naming it."""
     return whole("num_envs", value, 1, numpy=True)
+
+
+def batch_bytes(num_envs: int, layout: Layout) -> int:
+    """What num_envs episodes of layout's grid hold in memory at most, in bytes: the batched
+    env's arrays and one step's (EPISODE_CELL_FLOATS, EPISODE_MOVE_FLOATS, EPISODE_BYTES)."""
+    moves = max(len(layout.src), len(layout.route_src))
+    return num_envs * (8 * (EPISODE_CELL_FLOATS * layout.cells + EPISODE_MOVE_FLOATS * moves) + EPISODE_BYTES)
+
+
+def check_batch(num_envs: int, layout: Layout) -> None:
+    """ConfigError (one line naming num_envs) when num_envs episodes (batch_bytes) need more than
+    half of this machine's memory (farm.games.sizes.memory_limit): refused before any array."""
+    from farm.games.sizes import memory_limit
+
+    needed, limit = batch_bytes(num_envs, layout), memory_limit()
+    if needed > limit:
+        raise ConfigError(f"num_envs: {num_envs:,} episodes of a {layout.n} x {layout.n} grid need about "
+                          f"{needed / 2**30:,.1f} GiB in memory, more than half of this machine's "
+                          f"({limit / 2**30:,.1f} GiB); step at most {max(1, limit // batch_bytes(1, layout)):,} "
+                          f"at once", field="num_envs")
 
 
 class GridVectorEnv(VectorEnv):
@@ -97,6 +122,7 @@ class GridVectorEnv(VectorEnv):
         self.num_envs = B
         n = self.config.grid_size
         self.layout = Layout(n)
+        check_batch(B, self.layout)
         self.single_observation_space = gym.spaces.Box(0.0, 1.0, shape=(2 * n * n,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, B)
         self._owns_client = client is None  # close() closes a client the env made, never one it was given
@@ -267,15 +293,14 @@ class GridVectorEnv(VectorEnv):
     def set_state(self, state: dict) -> None:
         """Take a state get_state() returned (of an env of the same grid and num_envs): every
         episode goes on from there, each generator draws what the saved one would have.
-        ConfigError (one line) for a state of another grid or batch size or a field missing."""
-        missing = [name for name in self.STATE_FIELDS if name not in state]
-        if missing:
-            raise ConfigError(f"set_state: the state has no {missing[0]!r}", field="set_state")
-        B, cells = self.num_envs, self.layout.cells
-        if state["num_envs"] != B or np.shape(state["D"]) != (B, cells) or np.shape(state["I"]) != (B, cells) \
-                or len(state["rngs"]) != B:
-            raise ConfigError(f"set_state: the state is of {state['num_envs']} episodes of densities "
-                              f"{np.shape(state['D'])}, this env has {B} episodes of {cells} cells", field="set_state")
+        ConfigError (one line) for a state of another batch size, or one the single env's rule
+        refuses (farm.alloc.env.check_state: another grid, a field missing, densities that are
+        not finite numbers >= 0, a damaged generator state); the env is unchanged then."""
+        if isinstance(state, dict) and "num_envs" in state and state["num_envs"] != self.num_envs:
+            raise ConfigError(f"set_state: the state is of {state['num_envs']!r} episodes, this env has "
+                              f"{self.num_envs}", field="set_state")
+        check_state(state, self.STATE_FIELDS, (self.num_envs, self.layout.cells), "rngs")
+        resume_draws(self, state)  # first: a damaged draw leaves the env as it was
         rngs = []
         for saved in state["rngs"]:
             if saved is None:
@@ -293,7 +318,6 @@ class GridVectorEnv(VectorEnv):
         self._rngs = rngs
         self.engagements = int(state["engagements"])
         self.estimated = int(state["estimated"])
-        self._resume_draw(state)
 
     def render(self):
         """Nothing: the batched env has no render mode (render_mode None)."""
@@ -338,7 +362,8 @@ class SwarmAllocationVectorEnv(GridVectorEnv):
     reports every key; after a reset with a reset_mask only the reset episodes are in it).
 
     Arguments: those of SwarmAllocationEnv (config or AllocConfig keyword arguments, client,
-    store, estimates) and num_envs: int >= 1 (else a one-line ConfigError naming `num_envs`);
+    store, estimates) and num_envs: int >= 1, episodes that fit in half of this machine's memory
+    (check_batch; else a one-line ConfigError naming `num_envs`);
     render_mode: None only (no rendering). A client is shared by the B episodes; close()
     closes it only when the env made it.
 

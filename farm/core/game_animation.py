@@ -24,11 +24,15 @@ from workers import GameResults
 from farm.core.checks import whole
 from farm.core.errors import ConfigError
 
-__all__ = ["ANIMATION_SUFFIXES", "MAX_AUTO_FRAMES", "check_animation_path", "auto_stride", "game_frame_steps",
-           "game_frame_count", "figure_frames", "game_frames", "write_animation", "read_frame_count"]
+__all__ = ["ANIMATION_SUFFIXES", "MAX_AUTO_FRAMES", "MAX_ANIMATION_BYTES", "GAME_FIGSIZE", "GAME_DPI",
+           "check_animation_path", "check_frames", "auto_stride", "game_frame_steps", "game_frame_count",
+           "figure_frames", "game_frames", "write_animation", "read_frame_count"]
 
 ANIMATION_SUFFIXES = (".gif", ".mp4")
 MAX_AUTO_FRAMES = 120  # a game animated at the default stride has at most this many frames
+MAX_ANIMATION_BYTES = 2**30  # the frames of one animation, held at once to be encoded: 1 GiB
+GAME_FIGSIZE = (5.0, 5.2)  # a game's frame, in inches (game_frames)
+GAME_DPI = 80  # ... and its dots an inch
 
 
 def check_animation_path(path, field: str = "animate") -> Path:
@@ -39,6 +43,31 @@ def check_animation_path(path, field: str = "animate") -> Path:
     if p.is_dir():
         raise ConfigError(f"{field}: {p} is a folder, not a file to write", field=field)
     return p
+
+
+def check_frames(count: int, width: int, height: int, field: str = "frame_stride", fix: str = "") -> None:
+    """ConfigError (one line naming field) when `count` frames of width x height RGB pixels
+    take more than MAX_ANIMATION_BYTES, which write_animation holds at once to encode them;
+    fix: what to do instead, said after the cost."""
+    needed = count * width * height * 3
+    if needed > MAX_ANIMATION_BYTES:
+        then = f"; {fix}" if fix else ""
+        raise ConfigError(f"{field}: {count:,} frames of {width} x {height} pixels need {needed / 2**30:,.1f} GiB "
+                          f"in memory to encode, more than {MAX_ANIMATION_BYTES // 2**30} GiB{then}", field=field)
+
+
+def game_frame_size(dpi: int = GAME_DPI) -> tuple[int, int]:
+    """(width, height) in pixels of a game's frame at dpi (GAME_FIGSIZE)."""
+    return round(GAME_FIGSIZE[0] * dpi), round(GAME_FIGSIZE[1] * dpi)
+
+
+def check_game_frames(steps: int, stride: int, field: str = "frame_stride", dpi: int = GAME_DPI) -> None:
+    """check_frames of a `steps`-step game's animation at `stride` (game_frame_count frames of
+    game_frame_size), naming field and the least stride that fits."""
+    width, height = game_frame_size(dpi)
+    fits = max(1, MAX_ANIMATION_BYTES // (width * height * 3))
+    check_frames(game_frame_count(steps, stride), width, height, field,
+                 f"a frame stride of at least {auto_stride(steps, fits)} fits")
 
 
 def auto_stride(steps: int, max_frames: int = MAX_AUTO_FRAMES) -> int:
@@ -73,17 +102,20 @@ def figure_frames(fig, draw, items: Iterable) -> Iterator[np.ndarray]:
 
 
 def game_frames(res: GameResults, game: int = 0, stride: int | None = None, title: str | None = None,
-                dpi: int = 80) -> Iterator[np.ndarray]:
+                dpi: int = GAME_DPI) -> Iterator[np.ndarray]:
     """The frames of one recorded game: its agents, trajectories so far and Voronoi cells
     (farm.core.plots.draw_game) at each of game_frame_steps(res.steps[game], stride) (stride
-    None: auto_stride), as (H, W, 3) uint8 arrays. res: simulated with record=True."""
+    None: auto_stride), as (H, W, 3) uint8 arrays. res: simulated with record=True.
+    ConfigError naming frame_stride, before any frame, when they are too many to encode
+    (check_game_frames)."""
     from farm.core.plots import draw_game, new_figure
 
     if res.pursuer_paths is None:
         raise ValueError("game_frames needs results simulated with record=True")
     steps = int(res.steps[game])
     stride = auto_stride(steps) if stride is None else stride
-    fig, axes = new_figure(1, 1, figsize=(5.0, 5.2))
+    check_game_frames(steps, stride, dpi=dpi)
+    fig, axes = new_figure(1, 1, figsize=GAME_FIGSIZE)
     fig.set_dpi(dpi)
     ax = axes[0][0]
 
@@ -104,14 +136,14 @@ def write_animation(frames: Iterable[np.ndarray], path: str | Path, fps: float =
     (path, the number of frames written). fps: frames a second, or seconds: how long each
     frame shows (a .gif keeps each frame's own duration; an .mp4, at a constant rate, repeats
     a frame for as many periods of the shortest duration as it lasts). ConfigError for
-    another suffix or an empty animation."""
+    another suffix, an empty animation, or frames of more than MAX_ANIMATION_BYTES."""
     path = check_animation_path(path)
     try:
         import imageio.v3 as iio
     except ImportError:
         raise ConfigError("animate: writing animations needs imageio: pip install 'swarm-farm[video]'",
                           field="animate") from None
-    frames = list(frames)
+    frames = _held(frames)
     if not frames:
         raise ConfigError("animate: no frames to write", field="animate")
     seconds = [1.0 / fps] * len(frames) if seconds is None else list(seconds)
@@ -127,6 +159,19 @@ def write_animation(frames: Iterable[np.ndarray], path: str | Path, fps: float =
         iio.imwrite(partial, np.repeat(even, repeats, axis=0), plugin="FFMPEG", fps=1.0 / period, macro_block_size=2)
     partial.replace(path)
     return path, len(frames)
+
+
+def _held(frames: Iterable[np.ndarray]) -> list[np.ndarray]:
+    """The frames as a list, ConfigError naming animate as soon as they take more than
+    MAX_ANIMATION_BYTES (before the next frame is drawn)."""
+    held, size = [], 0
+    for frame in frames:
+        size += np.asarray(frame).nbytes
+        if size > MAX_ANIMATION_BYTES:
+            raise ConfigError(f"animate: more than {MAX_ANIMATION_BYTES // 2**30} GiB of frames to encode "
+                              f"({len(held) + 1:,} frames so far); show fewer", field="animate")
+        held.append(frame)
+    return held
 
 
 def read_frame_count(path: str | Path) -> int:

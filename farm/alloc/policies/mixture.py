@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from farm.core.checks import is_whole
 from farm.core.mixture import mixture_members
 
 __all__ = ["Mixture"]
@@ -46,9 +47,12 @@ class Mixture:
         return _Draws(self, np.random.default_rng(rng.integers(2 ** 63)))
 
     def resume_episode(self, state: dict):
-        """The episode's play from its get_state()."""
+        """The episode's play from its get_state(); ValueError for a member that is not one."""
         if "member" in state:
-            return _Member(self, int(state["member"]))
+            member = state["member"]
+            if not is_whole(member, numpy=True) or not 0 <= member < len(self.players):
+                raise ValueError(f"member: {member!r} is not one of the {len(self.players)} members")
+            return _Member(self, int(member))
         rng = np.random.default_rng()
         rng.bit_generator.state = state["rng"]
         return _Draws(self, rng)

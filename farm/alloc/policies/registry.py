@@ -26,7 +26,9 @@ from farm.core.errors import ConfigError
 from farm.core.pickling import dumps_by_value
 
 __all__ = ["PolicyEntry", "PolicySpec", "KINDS", "register_policy", "unregister_policy", "policy_entry",
-           "policy_names", "make_policy"]
+           "policy_names", "make_policy", "check_options", "CHECKED_KINDS"]
+
+CHECKED_KINDS = ("baseline", "planner")  # the allocators check_options builds: those made from their options alone
 
 KINDS = ("baseline", "planner", "learned", "mixture")
 _REGISTRY: dict[str, PolicyEntry] = {}
@@ -115,3 +117,41 @@ def policy_entry(name: str, field_name: str = "policy") -> PolicyEntry:
 def make_policy(name: str, config, client=None, **options):
     """The allocator `name` for the AllocConfig config, planning on client's statistics."""
     return policy_entry(name).make(config, client, **options)
+
+
+class _Unasked:
+    """A capture-time backend for building allocators to check their options: never asked."""
+
+    repeatable = True
+
+    def get_many(self, keys, estimate=False):
+        raise RuntimeError("an allocator asked for statistics while being built")
+
+    def warm(self, keys, progress=None):
+        raise RuntimeError("an allocator asked for statistics while being built")
+
+
+def check_options(name: str, options: dict, config, field: str) -> None:
+    """ConfigError (one line naming field) when the allocator `name` refuses `options` on the
+    AllocConfig config's map: an option its maker does not take, or a value its own checks
+    refuse (a planner's horizon of 0, a degenerate power). The allocator is built as it would be
+    for the work, with a capture-time client that is never asked (building asks no statistics),
+    so its own checks decide, before any work. Allocators of other kinds than CHECKED_KINDS (a
+    learned one, a mixture, which read run folders) are left to their first use."""
+    from farm.core.errors import SwarmFarmError
+    from farm.service.client import CaptureTimeClient
+
+    entry = policy_entry(name, field)
+    if entry.kind not in CHECKED_KINDS:
+        return
+    allowed = entry.options()
+    for option in options:
+        if option not in allowed:
+            raise ConfigError(f"{field}: {name} has no option {option!r} (options: {', '.join(allowed) or 'none'})",
+                              field=field)
+    client = CaptureTimeClient(config.game_settings(), backend=_Unasked())
+    try:
+        entry.make(config, client, **options)
+    except (SwarmFarmError, TypeError, ValueError) as e:
+        problem = getattr(e, "problem", None) or str(e)
+        raise ConfigError(f"{field}: {problem.removeprefix(f'{name}: ')}", field=field) from None

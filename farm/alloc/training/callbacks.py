@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from farm.alloc.runs import checkpoint_files
+from farm.alloc.runs import STATE_MAGIC, checkpoint_files
 from farm.core.errors import TrainingDiverged
 
 __all__ = ["UpdateTimer", "DivergenceGuard", "StepProgress", "AfterUpdates", "Checkpointer"]
@@ -175,12 +175,17 @@ class Checkpointer(AfterUpdates):
         self.run_dir, self.state = Path(run_dir), state
 
     def due(self, steps: int) -> None:
-        """Save the checkpoint of `steps`."""
+        """Save the checkpoint of `steps`: the RunState last, sealed (farm.core.sealed, STATE_MAGIC)
+        with the SHA-256 of the model's and the replay buffer's files in its header."""
         from farm.core.output import atomic_write_bytes
+        from farm.core.sealed import file_sha256, seal
 
         model_file, buffer_file, state_file = checkpoint_files(self.run_dir, steps)
         model_file.parent.mkdir(parents=True, exist_ok=True)
         self.model.save(model_file)
+        files = [model_file]
         if getattr(self.model, "replay_buffer", None) is not None:  # off-policy; PPO's rollouts start afresh
             self.model.save_replay_buffer(buffer_file)
-        atomic_write_bytes(state_file, pickle.dumps(self.state.capture(self.model)))
+            files.append(buffer_file)
+        payload = pickle.dumps(self.state.capture(self.model))
+        atomic_write_bytes(state_file, seal(STATE_MAGIC, payload, files={p.name: file_sha256(p) for p in files}))

@@ -18,7 +18,8 @@ from farm.core.config import ConfigError, Strict, load_yaml_model
 from farm.core.tracking import TrackingParams
 
 __all__ = ["ALGOS", "SIDES", "TD3Params", "PPOParams", "SACParams", "PretrainParams", "OpponentParams", "EvalParams",
-           "ServiceParams", "TrainConfig", "load_train_config", "store_of", "POLICY_KWARGS"]
+           "ServiceParams", "TrainConfig", "load_train_config", "store_of", "POLICY_KWARGS", "check_trainable",
+           "check_allocators", "check_pretrain_memory", "pretrain_bytes"]
 
 ALGOS = ("td3", "ppo", "sac")  # stable-baselines3's algorithms a config may name (`algo`)
 SIDES = ("defenders", "intruders")  # the side a run trains (`side`)
@@ -452,10 +453,12 @@ class TrainConfig(Strict):
 
 def check_trainable(config: TrainConfig) -> None:
     """ConfigError (one line naming the field) when an off-policy learner's run would never update
-    its model: SB3 updates only once more than learning_starts steps are collected, and such a
-    run would still write a model.zip as if trained. Asked of a config a user trains (its file,
-    an experiment's trials, `farm train --timesteps`); not of a run's own record (its config.yaml,
-    which a run trained in parts may hold), nor of the API's TrainConfig."""
+    its model (SB3 updates only once more than learning_starts steps are collected, and such a
+    run would still write a model.zip as if trained), when its allocators refuse their options
+    (check_allocators), or when its pretraining's labels would not fit in memory
+    (check_pretrain_memory). Asked of a config a user trains (its file, an experiment's trials,
+    `farm train`); not of a run's own record (its config.yaml, which a run trained in parts may
+    hold). train() asks check_allocators and check_pretrain_memory of the API's TrainConfig."""
     starts = getattr(config.learner, "learning_starts", None)
     if starts is not None and starts >= config.learner.n_timesteps:
         field = f"{config.algo}.learning_starts"
@@ -463,6 +466,52 @@ def check_trainable(config: TrainConfig) -> None:
                           f"{config.algo}.n_timesteps is {config.learner.n_timesteps}: "
                           "the model would never be updated",
                           field=field)
+    check_allocators(config)
+    check_pretrain_memory(config)
+
+
+def check_allocators(config: TrainConfig) -> None:
+    """ConfigError (one line naming pretrain.expert_options or opponent.options) when the
+    pretraining's expert refuses its options on a map the run plays (config.envs()), or the
+    intruders' opponent on the run's map: each is built by its own checks, as the run will
+    build it (farm.alloc.policies.registry.check_options), before anything is written."""
+    from farm.alloc.policies.registry import check_options
+
+    if config.pretrain is not None:
+        for env in config.envs():
+            check_options(config.pretrain.expert, config.pretrain.expert_options, env, "pretrain.expert_options")
+    if config.side == "intruders":
+        check_options(config.opponent.name, config.opponent.options, config.env, "opponent.options")
+
+
+LABEL_COPIES = 4  # copies of the labels a pretraining holds at most: the data set, its concatenation, its file's two
+
+
+def pretrain_bytes(config: TrainConfig) -> int:
+    """What a pretraining's labels hold in memory at most, in bytes: every iteration's episodes of
+    every map at max_steps states each (an observation and the next, a label and an action,
+    float32; a reward and a return, float64; two flags), LABEL_COPIES times; 0 without `pretrain:`."""
+    from farm.alloc.env import n_actions
+
+    p = config.pretrain
+    if p is None:
+        return 0
+    per_map = [env.max_steps * (16 * env.grid_size ** 2 + 8 * n_actions(env.grid_size) + 18) for env in config.envs()]
+    return LABEL_COPIES * p.iterations * p.episodes * sum(per_map)
+
+
+def check_pretrain_memory(config: TrainConfig) -> None:
+    """ConfigError (one line naming pretrain.episodes) when the pretraining's labels
+    (pretrain_bytes) would need more than half of this machine's memory, before any episode."""
+    from farm.games.sizes import memory_limit
+
+    needed, limit = pretrain_bytes(config), memory_limit()
+    if needed > limit:
+        p = config.pretrain
+        raise ConfigError(f"pretrain.episodes: {p.iterations} iterations of {p.episodes:,} episodes on "
+                          f"{len(config.envs())} map(s) label up to {needed / 2**30:,.1f} GiB, more than half of "
+                          f"this machine's memory ({limit / 2**30:,.1f} GiB); label fewer episodes",
+                          field="pretrain.episodes")
 
 
 def load_train_config(path, *, trainable: bool = True) -> TrainConfig:

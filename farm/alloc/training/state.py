@@ -34,7 +34,11 @@ class RunState:
       steps, returns and lengths of evaluations.npz, the best and the last mean return, and
       its call count, which decides the steps it evaluates at);
     - the wall and update seconds so far (UpdateTimer), so that metrics.json's timings
-      describe the whole run: the earlier parts up to the checkpoint and the resumed part.
+      describe the whole run: the earlier parts up to the checkpoint and the resumed part;
+    - the pretraining's figures (`pretrain`: metrics.json's pretrain_* fields and
+      pretrained_eval_mean_return, None for a run without pretraining), set when the
+      pretraining ends: metrics.json is written only when training ends, so a run resumed
+      from a checkpoint has them from there alone (a checkpoint without them: None).
 
     train_env, monitor: the training env (a SwarmAllocationEnv, or the batched vector env) and
     the Monitor (VecMonitor) around it; eval_env: the periodic evaluation's env; evaluation: its
@@ -44,6 +48,7 @@ class RunState:
                  timer: UpdateTimer, n_envs: int = 1):
         self.train_env, self.monitor, self.eval_env = train_env, monitor, eval_env
         self.evaluation, self.timer, self.n_envs = evaluation, timer, n_envs
+        self.pretrain: dict | None = None  # the pretraining's figures (see the class doc)
 
     def _monitor_state(self):
         m = self.monitor
@@ -77,6 +82,7 @@ class RunState:
                             "ep_lengths": list(e.evaluations_length), "best_mean_reward": e.best_mean_reward,
                             "last_mean_reward": e.last_mean_reward},
             "wall_seconds": self.timer.wall_seconds, "update_seconds": self.timer.update_seconds,
+            "pretrain": None if self.pretrain is None else dict(self.pretrain),
         }
 
     def restore(self, model: BaseAlgorithm, state: dict) -> None:
@@ -103,6 +109,7 @@ class RunState:
                          ep_lengths=e.evaluations_length)
             else:
                 Path(e.log_path + ".npz").unlink(missing_ok=True)
+        self.pretrain = state.get("pretrain")  # None from a checkpoint that holds no figures
         self.timer.earlier_wall_seconds = state["wall_seconds"]
         self.timer.update_seconds = state["update_seconds"]
         np.random.set_state(state["numpy_rng"])

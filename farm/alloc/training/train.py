@@ -24,7 +24,8 @@ from farm.alloc.env import SwarmAllocationEnv
 from farm.alloc.lattice import lattice_groups, warm_lattices
 from farm.alloc.policies.learned import algorithm_class
 from farm.alloc.policies.repair import RepairedActions
-from farm.alloc.runs import DAMAGED, RunFolder, RunMetrics, checkpoint_files, move_damaged, whole_checkpoints
+from farm.alloc.runs import (DAMAGED, STATE_MAGIC, RunFolder, RunMetrics, checkpoint_files, move_damaged,
+                             whole_checkpoints)
 from farm.alloc.training.callbacks import Checkpointer, DivergenceGuard, StepProgress, UpdateTimer
 from farm.alloc.training.config import TrainConfig, store_of
 from farm.alloc.training.dagger.loop import pretrain
@@ -57,6 +58,10 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     on_pretrain(episodes, total, saved): the pretraining's progress (pretrain's on_progress)."""
     import torch
 
+    from farm.alloc.training.config import check_allocators, check_pretrain_memory
+
+    check_allocators(config)  # before anything is written: a bad expert option names its field
+    check_pretrain_memory(config)
     run_dir = check_writable_folder(run_dir, "out")  # before the service, the lattice and the steps
     run = RunFolder(run_dir)
     if run.is_run() and not resume:
@@ -250,7 +255,8 @@ def _start(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         model = make_model(config, env, run_dir)
         if config.pretrain is not None:
             pretrained = pretrain(model, config, client, run_dir, show_progress=show_progress, on_progress=on_pretrain)
-            _evaluate_pretrained(model, evaluation, eval_vec, config, run_dir)
+            returns = _evaluate_pretrained(model, evaluation, eval_vec, config, run_dir)
+            state.pretrain = _pretrain_figures(pretrained, returns)  # every checkpoint keeps them
     return _Training(model, env, train_env, evaluation, timer, state, done_steps, bool(checkpoint), pretrained)
 
 
@@ -296,7 +302,7 @@ def _finish(training: _Training, config: TrainConfig, run_dir: Path) -> dict:
         t.model.save(run.model_path())
     evals = run.evaluations()
     steps, results = evals if evals is not None else (None, None)
-    previous = run.read_metrics() if t.resumed else None  # a resumed run keeps its pretraining's figures
+    previous = run.read_metrics() if t.resumed else None  # a checkpoint without the figures: metrics.json's
     metrics = RunMetrics(**{
         "name": config.name,
         "algo": config.algo,
@@ -312,7 +318,7 @@ def _finish(training: _Training, config: TrainConfig, run_dir: Path) -> dict:
         "final_eval_std_return": float(results[-1].std()) if evals is not None else None,
         "best_eval_mean_return": float(results.mean(axis=1).max()) if evals is not None else None,
         "kept": kept,
-        **_pretrain_metrics(t.pretrained, previous, evals),
+        **_pretrain_metrics(t.state.pretrain, previous),
     })
     run.write_metrics(metrics)
     if evals is not None:
@@ -352,9 +358,26 @@ def _resume_point(cls, config: TrainConfig, run_dir: Path, env):
 
 def _load_checkpoint(cls, config: TrainConfig, run_dir: Path, steps: int, env):
     """(the model with its replay buffer, the RunState's dict, None) of the checkpoint of `steps`,
-    or (None, None, what is damaged: its file's name and the error's type). ConfigError when
-    its model was trained on another map than config's (an edited config.yaml)."""
+    or (None, None, what is damaged: its file's name and the error's type, or "fails its
+    checksum"). A sealed RunState (farm.core.sealed) is checked first, and the model's and the
+    replay buffer's files against the checksums its header holds, before anything is loaded; a
+    RunState written without a seal is read as it is (its model zip's own CRCs still hold).
+    ConfigError when its model was trained on another map than config's (an edited config.yaml)."""
+    from farm.core.sealed import SealProblem, is_sealed, unseal
+
     model_file, buffer, state_file = checkpoint_files(run_dir, steps)
+    try:
+        payload = state_file.read_bytes()
+    except OSError as e:
+        return None, None, _damage(state_file, e)
+    if is_sealed(payload, STATE_MAGIC):
+        try:
+            header, payload = unseal(payload, STATE_MAGIC)
+        except SealProblem as e:
+            return None, None, f"{state_file.name}: {e}"
+        problem = _files_problem(header.get("files"), state_file, (model_file, buffer))
+        if problem is not None:
+            return None, None, problem
     # force_reset=False keeps the saved last observation: training goes on with the episode in progress
     try:
         model = cls.load(model_file, env=env, force_reset=False, tensorboard_log=str(run_dir / "tb"), device="cpu")
@@ -373,12 +396,29 @@ def _load_checkpoint(cls, config: TrainConfig, run_dir: Path, steps: int, env):
         except _CHECKPOINT_DAMAGE as e:
             return None, None, _damage(buffer, e)
     try:
-        saved = pickle.loads(state_file.read_bytes())
+        saved = pickle.loads(payload)
     except _CHECKPOINT_DAMAGE as e:
         return None, None, _damage(state_file, e)
     if not isinstance(saved, dict):
         return None, None, f"{state_file.name}: not a RunState"
     return model, saved, None
+
+
+def _files_problem(files, state_file: Path, own: tuple[Path, ...]) -> str | None:
+    """What is wrong with a checkpoint's files against a sealed RunState's header's `files`
+    ({file name: SHA-256}, names of its own checkpoint's files only): a file missing or
+    failing its checksum; None when each is whole."""
+    from farm.core.sealed import file_sha256
+
+    names = {p.name: p for p in own}
+    if not isinstance(files, dict) or not files or any(name not in names for name in files):
+        return f"{state_file.name}: its header"
+    for name, digest in files.items():
+        if not names[name].exists():
+            return f"{name}: missing"
+        if file_sha256(names[name]) != digest:
+            return f"{name}: fails its checksum"
+    return None
 
 
 def _damage(path: Path, e: BaseException) -> str:
@@ -387,31 +427,44 @@ def _damage(path: Path, e: BaseException) -> str:
     return f"{path.name}: {type(e.__cause__ or e).__name__}"
 
 
-def _evaluate_pretrained(model, evaluation: EvalCallback, eval_vec, config: TrainConfig, run_dir: Path) -> None:
+def _evaluate_pretrained(model, evaluation: EvalCallback, eval_vec, config: TrainConfig, run_dir: Path) -> float:
     """Evaluate the pretrained model as EvalCallback would (its episodes, from the eval env's
     generator) and put it first in the evaluation's history, at step 0, as the best so far (so
-    that `keep: best` keeps it unless RL does better)."""
+    that `keep: best` keeps it unless RL does better); returns its mean return."""
     from stable_baselines3.common.evaluation import evaluate_policy
 
     returns, lengths = evaluate_policy(model, eval_vec, n_eval_episodes=config.eval.episodes, deterministic=True,
                                        return_episode_rewards=True)
+    evaluated = float(np.mean(returns))
     evaluation.evaluations_timesteps.append(0)
     evaluation.evaluations_results.append(list(returns))
     evaluation.evaluations_length.append(list(lengths))
     np.savez(evaluation.log_path, timesteps=evaluation.evaluations_timesteps,
              results=evaluation.evaluations_results, ep_lengths=evaluation.evaluations_length)
-    evaluation.best_mean_reward = evaluation.last_mean_reward = float(np.mean(returns))
+    evaluation.best_mean_reward = evaluation.last_mean_reward = evaluated
     (run_dir / "best").mkdir(parents=True, exist_ok=True)
     model.save(run_dir / "best" / "best_model.zip")
+    return evaluated
 
 
-def _pretrain_metrics(pretrained, previous, evals) -> dict:
-    if pretrained is not None:
-        return {"pretrain_states": pretrained.states, "pretrain_seconds": pretrained.seconds,
-                "pretrain_loss": pretrained.loss,
-                "pretrained_eval_mean_return": float(evals[1][0].mean()) if evals is not None else None,
-                "pretrain_resumed_after": pretrained.resumed_after}
+PRETRAIN_FIGURES = ("pretrain_states", "pretrain_seconds", "pretrain_loss", "pretrained_eval_mean_return",
+                    "pretrain_resumed_after")  # metrics.json's fields of the pretraining
+
+
+def _pretrain_figures(pretrained, evaluated: float) -> dict:
+    """metrics.json's PRETRAIN_FIGURES of a pretraining (pretrain's Pretrained) whose model's
+    evaluation had the mean return `evaluated`."""
+    return {"pretrain_states": pretrained.states, "pretrain_seconds": pretrained.seconds,
+            "pretrain_loss": pretrained.loss, "pretrained_eval_mean_return": evaluated,
+            "pretrain_resumed_after": pretrained.resumed_after}
+
+
+def _pretrain_metrics(figures: dict | None, previous) -> dict:
+    """The PRETRAIN_FIGURES metrics.json gets: figures (the RunState's: set when this process
+    pretrained, or restored with the checkpoint resumed from), else those of a previous
+    metrics.json (a checkpoint that holds no figures), else none."""
+    if figures is not None:
+        return {k: figures.get(k) for k in PRETRAIN_FIGURES}
     if previous is not None:
-        return {k: getattr(previous, k) for k in ("pretrain_states", "pretrain_seconds", "pretrain_loss",
-                                                  "pretrained_eval_mean_return", "pretrain_resumed_after")}
+        return {k: getattr(previous, k) for k in PRETRAIN_FIGURES}
     return {}

@@ -190,33 +190,19 @@ def _write_suite(config: SuiteConfig, out: Path, board: pd.DataFrame, per: pd.Da
     _write_manifest(config, envs, jobs, skipped, store, info, out / "suite.json")
 
 
-class _Unasked:
-    """A capture-time backend for building planners to check their options: never asked."""
-
-    repeatable = True
-
-    def get_many(self, keys, estimate=False):
-        raise RuntimeError("a planner asked for statistics while being built")
-
-    def warm(self, keys, progress=None):
-        raise RuntimeError("a planner asked for statistics while being built")
-
-
 def _check_planners(jobs: list, envs: dict) -> None:
     """Build every (scenario, planner) once, before Ray starts, so that a bad planner option
-    is one line (ConfigError naming planner_options.<planner>), not a failed task."""
-    from farm.core.errors import SwarmFarmError
-    from farm.service.client import CaptureTimeClient
+    is one line (ConfigError naming planner_options.<planner>), not a failed task
+    (farm.alloc.policies.registry.check_options)."""
+    from farm.alloc.policies.registry import check_options
 
     for key, spec in jobs:
         if not spec.entry.options():
             continue
-        client = CaptureTimeClient(envs[key].game_settings(), backend=_Unasked())
         try:
-            spec.make(envs[key], client)
-        except (SwarmFarmError, TypeError, ValueError) as e:
-            problem = str(e).removeprefix(f"{spec.name}: ")
-            raise ConfigError(f"planner_options.{spec.name}: {problem} (scenario {key[0]})") from None
+            check_options(spec.name, spec.options, envs[key], f"planner_options.{spec.name}")
+        except ConfigError as e:
+            raise ConfigError(f"{e} (scenario {key[0]})") from None
 
 
 def _shown(key: tuple) -> str:

@@ -7,6 +7,7 @@ import numpy as np
 from farm.alloc.config import AllocConfig
 from farm.alloc.model import advance_intruders, team_sizes
 from farm.alloc.policies.planners.core import _TINY, _Planner, _positive_number
+from farm.core.errors import ConfigError
 
 __all__ = ["MaxMarginalReturn"]
 
@@ -33,7 +34,8 @@ class MaxMarginalReturn(_Planner):
     config: AllocConfig; client: a CaptureTimeClient of config.game_settings();
     chunk: the unit of assigned mass in defenders (default 1; a finer unit such as 0.1
     lets a count that rounds up to a game be used, e.g. 4.6 defenders playing the
-    6-defender game under the lattice); ties: Intercept's, for the mass with no return;
+    6-defender game under the lattice; at most n_defenders, or no chunk could ever be
+    assigned); ties: Intercept's, for the mass with no return;
     estimates: take the service's interpolation of a pair not yet computed (default
     False). A bad value, a missing client or an unknown option is a ConfigError naming it.
     """
@@ -44,6 +46,9 @@ class MaxMarginalReturn(_Planner):
                  estimates: bool = False, **unknown):
         super().__init__(config, client, unknown, ties)
         self.chunk = _positive_number("mmr", "chunk", chunk)
+        if self.chunk > config.n_defenders:
+            raise ConfigError(f"mmr: chunk {self.chunk:g} is more than the {config.n_defenders} defenders there "
+                              f"are: no level could ever be filled (it would act as intercept)")
         self.plan_on_rates(estimates)
 
     def probabilities(self, D, I):

@@ -10,7 +10,7 @@ from farm.alloc.config import AllocConfig
 from farm.alloc.policies.planners.core import _Planner, _count
 from farm.core.errors import ConfigError
 
-__all__ = ["SubRegions", "BAND_ROWS"]
+__all__ = ["SubRegions", "BAND_ROWS", "check_band_actors"]
 
 BAND_ROWS = 8  # the default bands' rows, at most
 
@@ -28,6 +28,33 @@ def _inner_planner(name: str, config: AllocConfig, client, options: dict) -> _Pl
     if not callable(getattr(policy, "probabilities", None)):
         raise ConfigError(f"subregions: planner {name!r} gives no move probabilities (not a planners.core planner)")
     return policy
+
+
+def check_band_actors(workers: int, regions: int, started: bool = False) -> None:
+    """ConfigError (one line naming workers) when the band actors of `workers` (one a band, at
+    most min(workers, regions), one CPU each) can never all be scheduled: more than the CPUs of
+    the Ray this process is connected to, less those this process holds itself (a Ray task or
+    actor planning with subregions keeps its own). Asked of a running Ray; with none, only when
+    started (the planner is about to plan: Ray would start a local Ray of this machine's CPUs)."""
+    import os
+
+    import ray
+
+    if ray.is_initialized():
+        total = ray.cluster_resources().get("CPU", 0.0)
+        held = ray.get_runtime_context().get_assigned_resources().get("CPU", 0.0)
+        cpus = total - held
+        where = f"the Ray this process is connected to has {total:g} CPUs" + (
+            f" and this task holds {held:g} of them" if held else "")
+    elif started:
+        cpus = float(os.cpu_count() or 1)
+        where = f"the local Ray it would start has {cpus:g} CPUs"
+    else:
+        return
+    actors = min(workers, regions)
+    if actors > cpus:
+        raise ConfigError(f"subregions: workers: {workers} starts {actors} band actors of one CPU each, which can "
+                          f"never all run: {where}; set workers <= {max(1, int(cpus))}")
 
 
 def _client_recipe(client):
@@ -81,8 +108,9 @@ class SubRegions(_Planner):
     planner, a registry planner other than subregions (default receding_horizon); options:
     dict, the inner planner's options; workers: int >= 1, the Ray actors that plan the bands
     (default 1: in this process; >= 2 needs a running Ray, and a client whose backend is the
-    capture-time service actor or a local store every actor can open). A bad value is a
-    ConfigError naming the option.
+    capture-time service actor or a local store every actor can open; at most one actor a band
+    is started, and more actors than the Ray could ever start at once, check_band_actors, are
+    refused). A bad value is a ConfigError naming the option.
 
     Attribute last: the last call's dict, shares (per band, its w_b).
     """
@@ -102,6 +130,8 @@ class SubRegions(_Planner):
         self.planner_name, self.options = planner, dict(options or {})
         self.inner = _inner_planner(planner, config, client, self.options)
         self.workers = _count("subregions", "workers", workers)
+        if self.workers >= 2:
+            check_band_actors(self.workers, self.regions)
         row_band = np.concatenate([np.full(len(rows), b) for b, rows in
                                    enumerate(np.array_split(np.arange(self.n), self.regions))])
         self.band_of = np.repeat(row_band, self.n)  # (N^2,) int64 each cell's band
@@ -135,12 +165,13 @@ class SubRegions(_Planner):
         import ray
 
         if self._actors is None:
+            check_band_actors(self.workers, self.regions, started=True)
             from farm.alloc.policies.planners.band_actor import BandPlanner
 
             settings, service, store = _client_recipe(self.client)
             self._actors = [BandPlanner.remote(self.config, self.planner_name, self.options, settings, service, store)
-                            for _ in range(self.workers)]
-        refs = [self._actors[k % self.workers].probabilities.remote(D, I) for k, (D, I) in enumerate(jobs)]
+                            for _ in range(min(self.workers, self.regions))]
+        refs = [self._actors[k % len(self._actors)].probabilities.remote(D, I) for k, (D, I) in enumerate(jobs)]
         return ray.get(refs)
 
     def close(self) -> None:

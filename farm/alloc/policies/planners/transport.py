@@ -6,6 +6,7 @@ import numpy as np
 
 from farm.alloc.config import AllocConfig
 from farm.alloc.policies.planners.core import _Planner, _positive_number
+from farm.core.errors import ConfigError
 
 __all__ = ["Transport", "apportion"]
 
@@ -38,7 +39,9 @@ class Transport(_Planner):
     1. the defenders are counted in whole units (density times n_defenders, rounded), and
        the units are shared among the rows in proportion to the rows' intruder mass raised
        to `power` (apportion: largest remainders), so every part of the front with mass
-       gets its share;
+       gets its share; the masses are taken relative to the heaviest row's before the power,
+       so that a large power cannot underflow every weight to 0 (it gives every unit to the
+       heaviest rows);
     2. the defenders, ordered by row (then column), are matched to those row quotas in
        order: the monotone matching, which is the optimal transport in one dimension (no
        two parts of the mass cross, and the total rows travelled is the least);
@@ -55,8 +58,8 @@ class Transport(_Planner):
     config: AllocConfig; client: accepted and unused; power: > 0, the exponent on a row's
     mass in its quota (default 1: in proportion to the mass); min_count: > 0, the least
     defender count a cell must hold to be assigned (default 0.5: the softmax map leaks a
-    few 1e-4 of each cell's mass, which is no defender). Bad options are a ConfigError
-    naming them.
+    few 1e-4 of each cell's mass, which is no defender), at most n_defenders (more would
+    leave every cell unassigned). Bad options are a ConfigError naming them.
     """
 
     name = "transport"
@@ -65,6 +68,9 @@ class Transport(_Planner):
         super().__init__(config, client, unknown)
         self.power = _positive_number(self.name, "power", power)
         self.min_count = _positive_number(self.name, "min_count", min_count)
+        if self.min_count > config.n_defenders:
+            raise ConfigError(f"transport: min_count {self.min_count:g} is more than the {config.n_defenders} "
+                              f"defenders there are: no cell could ever be assigned (it would act as intercept)")
 
     def probabilities(self, D, I):
         """Transport's move probabilities (see the class): D, I: (N^2,) float64 -> (A,) float64."""
@@ -80,7 +86,7 @@ class Transport(_Planner):
         units = int(round(counts[S].sum()))
         if units == 0:
             return p
-        quota = apportion(units, row_mass ** self.power)
+        quota = apportion(units, (row_mass / row_mass.max()) ** self.power)  # relative to the heaviest row: no 0/0
         # 2. the monotone matching of the defenders (by row, then column) onto the row quotas
         S = S[np.lexsort((S % n, S // n))]
         scale = units / counts[S].sum()

@@ -7,15 +7,13 @@ played by farm.alloc.training.dagger.labels, on Ray by farm.alloc.training.dagge
 
 from __future__ import annotations
 
-import pickle
-import re
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from farm.alloc.policies import PolicySpec, policy_entry
+from farm.alloc.training.dagger.iterations import (iteration_file, latest_iteration, resume_iteration, run_digest,
+                                                   saved_iterations, write_iteration)
 from farm.alloc.training.dagger.labels import concat, play_labelled
 
 __all__ = ["PRETRAIN_SEED_OFFSET", "FLOW_FLOOR", "MoveMap", "imitation_loss", "label_all", "fit_actor", "fit_maps",
@@ -24,11 +22,6 @@ __all__ = ["PRETRAIN_SEED_OFFSET", "FLOW_FLOOR", "MoveMap", "imitation_loss", "l
 
 PRETRAIN_SEED_OFFSET = 2_000_000  # pretraining's episodes: seeded apart from training's and evaluation's
 FLOW_FLOOR = 0.01  # the weight of a cell without defenders in the `flows` loss
-
-# What unpickling a damaged iteration file raises: UnpicklingError or EOFError when it is cut
-# short; garbage, and a damaged tensor inside, unpickle into many errors.
-_ITERATION_DAMAGE = (OSError, EOFError, pickle.UnpicklingError, ValueError, LookupError, RuntimeError,
-                     AttributeError, ImportError, TypeError)
 
 
 def label_all(config, params, learner, share: float, iteration: int, seed: int, client, gamma: float,
@@ -230,50 +223,6 @@ def _maps(config, client) -> list[tuple]:
     return maps
 
 
-def iteration_file(run_dir, iteration: int) -> Path:
-    """A pretraining iteration's state in a run folder: pretrain/iteration_<i>.pkl."""
-    return Path(run_dir) / "pretrain" / f"iteration_{iteration}.pkl"
-
-
-def saved_iterations(run_dir) -> list[int]:
-    """The pretraining iterations saved in a run folder (pretrain/iteration_<i>.pkl), newest first."""
-    found = [int(m.group(1)) for p in (Path(run_dir) / "pretrain").glob("iteration_*.pkl")
-             if (m := re.fullmatch(r"iteration_(\d+)\.pkl", p.name))]
-    return sorted(found, reverse=True)
-
-
-def latest_iteration(run_dir) -> int | None:
-    """The last pretraining iteration saved whole in a run folder, or None."""
-    found = saved_iterations(run_dir)
-    return found[0] if found else None
-
-
-def _resume_iteration(run_dir) -> tuple[int, dict] | None:
-    """(the iteration, its saved state) of the newest iteration file of run_dir that loads, or
-    None. One that does not is moved to pretrain/damaged/ (move_damaged) and said in one line on
-    stderr, and the one before it tried."""
-    from farm.alloc.runs import DAMAGED, move_damaged
-
-    damaged, found = [], None
-    for iteration in saved_iterations(run_dir):
-        path = iteration_file(run_dir, iteration)
-        try:
-            state = pickle.loads(path.read_bytes())
-        except _ITERATION_DAMAGE as e:
-            state, problem = None, type(e).__name__
-        else:
-            problem = None if isinstance(state, dict) else "not an iteration's state"
-        if problem is None:
-            found = iteration, state
-            break
-        move_damaged(path)
-        damaged.append(f"pretrain/{path.name} is damaged ({problem})")
-    then = f"resumed after iteration {found[0]}" if found else "the pretraining starts again"
-    for line in damaged:
-        print(f"pretrain {run_dir}: {line}; moved to pretrain/{DAMAGED}/, {then}", file=sys.stderr)
-    return found
-
-
 class Pretrained:
     """What pretraining did: states (labelled), seconds (wall), loss (the last fit's mean action
     error), data (the aggregated data set, play_labelled's arrays), resumed_after (the saved
@@ -333,16 +282,17 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True, on_p
       all the maps' labels, minibatches of one map each, in an order drawn from the fit's
       generator (fit_maps), so the one network learns what the expert does on every map.
     - Exact resume: after each iteration the data set, the learner's parameters and the fit's
-      generator are written whole (pretrain/iteration_<i>.pkl, atomically). A run resumed after a
-      stop loads the last one and goes on; nothing else is random (the fit draws its minibatches
-      from its own generator, the networks have no dropout), so the pretrained policy is
-      bit-identical to an uninterrupted run's. A last one that does not load (a damaged file) is
-      moved to pretrain/damaged/, said in one line, and the one before goes on (or, with none,
-      the pretraining starts again), as exact.
+      generator are written whole (pretrain/iteration_<i>.pkl, atomically, with the iteration,
+      the run's digest and a checksum: farm.alloc.training.dagger.iterations). A run resumed
+      after a stop loads the last one and goes on; nothing else is random (the fit draws its
+      minibatches from its own generator, the networks have no dropout), so the pretrained
+      policy is bit-identical to an uninterrupted run's. A last one that is not that
+      iteration's whole state for this run (damaged, failing its checksum, stale, another
+      run's, without a checksum) is moved to pretrain/damaged/, said in one line, and the one
+      before goes on (or, with none, the pretraining starts again), as exact.
     """
     import torch
 
-    from farm.core.output import atomic_write_bytes
     from farm.core.progress import GameProgress
 
     params, algo = config.pretrain, config.algo
@@ -352,7 +302,8 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True, on_p
     rng = np.random.default_rng([config.seed, PRETRAIN_SEED_OFFSET])
     parts: list[list[dict]] = [[] for _ in maps]  # each map's labels
     seconds, loss, first = 0.0, float("nan"), 0
-    saved = _resume_iteration(run_dir)
+    digest = run_digest(config)
+    saved = resume_iteration(run_dir, digest, params.iterations, model.policy.state_dict(), len(maps))
     if saved is not None:
         done, state = saved
         parts = [[d] for d in (state["data"] if len(maps) > 1 else [state["data"]])]
@@ -383,9 +334,7 @@ def pretrain(model, config, client, run_dir, *, show_progress: bool = True, on_p
             data = parts[0][0] if len(maps) == 1 else [p[0] for p in parts]
             state = {"iteration": iteration, "data": data, "policy": model.policy.state_dict(),
                      "rng": rng.bit_generator.state, "seconds": seconds, "loss": loss}
-            path = iteration_file(run_dir, iteration)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_bytes(path, pickle.dumps(state))
+            write_iteration(run_dir, state, digest)
             tell((iteration + 1) * len(maps) * params.episodes, total, iteration)
     finally:
         bar.close()
