@@ -582,8 +582,12 @@ def _exploit_config(args):
     learned = None
     if args.seeds != "none":
         seeds = [int(s) for s in _floats(args.seeds or "0,1,2", "--seeds")]
-        learned = {"seeds": seeds, "settings": {"algo": "ppo", "ppo.n_timesteps": args.steps or 30000, "n_envs": 8,
-                                                "ppo.n_steps": 256, "ppo.batch_size": 256, "eval.freq": 10000}}
+        from farm.studies.exploit.config import LearnedParams
+
+        settings = dict(LearnedParams().settings)
+        if args.steps is not None:
+            settings["ppo.n_timesteps"] = args.steps
+        learned = {"seeds": seeds, "settings": settings}
     information = (args.information or "follower").split(",")
     fields = {"name": f"exploit-{label}-{args.scenario}".replace("/", "_"), "scenarios": [args.scenario],
               "allocators": [] if run.is_dir() else [target], "runs": {args.scenario: str(run)} if run.is_dir() else {},
@@ -766,7 +770,7 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument("--scenario", help="the map (one allocator only)")
     xp.add_argument("--information", help="follower, simultaneous or both comma-separated (default follower)")
     xp.add_argument("--seeds", help="the learned best response's seeds, comma-separated (default 0,1,2), or none")
-    xp.add_argument("--steps", type=int, help="the learned best response's PPO steps (default 30000)")
+    xp.add_argument("--steps", type=int, help="the learned best response's PPO steps (default: the exploit config's)")
     xp.add_argument("--episodes", type=int, default=20, help="evaluation episodes, seeded 1000.. (default 20)")
     xp.add_argument("--exact", choices=("auto", "always", "never"), default="auto",
                     help="the exact search: where its tree fits (auto), everywhere, or not at all")
