@@ -30,6 +30,17 @@ def _inner_planner(name: str, config: AllocConfig, client, options: dict) -> _Pl
     return policy
 
 
+def _cpus_held() -> float:
+    """The CPUs Ray assigned to the task or actor this process runs; 0 in a driver (Ray answers
+    get_assigned_resources only in a worker)."""
+    import ray
+
+    try:
+        return float(ray.get_runtime_context().get_assigned_resources().get("CPU", 0.0))
+    except AssertionError:
+        return 0.0
+
+
 def check_band_actors(workers: int, regions: int, started: bool = False) -> None:
     """ConfigError (one line naming workers) when the band actors of `workers` (one a band, at
     most min(workers, regions), one CPU each) can never all be scheduled: more than the CPUs of
@@ -42,7 +53,7 @@ def check_band_actors(workers: int, regions: int, started: bool = False) -> None
 
     if ray.is_initialized():
         total = ray.cluster_resources().get("CPU", 0.0)
-        held = ray.get_runtime_context().get_assigned_resources().get("CPU", 0.0)
+        held = _cpus_held()
         cpus = total - held
         where = f"the Ray this process is connected to has {total:g} CPUs" + (
             f" and this task holds {held:g} of them" if held else "")
