@@ -4,8 +4,11 @@ the engine run in this process."""
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from farm.alloc.scenarios import SCENARIOS
+
+pytestmark = pytest.mark.ray
 
 
 def test_a_theatre_episode_plays_the_same_games_on_ray_as_in_process(ray_local, tmp_path):

@@ -17,6 +17,8 @@ import numpy as np
 from farm.runtime.metrics import EXPORTED
 from farm.games.sweep import SweepRun, load_sweep_config, run_sweep
 
+pytestmark = pytest.mark.ray
+
 @pytest.fixture
 def config(tmp_path):
     return load_sweep_config(write_sweep(tmp_path / "sweep.yaml"))
