@@ -204,6 +204,7 @@ def cold(ray_local, tmp_path_factory):
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_every_trial_is_an_mlflow_run_whose_metrics_are_its_trials_csv_row(cold):
     """The smoke grid is tracked (tracking.mlflow, an SQLite store): the MLflow logger
     (farm.studies.experiments.tracking.TrialRuns) made one FINISHED run per trial in the
@@ -231,6 +232,7 @@ def test_every_trial_is_an_mlflow_run_whose_metrics_are_its_trials_csv_row(cold)
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_two_trials_on_two_cpus_with_a_cold_store(cold):
     """2 trials at once on 2 CPUs, a cold store and no warm-up: every game a trial meets is
     computed while both trials wait, on the CPU the trials leave free (trial_cpus)."""
@@ -242,6 +244,7 @@ def test_two_trials_on_two_cpus_with_a_cold_store(cold):
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_smoke_grid_then_a_rerun_trains_nothing(cold):
     """The smoke grid's trials.csv, summary.csv, claims and learning curves; the same command
     again (the lattice warmed this time) trains nothing and gives the same rows. (The same trial
@@ -422,6 +425,7 @@ def run_experiment_killing(config, out: str, kill):
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_a_trial_in_object_storage_killed_with_its_local_folder_goes_on_from_the_bucket(s3, cold, tmp_path):
     """The experiment in an S3 bucket (moto's server on localhost), nothing of it on the local
     disk but the trial's scratch folder: the trial's worker SIGKILLed once it has trained past
@@ -465,6 +469,7 @@ def test_a_trial_in_object_storage_killed_with_its_local_folder_goes_on_from_the
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_a_trial_in_object_storage_killed_in_its_pretraining_goes_on_after_the_bucket_s_iteration(s3, cold, tmp_path):
     """The kill test above, in the pretraining (DAgger from intercept, 3 iterations): the trial's
     worker SIGKILLed, its local folder deleted first, once the bucket holds the Tune checkpoint
@@ -523,6 +528,7 @@ def test_a_trial_in_object_storage_killed_in_its_pretraining_goes_on_after_the_b
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, tmp_path):
     """`farm experiments --address` (the module's Ray, 2 trials at once) SIGKILLed, with its
     trials' workers, once p0_s0 has finished while p0_s1, held stopped since its checkpoint of

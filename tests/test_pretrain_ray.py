@@ -11,7 +11,7 @@ import torch
 from farm.alloc.training import TrainConfig, train
 from farm.alloc.training.dagger.loop import iteration_file
 
-pytestmark = pytest.mark.ray
+pytestmark = [pytest.mark.ray, pytest.mark.slow]
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, team_sizes="lattice")
 

@@ -129,6 +129,7 @@ def _farm(*args, env=None):
                           timeout=300, env={**os.environ, **(env or {})})
 
 
+@pytest.mark.slow
 def test_debug_shows_the_traceback_else_one_line(tmp_path):
     bad = tmp_path / "nope.yaml"
     plain = _farm("sweep", bad)
@@ -152,6 +153,7 @@ def test_library_errors_name_fields_and_the_cli_names_flags(tmp_path):
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_the_local_ray_is_on_loopback_and_starts_quietly(ray_local, tmp_path):
     import ray
 

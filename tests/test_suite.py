@@ -204,6 +204,7 @@ def demo(ray_local, tmp_path_factory):
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_the_demo_suite_writes_the_leaderboard_episodes_plot_and_config(demo):
     out, store, r = demo
     assert store.exists()  # the cold store the CLI filled
@@ -229,6 +230,7 @@ def test_the_demo_suite_writes_the_leaderboard_episodes_plot_and_config(demo):
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_every_policy_sees_the_same_episodes(demo):
     out, _, _ = demo
     per = pd.read_csv(out / "episodes.csv")
@@ -243,6 +245,7 @@ def test_every_policy_sees_the_same_episodes(demo):
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_the_report_shows_the_leaderboard(demo):
     from farm.report import build_report
 
@@ -257,6 +260,7 @@ def test_the_report_shows_the_leaderboard(demo):
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_a_rerun_gives_the_same_numbers(demo, tmp_path, monkeypatch):
     """One of the demo's scenarios again, every policy, over the store the first run filled,
     each cell's 2 episodes cut into 2 tasks of one (a TASK_COST below a 3 x 3 episode's, as a
@@ -301,6 +305,7 @@ def _untrained_run(run_dir: Path, scenario: str) -> Path:
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_a_cold_store_without_warming_cannot_deadlock_on_two_cpus(ray_local, demo, tmp_path):
     """Both CPUs held by evaluation tasks whose every engagement misses (games: 3, not in the
     store): the service's game tasks run on the CPUs the waiting tasks lend. Then the same
@@ -378,6 +383,7 @@ def test_the_report_takes_a_bare_leaderboard_and_refuses_a_damaged_one(tmp_path)
 
 
 @pytest.mark.ray
+@pytest.mark.slow
 def test_an_adversary_axis_adds_every_intruder_policy_and_the_worst_case(demo, tmp_path):
     """`intruders: [drift, fewest_ahead]`: every allocator meets each intruder policy on the same
     episodes; the drift rows are the suite's own (the default intruders) and each (scenario,
