@@ -10,7 +10,7 @@ RESULTS ?= results/demo
 # The documentation site (mkdocs.yml): built with --strict into site/, so a broken link or reference fails.
 export NO_MKDOCS_2_WARNING := 1
 
-.PHONY: docs docs-serve demo lint test bench experiments experiments-learners experiments-learners-hard experiments-learners-near experiments-size-free suite install browser clean
+.PHONY: docs docs-serve demo lint test test-fast bench experiments experiments-learners experiments-learners-hard experiments-learners-near experiments-size-free suite install browser clean
 
 $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -48,6 +48,10 @@ lint: $(STAMP)
 # modules without Ray over both (tests/conftest.py). The lint comes first: it takes seconds.
 test: $(STAMP) browser lint
 	$(PY) -m pytest -q -n 2 --dist loadgroup --no-loadscope-reorder
+
+# The tests marked neither `ray` nor `slow` (every module's quick ones), on the same two workers.
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -n 2 --dist loadgroup --no-loadscope-reorder -m "not ray and not slow"
 
 bench: $(STAMP)
 	$(PY) benchmarks/engine.py

@@ -34,86 +34,82 @@ def points_in(arena_vertices, shape, rng):
     return make_arena(arena_vertices).sample_uniform(rng, shape)
 
 
-# `make test` runs the suite on 2 pytest-xdist workers (--dist loadgroup, the groups in the
-# order of the items below: --no-loadscope-reorder). The modules below start no Ray (their
-# `farm` commands run in process: --no-ray, service.mode local): each is a group of its own
-# (its module fixtures made once), spread over both workers. Every other module starts or joins
-# Ray, in this process or through `farm` and `ray` subprocesses; they form one group and so run
-# one after another on one worker, as without xdist, but for OWN_CLUSTERS: its tests start
-# Rays of their own with `ray start` and `farm` subprocesses, never the shared one, so they are
-# a group of their own, first on the other worker, beside the Ray group (the suite's critical
-# path). Two Rays starting at once on 2 cores can miss Ray's 30 s start deadline, so the shared
-# Ray and every Ray of OWN_CLUSTERS start under ray_start_lock, one at a time across the
-# workers (the Ray group's tests with Rays of their own run last in it, long after
-# OWN_CLUSTERS); and a test that signals or kills Ray workers picks them among its own
-# process's descendants (descendants), never the other worker's.
-WITHOUT_RAY = {"test_experiment_storage", "test_alloc_env", "test_animate", "test_report", "test_alloc_td3",
-               "test_alloc_train", "test_alloc_v2", "test_capture_score", "test_cell_policy", "test_claims",
-               "test_cli", "test_compiled", "test_docs", "test_engine", "test_env_api", "test_escapes",
-               "test_estimates_rule", "test_farm_layout", "test_geometry", "test_global_state", "test_learners",
-               "test_lint", "test_montecarlo", "test_planners", "test_policy_registry", "test_reference_selfcheck",
-               "test_refuses_cli", "test_refuses_configs", "test_refuses_probe", "test_refuses_shards",
-               "test_refuses_training", "test_refuses_workers", "test_repair", "test_resume_damaged",
-               "test_size_free", "test_sweep_config", "test_tracking", "test_train_resume", "test_vector_env",
-               "test_workers_layout"}
-WITHOUT_RAY |= {"test_intruder_env", "test_pettingzoo_env", "test_intruders", "test_mixtures", "test_matrix_game",
-                "test_minimax"}
-WITHOUT_RAY |= {"test_tracking_faults", "test_storage_faults"}
-WITHOUT_RAY |= {"test_pretrain_files", "test_checkpoint_seal", "test_refuses_costs", "test_refuses_early",
-                "test_env_state"}
+# The suite's marks (pyproject.toml's [tool.pytest.ini_options]), on the tests themselves
+# (a module's `pytestmark` when all its tests are one kind, else a decorator per test):
+#   ray      the test starts or joins a Ray: it takes ray_local (the shared local Ray), or it is
+#            own_ray too.
+#   own_ray  the test starts Rays of its own (`ray start` clusters, `farm` commands starting a
+#            local Ray), each under ray_start_lock, and never joins the shared one.
+#   slow     the test takes more than about 5 s (`--durations=0`), its module fixtures included.
+# `make test-fast` runs the tests neither ray nor slow; `make test` runs them all.
+#
+# `make test` runs the suite on 2 pytest-xdist workers (--dist loadgroup: a group's tests on one
+# worker; --no-loadscope-reorder: the groups handed out in the order of the items below). The
+# tests on the shared Ray are one group, first: they run one after another on one worker, as
+# without xdist, on one Ray start, and are the suite's critical path. The own_ray tests are a
+# group of their own, second, so the other worker starts on it beside them. Two Rays starting
+# at once on 2 cores can miss Ray's 30 s start deadline, so the shared Ray and every own_ray
+# Ray start under ray_start_lock, one at a time across the workers; and a test that signals or
+# kills Ray workers picks them among its own process's descendants (descendants), never the
+# other worker's. Every other test starts no Ray: a module's such tests are a group of their own
+# (its module fixtures made once), spread over both workers, the groups with the most slow tests
+# first, then the largest, so that no long group is left for the end. A test not marked ray runs
+# with $RAY_ADDRESS naming a closed port (_not_ray_means_no_ray), so that it fails if it starts
+# or joins Ray after all.
+SHARED_RAY, OWN_RAY = "ray", "own-ray"  # the two groups of the ray tests
 
 
-# Modules of the Ray group whose Ray tests all take the ray_local fixture: their other tests
-# start no Ray, and run beside the Ray group as a group of their own (the Ray group is the
-# suite's critical path).
-MIXED = {"test_exact_search", "test_exploit", "test_robust", "test_refuses_store", "test_service", "test_suite",
-         "test_sweep_ray", "test_runtime", "test_live_engagements", "test_pretrain_ray", "test_dashboards"}
-
-
-# Modules whose Ray tests start Rays of their own only (`ray start` clusters and `farm`
-# subprocesses), under ray_start_lock: a group of their own beside the Ray group.
-OWN_CLUSTERS = {"test_cluster_cli"}
-
-# The groups without Ray that take 40-140 s (of about 880 s of them, measured on 2 cores).
-LONG = {"test_engine", "test_docs", "test_policy_registry", "test_learners", "test_alloc_train", "test_size_free",
-        "test_animate", "test_report"}
-
-
-def _without_ray(item) -> bool:
-    """Whether a test starts no Ray: its module is WITHOUT_RAY, or MIXED and it takes no ray_local."""
-    module = Path(str(item.fspath)).stem
-    return module in WITHOUT_RAY or (module in MIXED and not _takes_ray_local(item))
+def _marked(item, name: str) -> bool:
+    return item.get_closest_marker(name) is not None
 
 
 def _takes_ray_local(item) -> bool:
     return "ray_local" in getattr(item, "fixturenames", ())
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist's hook, which reads the groups
-def pytest_collection_modifyitems(items):
-    groups = {}
-    for item in items:
-        module = Path(str(item.fspath)).stem
-        if _without_ray(item):
-            group = module if module in WITHOUT_RAY else f"{module}-without-ray"
-        else:
-            group = "ray-own-clusters" if module in OWN_CLUSTERS else "ray"
-        groups[item.nodeid] = group
-        item.add_marker(pytest.mark.xdist_group(group))
-    sizes = collections.Counter(groups.values())
+def _mark_error(item) -> str | None:
+    """What is wrong with a test's ray and own_ray marks (the comment above), None if nothing."""
+    ray, own, shared = _marked(item, "ray"), _marked(item, "own_ray"), _takes_ray_local(item)
+    if shared and not ray:
+        return "takes ray_local but is not marked ray"
+    if own and not ray:
+        return "is marked own_ray but not ray"
+    if own and shared:
+        return "is marked own_ray but takes the shared ray_local"
+    if ray and not (own or shared):
+        return "is marked ray but neither takes ray_local nor is marked own_ray"
+    return None
 
-    # The Ray group first (one worker starts on it at once: the critical path), its tests on
-    # the shared local Ray (ray_local) first, one after another, then its tests that start
-    # Rays of their own: one Ray start for all of the former. Then OWN_CLUSTERS (the other
-    # worker starts on it), then the other groups, LONG first, then the largest first (as
-    # xdist's own --loadscope-reorder would), so that no long group is left for the end.
+
+@pytest.hookimpl(tryfirst=True)  # before its fixtures are set up: no Ray started for it
+def pytest_runtest_setup(item):
+    """A test whose ray marks do not say what it does fails in its setup, naming the mistake."""
+    error = _mark_error(item)
+    if error is not None:
+        pytest.fail(f"{item.nodeid} {error} (tests/conftest.py's marks)", pytrace=False)
+
+
+def _group(item) -> str:
+    if not _marked(item, "ray"):
+        return Path(str(item.fspath)).stem
+    return OWN_RAY if _marked(item, "own_ray") else SHARED_RAY
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's hook, which reads the groups, and before -m deselects
+def pytest_collection_modifyitems(items):
+    groups = {item.nodeid: _group(item) for item in items}
+    for item in items:
+        item.add_marker(pytest.mark.xdist_group(groups[item.nodeid]))
+    sizes = collections.Counter(groups.values())
+    slow = collections.Counter(groups[item.nodeid] for item in items if _marked(item, "slow"))
+    first = {SHARED_RAY: 0, OWN_RAY: 1}
+
+    # The shared Ray's group, then the own_ray group, then the others, the most slow tests first,
+    # then the largest (as xdist's own --loadscope-reorder would). The sort is stable: a group's
+    # tests stay in the order of their module, which ray_local's one Ray start relies on.
     def order(item):
         group = groups[item.nodeid]
-        if group == "ray":
-            return (0, not _takes_ray_local(item), 0, "")
-        if group == "ray-own-clusters":
-            return (1, False, 0, "")
-        return (2, group not in LONG, -sizes[group], group)
+        return (first.get(group, 2), -slow[group], -sizes[group], group)
 
     items.sort(key=order)
 
@@ -150,11 +146,11 @@ def pytest_runtest_teardown(item, nextitem):
 
 
 @pytest.fixture(autouse=True)
-def _without_ray_means_without_ray(request, monkeypatch):
-    """A test that starts no Ray (_without_ray) and would start or join Ray fails instead of
-    running beside the Ray group: $RAY_ADDRESS names a closed port, which every `farm` command
-    and farm.runtime.ray_cluster would try to join."""
-    if _without_ray(request.node):
+def _not_ray_means_no_ray(request, monkeypatch):
+    """A test not marked ray that would start or join Ray fails instead of running beside the
+    Ray tests (or in `make test-fast`): $RAY_ADDRESS names a closed port, which every `farm`
+    command and farm.runtime.ray_cluster would try to join."""
+    if not _marked(request.node, "ray"):
         monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
 
 

@@ -49,6 +49,7 @@ class TimedTD3(TD3):
         self.train_seconds += time.perf_counter() - t0
 
 
+@pytest.mark.slow
 def test_update_timer_measures_the_updates_and_changes_nothing(store):
     """Same seed with and without the timer: the same transitions and the same trained actor
     (the callback only reads the clock). The timer's update time covers every train() call

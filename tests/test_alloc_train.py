@@ -37,6 +37,7 @@ def tiny_config(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_tiny_training_saves_a_model_that_loads_and_evaluates(tiny_config, tmp_path):
     run = tmp_path / "run"
     r = farm("train", tiny_config, "--out", run, "--quiet")

@@ -81,6 +81,7 @@ def _tiny_run(tmp_path: Path) -> Path:
     return tmp_path / "run"
 
 
+@pytest.mark.slow
 def test_farm_eval_evaluates_a_registered_allocator(north_wind, tmp_path):
     from farm.alloc.evaluation import evaluate_run
     from farm.alloc.runs import RunFolder
@@ -104,6 +105,8 @@ def test_farm_eval_evaluates_a_registered_allocator(north_wind, tmp_path):
         assert math.isclose(mine[column], alone.iloc[0][column], rel_tol=0, abs_tol=1e-12)
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_the_suite_evaluates_a_registered_allocator_on_ray_workers(north_wind, ray_local, tmp_path):
     from farm.studies.suite import load_suite_config, run_suite
 
@@ -139,6 +142,8 @@ def test_a_suite_refuses_an_unknown_option_of_a_registered_allocator(north_wind,
         load_suite_config(path)
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_an_experiment_evaluates_a_registered_allocator_in_its_trials(north_wind, ray_local, tmp_path):
     from farm.studies.experiments import load_experiment_config, run_experiment
 

@@ -29,7 +29,7 @@ def test_the_frame_steps_are_every_kth_step_and_the_last():
             assert shown[0] == 0 and shown[-1] == steps and np.all(np.diff(shown) >= 1)
 
 
-@pytest.mark.parametrize("suffix, stride", [(".gif", 7), (".mp4", 25)])
+@pytest.mark.parametrize("suffix, stride", [pytest.param(".gif", 7, marks=pytest.mark.slow), (".mp4", 25)])
 def test_farm_game_animates_one_frame_per_kth_step_of_the_game(tmp_path, suffix, stride):
     path = tmp_path / f"g{suffix}"
     status, out, err = farm("game", "--n-pursuers", 5, "--n-evaders", 1, "--seed", 1, "--animate", path,
@@ -80,6 +80,7 @@ def run(tmp_path_factory):
     return train_tiny_run(tmp_path_factory.mktemp("anim"), "eval: {freq: 120, episodes: 2}\n")
 
 
+@pytest.mark.slow
 def test_farm_eval_animates_an_episode_and_the_report_inlines_it(run):
     from farm.alloc.episode_animation import episode_frame_count
     from farm.alloc.rollout import Episode

@@ -59,6 +59,7 @@ def test_claims_not_confirmed_when_the_numbers_say_so(tmp_path):
     assert rows["(c)"]["verdict"].startswith("not confirmed")
 
 
+@pytest.mark.slow
 def test_cli_claims_writes_a_table_and_errors_in_one_line(tmp_path):
     make_run(tmp_path, "paper_3x3_c1_0", spread_rows((3, 3), (33.0, 33.0), 1.0), [-1, -1])
     farm = [sys.executable, "-m", "farm.cli"]
@@ -226,6 +227,7 @@ def test_claims_over_seeds_partly_confirmed_and_without_a_pair(tmp_path):
     assert named.pair == (0, 1) and [r["claim"][:3] for r in named.rows] == ["(a)", "(b)", "(c)"]
 
 
+@pytest.mark.slow
 def test_cli_claims_on_an_experiment_folder(tmp_path):
     folder = make_experiment(tmp_path)
     farm = [sys.executable, "-m", "farm.cli", "claims"]

@@ -42,6 +42,7 @@ def test_game_from_json_matches_api(tmp_path):
         assert f"{t:.2f} s" in r.stdout
 
 
+@pytest.mark.slow
 def test_pe_table_small(tmp_path):
     r = farm("pe-table", "--games", 4, "--out", tmp_path, "--format", "parquet")
     assert r.returncode == 0, r.stderr

@@ -20,6 +20,8 @@ from conftest import cmdline, free_port, ray_start_lock, session, signal_all, wr
 
 from farm.games.sweep import SweepRun, load_sweep_config, run_sweep
 
+pytestmark = [pytest.mark.ray, pytest.mark.own_ray, pytest.mark.slow]
+
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 ENV = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "RAY_AUTH_MODE": "disabled",

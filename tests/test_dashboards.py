@@ -281,6 +281,7 @@ def _scrape(port: int) -> dict[str, set[str]]:
     return out
 
 
+@pytest.mark.ray
 def test_ray_metrics_and_labels_the_dashboard_queries_are_exported_by_ray(ray_local):
     """On a live local Ray (conftest's ray_local, its Prometheus endpoint), every Ray metric
     the dashboard queries is exported, with every label the dashboard matches or groups on."""

@@ -50,6 +50,7 @@ class _QuietHandler(http.server.SimpleHTTPRequestHandler):
         pass
 
 
+@pytest.mark.slow
 def test_the_site_has_every_page_of_the_nav(site):
     pages = {p.relative_to(site).as_posix() for p in site.rglob("*.html")}
     for page in ["index.html", "getting-started.html", "model.html", "reference/cli.html",
@@ -62,6 +63,7 @@ def test_the_site_has_every_page_of_the_nav(site):
     assert all(f"farm {c}" in cli for c in ("game", "sweep", "train", "eval", "experiments"))
 
 
+@pytest.mark.slow
 def test_every_page_renders_in_chromium_with_its_images_and_no_console_error(site, served):
     if CHROMIUM is None:
         if os.environ.get("CI"):
@@ -121,6 +123,7 @@ def _config_models() -> list[type]:
                                                                                                         InitialLaw]
 
 
+@pytest.mark.slow
 def test_the_config_reference_names_every_field_of_every_config_model(site):
     text = {p.stem: p.read_text() for p in (site / "reference" / "configs").glob("*.html")}
     models = _config_models()
@@ -140,6 +143,7 @@ def test_the_config_reference_names_every_field_of_every_config_model(site):
     assert not missing, missing
 
 
+@pytest.mark.slow
 def test_every_config_field_has_a_description_in_the_reference(monkeypatch):
     monkeypatch.syspath_prepend(str(ROOT / "tools"))  # tools/mkdocs_hooks.py, as mkdocs loads it
     hooks = importlib.import_module("mkdocs_hooks")

@@ -67,6 +67,7 @@ def test_velocities_match_reference_along_trajectories(pp, ep, rng):
                 np.testing.assert_allclose(ue[0], re, atol=1e-8)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pp", PURSUERS)
 @pytest.mark.parametrize("ep", EVADERS)
 def test_capture_times_match_reference(pp, ep, rng):
@@ -330,6 +331,7 @@ def test_same_input_same_numbers_and_batch_independence(rng):
     np.testing.assert_array_equal(a, split)
 
 
+@pytest.mark.slow
 def test_non_square_arena_game(rng):
     P, E = points_in(HEXAGON, (4, 3), rng), points_in(HEXAGON, (4, 2), rng)
     res = simulate_games(P, E, arena=HEXAGON, t_max=20.0, record=True)

@@ -214,6 +214,7 @@ def test_the_search_is_never_worse_than_a_heuristic_of_the_registry(client):
 
 # ----------------------------------------------------------------------------- on Ray
 @pytest.mark.ray
+@pytest.mark.slow
 def test_on_ray_the_table_is_the_plain_enumeration_and_the_same_whatever_the_workers(ray_local, store, client):
     spec = PolicySpec(policy_entry("intercept"))
     here = response_table(SMALL, spec, client, 5, 20)

@@ -203,6 +203,8 @@ def cold(ray_local, tmp_path_factory):
     return tmp, trials, info, store, path, out
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_every_trial_is_an_mlflow_run_whose_metrics_are_its_trials_csv_row(cold):
     """The smoke grid is tracked (tracking.mlflow, an SQLite store): the MLflow logger
     (farm.studies.experiments.tracking.TrialRuns) made one FINISHED run per trial in the
@@ -229,6 +231,8 @@ def test_every_trial_is_an_mlflow_run_whose_metrics_are_its_trials_csv_row(cold)
         assert max(steps) == row["timesteps"] == 300
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_two_trials_on_two_cpus_with_a_cold_store(cold):
     """2 trials at once on 2 CPUs, a cold store and no warm-up: every game a trial meets is
     computed while both trials wait, on the CPU the trials leave free (trial_cpus)."""
@@ -239,6 +243,8 @@ def test_two_trials_on_two_cpus_with_a_cold_store(cold):
     assert len(pd.read_csv(out / "trials.csv")) == 4 and len(pd.read_csv(out / "summary.csv")) == 2
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_smoke_grid_then_a_rerun_trains_nothing(cold):
     """The smoke grid's trials.csv, summary.csv, claims and learning curves; the same command
     again (the lattice warmed this time) trains nothing and gives the same rows. (The same trial
@@ -418,6 +424,8 @@ def run_experiment_killing(config, out: str, kill):
     return trials, info, killed[0]
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_a_trial_in_object_storage_killed_with_its_local_folder_goes_on_from_the_bucket(s3, cold, tmp_path):
     """The experiment in an S3 bucket (moto's server on localhost), nothing of it on the local
     disk but the trial's scratch folder: the trial's worker SIGKILLed once it has trained past
@@ -460,6 +468,8 @@ def test_a_trial_in_object_storage_killed_with_its_local_folder_goes_on_from_the
     assert sorted(tmp_path.iterdir()) == local_files and not run.exists()
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_a_trial_in_object_storage_killed_in_its_pretraining_goes_on_after_the_bucket_s_iteration(s3, cold, tmp_path):
     """The kill test above, in the pretraining (DAgger from intercept, 3 iterations): the trial's
     worker SIGKILLed, its local folder deleted first, once the bucket holds the Tune checkpoint
@@ -517,6 +527,8 @@ def test_a_trial_in_object_storage_killed_in_its_pretraining_goes_on_after_the_b
     assert trials["trial"].tolist() == ["p0_s0"] and not run.exists()
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, tmp_path):
     """`farm experiments --address` (the module's Ray, 2 trials at once) SIGKILLed, with its
     trials' workers, once p0_s0 has finished while p0_s1, held stopped since its checkpoint of

@@ -8,6 +8,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from farm.alloc import AllocConfig, SwarmAllocationEnv
 
 PROBE = """
@@ -25,6 +27,7 @@ print(json.dumps({"before": before, "after": after, "pyplot": "matplotlib.pyplot
 """
 
 
+@pytest.mark.slow
 def test_imports_change_no_process_setting(tmp_path):
     env = {**os.environ, "MPLBACKEND": "template"}
     r = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True, timeout=300, env=env,

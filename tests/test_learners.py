@@ -125,7 +125,7 @@ def test_the_fit_brings_the_actor_to_the_labels(store, client, algo):
             assert torch.equal(a, b)
 
 
-@pytest.mark.parametrize("algo", ["td3", "sac", "ppo"])
+@pytest.mark.parametrize("algo", ["td3", pytest.param("sac", marks=pytest.mark.slow), "ppo"])
 def test_each_algorithm_trains_a_model_of_its_own_kind(store, tmp_path, algo):
     import stable_baselines3
 
@@ -185,7 +185,7 @@ PRETRAIN = {"expert": "intercept", "iterations": 3, "episodes": 4, "expert_share
             "batch_size": 16, "episodes_per_task": 2}
 
 
-@pytest.mark.parametrize("algo", ["td3", "ppo"])
+@pytest.mark.parametrize("algo", [pytest.param("td3", marks=pytest.mark.slow), "ppo"])
 def test_a_pretrain_resumed_after_a_stop_is_bit_identical(store, tmp_path, monkeypatch, algo):
     cfg = config(store, algo, pretrain=PRETRAIN, keep="best")
     whole = train(cfg, tmp_path / "whole", show_progress=False)

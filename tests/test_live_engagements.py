@@ -4,10 +4,14 @@ the engine run in this process."""
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from farm.alloc.scenarios import SCENARIOS
 
+pytestmark = pytest.mark.ray
 
+
+@pytest.mark.slow
 def test_a_theatre_episode_plays_the_same_games_on_ray_as_in_process(ray_local, tmp_path):
     from farm.alloc.fidelity import evaluate_fidelity
     from farm.alloc.policies import make_policy

@@ -95,6 +95,7 @@ def engine_cache_files() -> dict:
     return {p.name: (p.stat().st_size, p.stat().st_mtime_ns) for p in kernel_cache_dir().rglob("engine.*")}
 
 
+@pytest.mark.slow
 def test_a_policy_registered_in_a_test_file_plays_through_simulate_games(registered):
     pp, ep = registered
     assert (pp.kind, ep.kind) == (len(PURSUERS), len(EVADERS))

@@ -4,10 +4,13 @@ and the trained model are the same as in process, whatever the tasks' size."""
 
 
 import numpy as np
+import pytest
 import torch
 
 from farm.alloc.training import TrainConfig, train
 from farm.alloc.training.dagger.iterations import iteration_file, read_iteration
+
+pytestmark = [pytest.mark.ray, pytest.mark.slow]
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, team_sizes="lattice")
 

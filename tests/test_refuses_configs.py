@@ -315,6 +315,7 @@ def assert_a_config_message(message):
     assert not any(p in message for p in PYTHON_ERRORS), message
 
 
+@pytest.mark.slow
 @FAST
 @given(TRAIN)
 def test_property_training_configs_load_or_are_refused(raw):

@@ -357,6 +357,7 @@ def damaged_file(path):
     return path
 
 
+@pytest.mark.ray
 def test_get_service_refuses_in_the_driver_before_any_actor(ray_local, tmp_path):
     """Today: a Ray actor-death message around "the capture-time store is damaged ... move it aside"."""
     from farm.service.actor import _running, get_service
@@ -386,6 +387,7 @@ def test_get_service_refuses_in_the_driver_before_any_actor(ray_local, tmp_path)
     assert not _running("svc-refuses-driver")
 
 
+@pytest.mark.ray
 def test_an_actor_dying_of_a_project_error_raises_its_line(ray_local, tmp_path, monkeypatch):
     """Where the driver cannot check the store (it runs on another node), the actor's death
     raises the project error it died of, not Ray's wrapper."""

@@ -121,6 +121,7 @@ def test_a_nan_action_stops_training_at_that_step(store, tmp_path, monkeypatch):
     assert_not_a_run(tmp_path / "run")
 
 
+@pytest.mark.slow
 def test_the_cli_reports_a_diverged_run_in_one_line(store, tmp_path):
     config = tmp_path / "diverges.yaml"
     config.write_text(yaml.safe_dump(json.loads(tiny_run(store, learning_rate=1e30).model_dump_json())))

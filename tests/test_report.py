@@ -50,6 +50,7 @@ def browser(*args, timeout=120):
                               text=True, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_report_renders_in_chromium(results, tmp_path):
     r = farm("report", results, "-o", tmp_path / "report.html")
     assert r.returncode == 0, r.stderr
@@ -71,6 +72,7 @@ def test_report_renders_in_chromium(results, tmp_path):
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 50_000
 
 
+@pytest.mark.slow
 def test_report_bad_input_is_one_line_and_leaves_no_file(results, tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
@@ -86,6 +88,7 @@ def test_report_bad_input_is_one_line_and_leaves_no_file(results, tmp_path):
         assert not out.exists() and not list(tmp_path.glob(f".{out.name}.*"))
 
 
+@pytest.mark.slow
 def test_report_leaves_other_sqlite_files_alone(results, tmp_path):
     import sqlite3
 

@@ -12,6 +12,7 @@ from farm.core.errors import ClusterError, ConfigError
 from farm.runtime import bounded, ray_cluster
 
 
+@pytest.mark.ray
 def test_asking_the_running_ray_for_what_it_does_not_have_is_one_line(ray_local):
     import ray
 
@@ -29,6 +30,7 @@ def test_asking_the_running_ray_for_what_it_does_not_have_is_one_line(ray_local)
     assert ray.is_initialized()  # a refusal leaves the running Ray alone
 
 
+@pytest.mark.ray
 def test_get_service_refuses_an_actor_that_serves_another_store(ray_local, tmp_path):
     from farm.service import get_service
 
@@ -41,6 +43,7 @@ def test_get_service_refuses_an_actor_that_serves_another_store(ray_local, tmp_p
 
 
 
+@pytest.mark.ray
 def test_a_client_block_stops_the_service_it_made_so_the_next_block_may_name_another_store(ray_local, tmp_path):
     # CI's failure (stop 43): a handle left in a reference cycle kept the first block's service
     # alive until a garbage collection, and the next block, naming another store, was refused.
@@ -71,6 +74,7 @@ def test_a_client_block_stops_the_service_it_made_so_the_next_block_may_name_ano
         gc.enable()
 
 
+@pytest.mark.ray
 def test_bounded_keeps_at_most_the_limit_in_flight_also_across_threads(ray_local):
     import ray
 
@@ -125,6 +129,7 @@ def _farm(*args, env=None):
                           timeout=300, env={**os.environ, **(env or {})})
 
 
+@pytest.mark.slow
 def test_debug_shows_the_traceback_else_one_line(tmp_path):
     bad = tmp_path / "nope.yaml"
     plain = _farm("sweep", bad)
@@ -147,6 +152,8 @@ def test_library_errors_name_fields_and_the_cli_names_flags(tmp_path):
     assert r.returncode == 2 and r.stderr.startswith("farm: error: --out: ")
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_the_local_ray_is_on_loopback_and_starts_quietly(ray_local, tmp_path):
     import ray
 

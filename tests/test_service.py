@@ -197,6 +197,8 @@ def test_estimates_reopened_store_and_other_settings(tmp_path):
 # ---------------------------------------------------------------- on Ray
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_actor_miss_restart_and_single_flight(ray_local, tmp_path):
     import ray
 

@@ -44,6 +44,7 @@ def run(tmp_path_factory):
     return tmp / "run"
 
 
+@pytest.mark.slow
 def test_a_model_trained_on_one_map_acts_on_others_with_the_same_weights(run):
     from farm.alloc.policies import make_policy
     from farm.alloc.policies.learned import load_model
@@ -71,6 +72,7 @@ def test_a_model_trained_on_one_map_acts_on_others_with_the_same_weights(run):
         np.testing.assert_array_equal(action, again)
 
 
+@pytest.mark.slow
 def test_the_moves_off_the_map_are_never_in_the_action(run):
     from farm.alloc.policies.learned import load_model
     from farm.alloc.training.cell_policy import resized
@@ -96,6 +98,7 @@ def test_the_moves_off_the_map_are_never_in_the_action(run):
     assert not off.reshape(-1)[net.index.numpy()].any()
 
 
+@pytest.mark.slow
 def test_farm_eval_scenario_evaluates_the_run_on_another_map(run):
     r = farm("eval", run, "--scenario", "theatre_16x16", "--episodes", 1, "--references", "intercept,receding_horizon")
     assert r.returncode == 0, r.stderr
@@ -133,6 +136,7 @@ def test_games_are_packed_into_tasks_of_about_the_target(costs, target):
     assert all(s - costs[t[-1]] < target for s, t in zip(sums, tasks))  # and closes as soon as it does
 
 
+@pytest.mark.slow
 def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_path, monkeypatch):
     from farm.alloc.training.dagger import loop as pretrain_module
     from farm.alloc.training.dagger.iterations import read_iteration

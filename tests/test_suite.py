@@ -203,6 +203,8 @@ def demo(ray_local, tmp_path_factory):
     yield work / "suite", work / "results" / "demo" / "capture_times.sqlite", stdout.getvalue()
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_the_demo_suite_writes_the_leaderboard_episodes_plot_and_config(demo):
     out, store, r = demo
     assert store.exists()  # the cold store the CLI filled
@@ -227,6 +229,8 @@ def test_the_demo_suite_writes_the_leaderboard_episodes_plot_and_config(demo):
     assert "outnumbered_3x3" in r and "leaderboard.csv" in r
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_every_policy_sees_the_same_episodes(demo):
     out, _, _ = demo
     per = pd.read_csv(out / "episodes.csv")
@@ -240,6 +244,8 @@ def test_every_policy_sees_the_same_episodes(demo):
     assert per[per["episode"] == 0]["intruders_start"].iloc[0] != per[per["episode"] == 1]["intruders_start"].iloc[0]
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_the_report_shows_the_leaderboard(demo):
     from farm.report import build_report
 
@@ -253,6 +259,8 @@ def test_the_report_shows_the_leaderboard(demo):
     assert "leaderboard.png" not in games  # the chart is shown once, in its section
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_a_rerun_gives_the_same_numbers(demo, tmp_path, monkeypatch):
     """One of the demo's scenarios again, every policy, over the store the first run filled,
     each cell's 2 episodes cut into 2 tasks of one (a TASK_COST below a 3 x 3 episode's, as a
@@ -296,6 +304,8 @@ def _untrained_run(run_dir: Path, scenario: str) -> Path:
     return run_dir
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_a_cold_store_without_warming_cannot_deadlock_on_two_cpus(ray_local, demo, tmp_path):
     """Both CPUs held by evaluation tasks whose every engagement misses (games: 3, not in the
     store): the service's game tasks run on the CPUs the waiting tasks lend. Then the same
@@ -372,6 +382,8 @@ def test_the_report_takes_a_bare_leaderboard_and_refuses_a_damaged_one(tmp_path)
         build_report(tmp_path / "bad")
 
 
+@pytest.mark.ray
+@pytest.mark.slow
 def test_an_adversary_axis_adds_every_intruder_policy_and_the_worst_case(demo, tmp_path):
     """`intruders: [drift, fewest_ahead]`: every allocator meets each intruder policy on the same
     episodes; the drift rows are the suite's own (the default intruders) and each (scenario,

@@ -109,6 +109,7 @@ def test_bad_config_one_line(tmp_path, text, message):
     assert "\n" not in str(err.value) and str(err.value).startswith(str(path))
 
 
+@pytest.mark.slow
 def test_cli_bad_config_is_one_line_and_keeps_results(tmp_path):
     good = write(tmp_path, "name: t\ngames_per_point: 4\nbase: {n_pursuers: 2, n_evaders: 1, t_max: 10}\n")
     out = tmp_path / "out"

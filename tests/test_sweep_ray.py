@@ -17,6 +17,8 @@ import numpy as np
 from farm.runtime.metrics import EXPORTED
 from farm.games.sweep import SweepRun, load_sweep_config, run_sweep
 
+pytestmark = pytest.mark.ray
+
 @pytest.fixture
 def config(tmp_path):
     return load_sweep_config(write_sweep(tmp_path / "sweep.yaml"))
@@ -72,6 +74,7 @@ def scrape(port) -> str:
         return r.read().decode()
 
 
+@pytest.mark.slow
 def test_worker_killed_mid_sweep_every_shard_exactly_once(ray_local, tmp_path, reference):
     # Bigger shards (about a second each) so that a worker is caught mid-shard; 2 points, 2
     # shards each: the 2 workers are busy until the last shard.
@@ -119,6 +122,7 @@ def test_worker_killed_mid_sweep_every_shard_exactly_once(ray_local, tmp_path, r
     pd.testing.assert_frame_equal(got, reference(config))
 
 
+@pytest.mark.slow
 def test_one_seeding_every_path_plays_the_same_games(ray_local, tmp_path):
     """Games 0..7 of one case with seed 5, through run_case, a 1-worker and a 2-worker sweep,
     the capture-time service and `farm eval --fidelity games`' client (its games as Ray tasks and

@@ -58,6 +58,7 @@ def client_of(tmp: Path):
     return MlflowClient(tracking_uri=f"sqlite:///{tmp / 'mlflow.db'}")
 
 
+@pytest.mark.slow
 def test_a_tracked_run_logs_its_params_curve_metrics_and_files(tracked):
     tmp, run, _, second, _, _ = tracked
     client = client_of(tmp)
@@ -91,6 +92,7 @@ def test_a_tracked_run_logs_its_params_curve_metrics_and_files(tracked):
     assert (tmp / "mlartifacts").is_dir() and not (Path.cwd() / "mlruns").exists()
 
 
+@pytest.mark.slow
 def test_tracking_changes_no_number(tracked):
     _, _, first, _, plain, first_evaluations = tracked
     untracked = json.loads((plain / "metrics.json").read_text())

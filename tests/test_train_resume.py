@@ -100,6 +100,7 @@ def assert_same_run(a: Path, b: Path) -> None:
     assert ma == mb
 
 
+@pytest.mark.slow
 def test_a_run_stopped_after_a_checkpoint_and_resumed_equals_an_uninterrupted_one(reference, tmp_path):
     """Stopped at step 260: after the checkpoint of step 210 (past learning_starts, so the
     update's random draws matter) and the evaluation of step 250, which the resumed run redoes."""
@@ -123,6 +124,7 @@ def test_a_run_stopped_after_a_checkpoint_and_resumed_equals_an_uninterrupted_on
     assert metrics["update_seconds"] > earlier["update_seconds"]
 
 
+@pytest.mark.slow
 def test_a_shorter_run_resumed_to_the_full_length_equals_an_uninterrupted_one(reference, tmp_path):
     """Trained 70 steps (before learning_starts: the warm-up's random actions come from the
     action space's generator), then resumed to 300."""
@@ -150,6 +152,7 @@ def test_latest_checkpoint_is_the_last_whole_one(tmp_path):
     assert latest_checkpoint(tmp_path)[1] == 100
 
 
+@pytest.mark.slow
 def test_the_env_goes_on_from_its_state(reference):
     """get_state mid-episode, set_state in another env: the same steps and the same next
     episode's start; a state of another grid is refused in one line."""
@@ -178,6 +181,7 @@ def test_the_env_goes_on_from_its_state(reference):
     assert "\n" not in str(e.value)
 
 
+@pytest.mark.slow
 def test_a_resumed_intruders_run_equals_an_uninterrupted_one(reference, tmp_path):
     """The same for the intruders' side (side: intruders, the intruders' env against a frozen
     allocator): stopped at step 260, after the checkpoint of step 210, and resumed."""
