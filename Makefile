@@ -10,7 +10,7 @@ RESULTS ?= results/demo
 # The documentation site (mkdocs.yml): built with --strict into site/, so a broken link or reference fails.
 export NO_MKDOCS_2_WARNING := 1
 
-.PHONY: docs docs-serve demo lint test test-fast bench experiments experiments-learners experiments-learners-hard experiments-learners-near experiments-size-free suite install browser clean
+.PHONY: docs docs-serve demo lint test test-fast bench exploit robust experiments experiments-learners experiments-learners-hard experiments-learners-near experiments-size-free suite install browser clean
 
 $(STAMP): pyproject.toml constraints-cpu.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -60,6 +60,30 @@ bench: $(STAMP)
 	$(PY) benchmarks/alloc.py
 	$(PY) benchmarks/planners.py
 	$(PY) benchmarks/experiments.py
+	$(PY) benchmarks/vector_env.py
+	$(PY) benchmarks/exploit.py all
+	$(PY) benchmarks/minimax.py
+	$(PY) benchmarks/robust.py
+
+# The exploitability table (configs/exploit/table.yaml): every allocator against drift, the heuristic
+# intruders, the exact best response (3 x 3) and a PPO best response over 3 seeds. Each scenario's best
+# learned allocator (configs/train/best_<scenario>.yaml) is trained first when missing.
+EXPLOIT_RUNS := best_paper_3x3_c1_1.5 best_outnumbered_3x3 best_outnumbered_5x5 best_wide_front_8x8
+exploit: $(STAMP)
+	for e in $(EXPLOIT_RUNS); do \
+	  test -f results/runs/$$e/model.zip || $(VENV)/bin/farm train configs/train/$$e.yaml --out results/runs/$$e || exit 1; \
+	done
+	$(VENV)/bin/farm exploit configs/exploit/table.yaml --out results/exploit/table
+	$(VENV)/bin/farm report results
+
+# Policy-space response oracles on the four maps (configs/robust/<scenario>.yaml), seeds 0, 1 and 2,
+# each into results/robust/robust_<scenario>_s<seed>; the same command again resumes them.
+ROBUST_MAPS := outnumbered_3x3 paper_3x3_c1_1.5 outnumbered_5x5 wide_front_8x8
+robust: $(STAMP)
+	for m in $(ROBUST_MAPS); do for s in 0 1 2; do \
+	  $(VENV)/bin/farm robust configs/robust/$$m.yaml --seed $$s || exit 1; \
+	done; done
+	$(VENV)/bin/farm report results
 
 # The scenario suite (configs/suite.yaml): TD3 trained on each scenario (configs/train/suite_*.yaml,
 # into results/runs/suite_<scenario>) and the theatres' size-free learner (size_free_transport.yaml),

@@ -629,6 +629,10 @@ def cmd_robust(args) -> int:
     from farm.studies.robust import load_robust_config, run_robust
 
     config = load_robust_config(args.config)
+    if args.seed is not None:
+        if args.seed < 0:
+            raise CliError(f"--seed: must be a whole number >= 0, got {args.seed}")
+        config = config.model_copy(update={"seed": args.seed, "name": f"{config.name}_s{args.seed}"})
     out = Path(args.out or f"results/robust/{config.name}")
     with flags("out", "address", "workers", workers="num_cpus"):
         iterations, info = run_robust(config, out, address=args.address, workers=args.workers,
@@ -781,6 +785,8 @@ def build_parser() -> argparse.ArgumentParser:
     rb = sub.add_parser("robust", help="allocators that hold against adapting intruders: policy-space response "
                                        "oracles on the farm (resumable)")
     rb.add_argument("config", help="robust YAML, e.g. configs/robust/outnumbered_3x3.yaml")
+    rb.add_argument("--seed", type=int, help="the loop's seed instead of the config's; the name gets _s<seed> "
+                                             "(make robust runs seeds 0, 1 and 2)")
     rb.add_argument("--out", help="results folder (default results/robust/NAME)")
     _cluster_options(rb, "payoff rollouts and trials at once (default: the cluster's CPUs)")
     rb.set_defaults(func=cmd_robust)

@@ -96,10 +96,11 @@ def _group(item) -> str:
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's hook, which reads the groups, and before -m deselects
-def pytest_collection_modifyitems(items):
+def pytest_collection_modifyitems(config, items):
     groups = {item.nodeid: _group(item) for item in items}
-    for item in items:
-        item.add_marker(pytest.mark.xdist_group(groups[item.nodeid]))
+    if config.pluginmanager.hasplugin("xdist"):  # its mark, unknown without it (-p no:xdist)
+        for item in items:
+            item.add_marker(pytest.mark.xdist_group(groups[item.nodeid]))
     sizes = collections.Counter(groups.values())
     slow = collections.Counter(groups[item.nodeid] for item in items if _marked(item, "slow"))
     first = {SHARED_RAY: 0, OWN_RAY: 1}

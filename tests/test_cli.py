@@ -111,6 +111,7 @@ def test_game_with_exit_point_and_speeds():
         (["game", "--evader-speed", "fast"], "--evader-speed: Input should be a valid number"),
         (["pe-table", "--pursuer-speed", "-2"], "--pursuer-speed: must be positive and finite, got -2.0"),
         (["pe-table", "--evader-speed", "inf"], "--evader-speed: must be positive and finite, got inf"),
+        (["robust", "configs/robust/smoke.yaml", "--seed", "-1"], "--seed: must be a whole number >= 0, got -1"),
         (["nope"], "invalid choice: 'nope'"),
     ],
 )
