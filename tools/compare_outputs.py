@@ -42,7 +42,7 @@ from pathlib import Path
 # ----------------------------------------------------------------------------- key lists
 # metrics.json / result.json / trials.csv: farm.alloc.train's timings (UpdateTimer) and the
 # experiment trial's own timings.
-TRAIN_TIMING = ["wall_seconds", "steps_per_second", "update_seconds", "outside_update_share"]
+TRAIN_TIMING = ["wall_seconds", "steps_per_second", "update_seconds", "outside_update_share", "pretrain_seconds"]
 TRIAL_TIMING = TRAIN_TIMING + ["train_seconds", "evaluate_seconds"]
 # Keys Ray Tune adds to every reported result (its clock, its random trial id, the pid of the
 # trial actor). hostname / node_ip / training_iteration / done are the same in both runs: kept.
@@ -72,6 +72,9 @@ RULES = [
     ("logs/suite.out", "suite_out", {},
      "stdout's leaderboard: its last column 'ms/step' is the policies' decision wall time (seconds_per_step); "
      "masked with its padding (the column's width follows the widest time)"),
+    ("logs/eval-games.out", "text_subs",
+     {"subs": [(r"(Ray task\(s\) \(coarse tasks\)), \d+(?:\.\d+)? games/s", r"\1, <N> games/s")]},
+     "stdout's live engagements line: games/s is a wall-clock rate"),
     ("logs/claims.out", "text_subs",
      {"subs": [(r"(?m)^(  measured: minutes to the plateau.*)$", lambda m: NUMBER.sub("<N>", m.group(1)))]},
      "claim (c)'s 'measured' line: minutes of training to the plateau, from the trials' wall-clock times "
@@ -103,9 +106,14 @@ RULES = [
      "actor pid) and the trial timings " + ", ".join(TRIAL_TIMING) + " masked"),
     ("experiments/*/tune/*/progress.csv", "csv", {"columns": TUNE_AUTO + TRIAL_TIMING},
      "Tune's per-trial progress table: same columns as result.json masked"),
+    ("*/pretrain/iteration_*.pkl", "pickle", {"float_keys": ["seconds"], "torch_storage_keys": True},
+     "pretraining iteration file (sealed: its checksum header left out, the pickle compared): the float after "
+     "the key seconds (the iteration's wall time) masked, and the policy tensors' storage keys"),
     ("*/checkpoints/rl_model_state_*_steps.pkl", "pickle",
-     {"float_keys": ["wall_seconds", "update_seconds"], "torch_storage_keys": True},
-     "RunState pickle: the floats after the keys wall_seconds / update_seconds (UpdateTimer) masked, and in "
+     {"float_keys": ["wall_seconds", "update_seconds"], "torch_storage_keys": True, "added_keys": ["pretrain"]},
+     "RunState pickle (sealed: its checksum header left out; the key pretrain, which the sealed RunState "
+     "adds, dropped when the before side lacks it): the floats after the keys wall_seconds / update_seconds "
+     "(UpdateTimer) masked, and in "
      "torch_rng's tensor (torch's legacy serialisation, a pickle inside the pickle) the storage key, which is "
      "the storage's C pointer (e.g. 94340541712288 vs 94574139369696); every other opcode and byte compared"),
     ("*.pkl", "pickle", {}, None),
@@ -326,6 +334,8 @@ def cmp_text_subs(a, b, ra, rb, params):
 
 
 _TQDM = re.compile(r"^(?P<desc>.*?)(?::\s*)?\s*\d+%\|[^|]*\|\s*(?P<n>\d+)/(?P<total>\d+) \[[^\]]*\]\s*$")
+# a bar past its total (tqdm then drops the percentage and the total): "steps: 30208step [00:26, 1146.44step/s]"
+_TQDM_PAST = re.compile(r"^(?P<desc>[^:]*):\s*(?P<n>\d+)(?P<unit>[A-Za-z]+) \[[\d:]+, [^\]]*\]\s*$")
 _ERR_TIMES = [(re.compile(r"\bin \d+(?:\.\d+)? s\b"), "in <T> s"),
               (re.compile(r"\b\d+(?:\.\d+)? s in all\b"), "<T> s in all"),
               (re.compile(r"\bevaluations \d+(?:\.\d+)? s\b"), "evaluations <T> s")]
@@ -339,9 +349,11 @@ def reduce_stderr(text: str) -> str:
             out.append("")
             continue
         last = segs[-1]
-        m = _TQDM.match(last)
+        m, past = _TQDM.match(last), _TQDM_PAST.match(last)
         if m:
             out.append(f"[bar] {m.group('desc').strip()} {m.group('n')}/{m.group('total')}")
+        elif past:
+            out.append(f"[bar] {past.group('desc').strip()} {past.group('n')}{past.group('unit')}")
         elif any(_TQDM.match(s) for s in segs[:-1]):  # a bar and text after it on one line
             out.append(last)
         else:
@@ -519,13 +531,38 @@ def pickle_ops(data: bytes, side: Side, float_keys=(), string_mask=None, torch_k
     return out, masked
 
 
+SEALS = (b"swarm-farm checkpoint state\n", b"swarm-farm pretrain iteration\n")  # farm.core.sealed's first lines
+
+
+def sealed_payload(data: bytes) -> bytes:
+    """The pickle of a sealed file (a first line of SEALS, a JSON header line of checksums, then the
+    pickle), else data itself: a sealed file and an unsealed one of the same pickle compare equal."""
+    if data.startswith(SEALS):
+        return data.split(b"\n", 2)[2]
+    return data
+
+
+def without_added_keys(pa: bytes, pb: bytes, keys) -> tuple[bytes, bytes]:
+    """Both pickles of a dict loaded and dumped again (protocol 4), the after side's top-level `keys`
+    that the before side lacks dropped: a key the new code adds compares as no change."""
+    import pickle
+
+    da, db = pickle.loads(pa), pickle.loads(pb)
+    if isinstance(da, dict) and isinstance(db, dict):
+        db = {k: v for k, v in db.items() if k in da or k not in keys}
+    return pickle.dumps(da, protocol=4), pickle.dumps(db, protocol=4)
+
+
 def cmp_pickle(a, b, ra, rb, params):
     da, db = a.read(ra), b.read(rb)
     if da == db:
         return True, "", None
     fk, tk = tuple(params.get("float_keys", ())), params.get("torch_storage_keys", False)
-    oa, _ = pickle_ops((a.root / ra).read_bytes(), a, fk, torch_keys=tk)
-    ob, _ = pickle_ops((b.root / rb).read_bytes(), b, fk, torch_keys=tk)
+    pa, pb = sealed_payload((a.root / ra).read_bytes()), sealed_payload((b.root / rb).read_bytes())
+    if params.get("added_keys"):
+        pa, pb = without_added_keys(pa, pb, params["added_keys"])
+    oa, _ = pickle_ops(pa, a, fk, torch_keys=tk)
+    ob, _ = pickle_ops(pb, b, fk, torch_keys=tk)
     if oa == ob:
         return True, "", ("masked" if fk else "paths")
     for i, (x, y) in enumerate(zip(oa, ob)):
