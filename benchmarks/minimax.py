@@ -75,20 +75,27 @@ class Myopic:
         """The registry's maker."""
         return cls(config)
 
-    def routing(self, D, I):
-        """Each episode's pure routing that eliminates the least this step (straight when none is enumerable)."""
+    def resolved(self, D, I):
+        """(every pure routing of one episode's intruders I: (n2,), the step resolved under each against
+        the defenders D: (n2,)), or None when there are more than the budget."""
         from farm.alloc.dynamics import resolve
 
-        cfg, n = self.config, self.config.grid_size
+        routes = pure_routings(self.config.grid_size, I, self.config.engage_min_mass, Myopic.budget)
+        if routes is None:
+            return None
+        K = len(routes[0])
+        return routes, resolve(self.layout, self.config, self.model, np.repeat(D[None], K, 0),
+                               np.repeat(I[None], K, 0), routes)
+
+    def routing(self, D, I):
+        """Each episode's pure routing that eliminates the least this step (straight when none is enumerable)."""
         D, I = np.atleast_2d(D), np.atleast_2d(I)
         up, down = np.zeros(I.shape), np.zeros(I.shape)
         for b in range(len(I)):
-            routes = pure_routings(n, I[b], cfg.engage_min_mass, Myopic.budget)
-            if routes is None:
+            found = self.resolved(D[b], I[b])
+            if found is None:
                 continue
-            K = len(routes[0])
-            r = resolve(self.layout, cfg, self.model, np.repeat(D[b][None], K, 0), np.repeat(I[b][None], K, 0),
-                        routes)
+            routes, r = found
             k = int(np.argmin(r.eliminated))  # the first of the least: straight on ties
             up[b], down[b] = routes[0][k], routes[1][k]
         return up, down
@@ -111,12 +118,10 @@ class Lookahead(Myopic):
         D, I = np.atleast_2d(D), np.atleast_2d(I)
         up, down = np.zeros(I.shape), np.zeros(I.shape)
         for b in range(len(I)):
-            routes = pure_routings(n, I[b], cfg.engage_min_mass, Myopic.budget)
-            if routes is None:
+            found = self.resolved(D[b], I[b])
+            if found is None:
                 continue
-            K = len(routes[0])
-            r = resolve(self.layout, cfg, self.model, np.repeat(D[b][None], K, 0), np.repeat(I[b][None], K, 0),
-                        routes)
+            routes, r = found
             best, pick = np.inf, 0
             for k in np.argsort(r.eliminated, kind="stable"):
                 if r.eliminated[k] >= best:

@@ -18,7 +18,7 @@ import pandas as pd
 from workers import GAME_FIELDS, SwarmFarmError, sample_initial_positions, simulate_case
 from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
-from farm.core.checks import is_finite_number
+from farm.core.checks import is_finite_number, whole
 from farm.core.config import case_from
 from farm.core.errors import CliError
 
@@ -630,8 +630,7 @@ def cmd_robust(args) -> int:
 
     config = load_robust_config(args.config)
     if args.seed is not None:
-        if args.seed < 0:
-            raise CliError(f"--seed: must be a whole number >= 0, got {args.seed}")
+        whole("--seed", args.seed, error=CliError)
         config = config.model_copy(update={"seed": args.seed, "name": f"{config.name}_s{args.seed}"})
     out = Path(args.out or f"results/robust/{config.name}")
     with flags("out", "address", "workers", workers="num_cpus"):

@@ -3,6 +3,7 @@ import contextlib
 import fcntl
 import os
 import socket
+import subprocess
 import tempfile
 import time
 from pathlib import Path
@@ -351,3 +352,16 @@ def train_tiny_run(root: Path, extra: str = "") -> Path:
     status, out, err = farm_main("train", config, "--out", root / "run")
     assert status == 0, err
     return root / "run"
+
+
+@contextlib.contextmanager
+def immutable(path: Path):
+    """path made immutable (chattr +i: root cannot write it either; os.access says so); the test
+    is skipped where chattr +i is not available."""
+    r = subprocess.run(["chattr", "+i", str(path)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"chattr +i is not available here: {r.stderr.strip()}")
+    try:
+        yield path
+    finally:
+        subprocess.run(["chattr", "-i", str(path)], check=True)

@@ -11,12 +11,12 @@
 
 import math
 import sqlite3
-import subprocess
 import time
 from contextlib import contextmanager
 
 import pytest
 from hypothesis import HealthCheck, given, settings
+from conftest import immutable
 from hypothesis import strategies as st
 
 from farm.core.errors import ConfigError, StoreCorruptError
@@ -269,16 +269,6 @@ def test_a_path_below_a_file_is_refused(tmp_path):
 
 
 # ---------------------------------------------------------------- 4. a read-only store
-@contextmanager
-def immutable(path):
-    """path made immutable (chattr +i: root cannot write it either; os.access says so)."""
-    r = subprocess.run(["chattr", "+i", str(path)], capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"chattr +i is not available here: {r.stderr.strip()}")
-    try:
-        yield path
-    finally:
-        subprocess.run(["chattr", "-i", str(path)], check=True)
 
 
 def test_a_read_only_store_file_is_refused_before_any_work(tmp_path, monkeypatch):

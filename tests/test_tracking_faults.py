@@ -8,16 +8,14 @@ seconds."""
 
 import json
 import socket
-import subprocess
 import time
 import warnings
 import zipfile
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 import yaml
-from conftest import free_port
+from conftest import free_port, immutable
 from stable_baselines3.common.callbacks import BaseCallback
 
 from farm.core.errors import ConfigError
@@ -138,17 +136,6 @@ def test_tune_s_mlflow_logger_on_a_store_gone_read_only_stops_nothing(tmp_path):
     said = [str(w.message) for w in seen]
     assert len(said) == 1 and said[0].startswith("tracking.mlflow: MLflow failed logging trial p0_s0's report")
 
-
-@contextmanager
-def immutable(path: Path):
-    """path made immutable (chattr +i: root cannot write it either)."""
-    r = subprocess.run(["chattr", "+i", str(path)], capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"chattr +i is not available here: {r.stderr.strip()}")
-    try:
-        yield path
-    finally:
-        subprocess.run(["chattr", "-i", str(path)], check=True)
 
 
 def refused_train(tmp_path: Path, uri: str, store: Path | None = None, seconds: float = SECONDS) -> str:
