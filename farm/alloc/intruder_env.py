@@ -34,6 +34,7 @@ from farm.alloc.dynamics import (
 )
 from farm.alloc.env import GridEnv
 from farm.alloc.intruders.play import draw_state, for_episode
+from farm.alloc.move_helpers import check_procs
 from farm.alloc.policies.registry import policy_entry
 from farm.alloc.vector_env import GridVectorEnv
 from farm.core.errors import ConfigError
@@ -52,10 +53,14 @@ class Opponent:
     client. ConfigError (one line) naming `opponent` for a name the registry does not hold, and
     `opponent_options` for an option the allocator does not take or that it refuses.
 
+    procs: the processes that answer a batch's moves, the caller's and procs - 1 helpers
+    (farm.alloc.move_helpers.MoveHelpers: on Ray, the same moves whatever procs); close() stops them.
+
     Attributes: name: str; policy: the allocator (its predict()); layout: the map's Layout.
     """
 
-    def __init__(self, config: AllocConfig, client, name: str, options: dict | None = None):
+    def __init__(self, config: AllocConfig, client, name: str, options: dict | None = None, procs: int = 1):
+        procs = check_procs(procs)
         entry = policy_entry(name, "opponent")
         options = dict(options or {})
         unknown = sorted(set(options) - set(entry.options()))
@@ -69,6 +74,11 @@ class Opponent:
         self.name = name
         self.config = config
         self.layout = Layout(config.grid_size)
+        self.helpers = None
+        if procs > 1:
+            from farm.alloc.move_helpers import MoveHelpers
+
+            self.helpers = MoveHelpers(config, client, name, options, procs)
 
     def moves(self, D: np.ndarray, I: np.ndarray, players: list | None = None) -> np.ndarray:
         """The defenders after the allocator's move from each episode's state: D, I: (B, N^2)
@@ -78,9 +88,17 @@ class Opponent:
         alone, and its actions are checked (ActionError naming `opponent action`) before anything moves."""
         obs = observe(D, I)
         players = players if players is not None else [self.policy] * len(obs)
-        actions = [player.predict(o, deterministic=True)[0] for player, o in zip(players, obs)]
+        if self.helpers is not None and len(obs) > 1:
+            actions = self.helpers.moves(self.policy, players, obs)
+        else:
+            actions = [player.predict(o, deterministic=True)[0] for player, o in zip(players, obs)]
         a = check_actions(actions, (len(obs), len(self.layout.src)), "opponent action")
         return defenders_move(self.layout, self.config, D, a)
+
+    def close(self) -> None:
+        """Stop the helpers, if any."""
+        if self.helpers is not None:
+            self.helpers.close()
 
 
 def _check_actions_kind(actions) -> str:
@@ -303,7 +321,10 @@ class SwarmIntruderVectorEnv(GridVectorEnv):
     otherwise, before anything changes). The ended episodes' last observations
     (infos["final_obs"]) are the states they ended in, [D, I].
 
-    Arguments: those of SwarmIntruderEnv and num_envs: int >= 1; render_mode None only.
+    Arguments: those of SwarmIntruderEnv and num_envs: int >= 1; render_mode None only;
+    opponent_procs: the processes that answer the allocator's moves (Opponent's procs, at most
+    num_envs: 1, the default, this process alone; more needs Ray and a client on the
+    capture-time service actor).
 
     Attributes: those of GridVectorEnv; opponent: Opponent; reward: str; moved: (B, N^2)
     float64 the defenders after the allocator's move from each episode's state (under
@@ -315,14 +336,15 @@ class SwarmIntruderVectorEnv(GridVectorEnv):
     def __init__(self, config: AllocConfig | None = None, num_envs: int = 1, *, opponent: str = DEFAULT_OPPONENT,
                  opponent_options: dict | None = None, reward: str = "eliminated", actions: str = "shares",
                  client=None, store: str | None = None, render_mode: str | None = None, estimates: bool | str = False,
-                 **kwargs):
+                 opponent_procs: int = 1, **kwargs):
         """Make the env; the class docstring's Arguments describe each argument."""
         self.reward = _check_reward(reward)
         self.actions = _check_actions_kind(actions)
         super().__init__("SwarmIntruderVectorEnv", config, num_envs, client, store, render_mode, estimates, kwargs)
         try:
             _check_intruders(self.config)
-            self.opponent = Opponent(self.config, self.client, opponent, opponent_options)
+            self.opponent = Opponent(self.config, self.client, opponent, opponent_options,
+                                     min(check_procs(opponent_procs), self.num_envs))
         except BaseException:
             self.close_extras()  # the client it made
             raise
@@ -375,6 +397,13 @@ class SwarmIntruderVectorEnv(GridVectorEnv):
     def _reward(self, r: StepResult) -> np.ndarray:
         """The intruders' rewards (SwarmIntruderEnv's Rewards): (B,) float64."""
         return _intruder_rewards(self.reward, r)
+
+    def close_extras(self, **kwargs) -> None:
+        """Stop the allocator's helpers, then GridVectorEnv's close_extras."""
+        opponent = getattr(self, "opponent", None)
+        if opponent is not None:
+            opponent.close()
+        super().close_extras(**kwargs)
 
     def get_state(self) -> dict:
         """GridVectorEnv's state and moved: (B, N^2) float64, a copy."""

@@ -85,8 +85,12 @@ class _Member:
     def __init__(self, mixture: Mixture, member: int):
         self.mixture, self.member = mixture, member
 
+    def choose(self) -> int:
+        """The member this step plays."""
+        return self.member
+
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        return self.mixture.players[self.member].predict(obs, state, episode_start, deterministic)
+        return self.mixture.players[self.choose()].predict(obs, state, episode_start, deterministic)
 
     def get_state(self) -> dict:
         return {"member": self.member}
@@ -98,10 +102,13 @@ class _Draws:
     def __init__(self, mixture: Mixture, rng: np.random.Generator):
         self.mixture, self.rng = mixture, rng
 
-    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+    def choose(self) -> int:
+        """The member this step plays, drawn now from the episode's generator."""
         m = self.mixture
-        return m.players[int(self.rng.choice(len(m.players), p=m.weights))].predict(obs, state, episode_start,
-                                                                                    deterministic)
+        return int(self.rng.choice(len(m.players), p=m.weights))
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        return self.mixture.players[self.choose()].predict(obs, state, episode_start, deterministic)
 
     def get_state(self) -> dict:
         return {"rng": self.rng.bit_generator.state}

@@ -47,10 +47,14 @@ _CHECKPOINT_DAMAGE = (OSError, EOFError, zipfile.BadZipFile, zlib.error, pickle.
 
 
 def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: bool = True,
-          callbacks: list | None = None, on_pretrain=None) -> dict:
+          callbacks: list | None = None, on_pretrain=None, opponent_procs: int = 1) -> dict:
     """Train (or resume) into run_dir, with the capture-time client of config.service
     (farm.service.lookup.open_client: a local Ray or the cluster named, or in process);
     returns the metrics written to metrics.json.
+
+    opponent_procs: on the intruders' side with n_envs > 1, the processes that answer the
+    frozen allocator's moves (farm.alloc.intruder_env.Opponent: the same run whatever the
+    number; more than 1 needs the service on Ray).
 
     callbacks: more SB3 callbacks, called after the run's own (so in on_step after the
     step's evaluation, and at a rollout's start or the training's end after the checkpoint of
@@ -58,8 +62,10 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     on_pretrain(episodes, total, saved): the pretraining's progress (pretrain's on_progress)."""
     import torch
 
+    from farm.alloc.move_helpers import check_procs
     from farm.alloc.training.config import check_allocators, check_pretrain_memory
 
+    check_procs(opponent_procs)
     check_allocators(config)  # before anything is written: a bad expert option names its field
     check_pretrain_memory(config)
     run_dir = check_writable_folder(run_dir, "out")  # before the service, the lattice and the steps
@@ -86,7 +92,8 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     if config.threads is not None:
         torch.set_num_threads(config.threads)
     try:
-        metrics = _train(config, run_dir, resume, show_progress, callbacks or [], tracker, on_pretrain)
+        metrics = _train(config, run_dir, resume, show_progress, callbacks or [], tracker, on_pretrain,
+                         opponent_procs)
     except BaseException as e:
         if tracker is not None:
             tracker.end("KILLED" if isinstance(e, KeyboardInterrupt) else "FAILED")
@@ -99,12 +106,12 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
 
 
 def _train(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, extra: list, tracker=None,
-           on_pretrain=None) -> dict:
+           on_pretrain=None, opponent_procs: int = 1) -> dict:
     from farm.service.client import open_client
 
     with open_client(config.env.game_settings(), mode=config.service.mode, store=store_of(config),
                      address=config.service.address) as client:
-        return _learn(config, run_dir, resume, show_progress, client, extra, tracker, on_pretrain)
+        return _learn(config, run_dir, resume, show_progress, client, extra, tracker, on_pretrain, opponent_procs)
 
 
 _ACTIVATIONS = {"relu": "ReLU", "tanh": "Tanh", "elu": "ELU", "leaky_relu": "LeakyReLU", "gelu": "GELU"}
@@ -158,10 +165,11 @@ def single_env(config: TrainConfig, client):
     return SwarmAllocationEnv(config.env, client=client, estimates=config.service.estimates)
 
 
-def training_envs(config: TrainConfig, client):
+def training_envs(config: TrainConfig, client, opponent_procs: int = 1):
     """(the SB3 VecEnv trained on, the env whose state a checkpoint keeps, its monitor): one env
     (single_env) in a DummyVecEnv under Monitor, or n_envs > 1 episodes in the batched vector env
-    of its side under VecMonitor."""
+    of its side under VecMonitor (the intruders' with opponent_procs processes answering the
+    allocator's moves)."""
     if config.n_envs == 1:
         train_env = single_env(config, client)
         monitor = Monitor(train_env)
@@ -174,7 +182,8 @@ def training_envs(config: TrainConfig, client):
         o = config.opponent
         monitor = monitored(SwarmIntruderVectorEnv(config.env, num_envs=config.n_envs, opponent=o.name,
                                                    opponent_options=o.options, reward=o.reward, actions=o.actions,
-                                                   client=client, estimates=config.service.estimates))
+                                                   client=client, estimates=config.service.estimates,
+                                                   opponent_procs=opponent_procs))
     else:
         monitor = make_vec_env(config.env, config.n_envs, client, config.service.estimates)
     return monitor, monitor.venv.env, monitor
@@ -198,13 +207,18 @@ def _eval_envs(config: TrainConfig, client):
 
 
 def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, extra: list,
-           tracker=None, on_pretrain=None) -> dict:
+           tracker=None, on_pretrain=None, opponent_procs: int = 1) -> dict:
     """The training on client's statistics into run_dir: its model and envs made or resumed
     (_start), its steps learned (_run_steps), then the model kept and the metrics written
     (_finish); returns the metrics."""
-    training = _start(config, run_dir, resume, show_progress, client, tracker, on_pretrain)
-    _run_steps(training, config, run_dir, show_progress, extra)
-    return _finish(training, config, run_dir)
+    training = _start(config, run_dir, resume, show_progress, client, tracker, on_pretrain, opponent_procs)
+    try:
+        _run_steps(training, config, run_dir, show_progress, extra)
+        return _finish(training, config, run_dir)
+    finally:
+        opponent = getattr(training.train_env, "opponent", None)
+        if opponent is not None:  # the intruders' side: its allocator's helpers stop with the training
+            opponent.close()
 
 
 @dataclass
@@ -227,14 +241,14 @@ class _Training:
 
 
 def _start(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool, client, tracker,
-           on_pretrain) -> _Training:
+           on_pretrain, opponent_procs: int = 1) -> _Training:
     """The training ready for its steps: the lattice warmed (service.warm_lattice), the envs,
     the periodic evaluation (each logged to tracker's MLflow run as it is made), and the model:
     resumed from run_dir's newest checkpoint that loads (with resume), else a new one, pretrained
     when the config has `pretrain:` and that pretraining evaluated first in the curve."""
     if config.service.warm_lattice:
         warm_lattices(client, lattice_groups(config.envs()), show_progress)
-    env, train_env, monitor = training_envs(config, client)
+    env, train_env, monitor = training_envs(config, client, opponent_procs)
     eval_vec, eval_env = _eval_envs(config, client)
     timer = UpdateTimer()
     evaluation = EvalCallback(eval_vec, eval_freq=max(1, config.eval.freq // config.n_envs),

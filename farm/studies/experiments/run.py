@@ -37,7 +37,7 @@ class ExperimentError(SwarmFarmError):
 
 def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments", address: str | None = None,
                    workers: int | None = None, show_progress: bool = True,
-                   warm: bool = True) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
+                   warm: bool = True, opponent_procs: int = 1) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
     """Run or resume an experiment into out (docs/experiments.md): a local folder, or a URI of
     object storage (s3://bucket/path, any filesystem pyarrow names: farm.studies.experiments.storage);
     returns (trials.csv's table, summary.csv's table, info).
@@ -45,18 +45,23 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
     address: a Ray cluster to join (default $RAY_ADDRESS, else a local Ray of max(2,
     workers) CPUs); workers: trials at once (default: the cluster's CPUs); warm: False
     skips the lattice warm-up, in the driver and in every trial (the tests use it to make
-    trials miss on a cold store). info: trials run this time and before, the CPUs per
+    trials miss on a cold store); opponent_procs: the processes answering the frozen allocator's
+    moves in an intruders' trial (farm.alloc.training.train's; a speed setting, not the trials':
+    a resumed experiment keeps the one it started with). info: trials run this time and before, the CPUs per
     trial, the warm-up's cases and seconds, the wall seconds, the claims' files and the
     learning curves' figure written (claims: a list of paths, learning_curves: a path or None;
     written: every file the driver wrote; URIs for an experiment in object storage).
     ConfigError (one line) for bad input before Ray starts; ExperimentError naming the first
     trial that failed (after the tables of the others are written).
     """
+    from farm.alloc.move_helpers import check_procs
+
+    check_procs(opponent_procs)
     the_plan, storage, tracker, before = _prepare(config, out, source, workers, warm)
     info: dict = {"trials": len(the_plan.trials), "finished_before": len(before), "warmed_cases": 0}
     t0 = time.perf_counter()
     results = _run_trials(the_plan, storage, tracker, before, info, address=address, workers=workers, warm=warm,
-                          show_progress=show_progress)
+                          show_progress=show_progress, opponent_procs=opponent_procs)
     info["seconds"] = time.perf_counter() - t0
     trials, summary = _write_results(the_plan, storage, info)
     info["tune_finished"] = sum(1 for r in results if r.error is None and (r.metrics or {}).get("phase") == "done")
@@ -91,7 +96,7 @@ def _prepare(config: ExperimentConfig, out, source: str, workers: int | None, wa
 
 
 def _run_trials(the_plan: Plan, storage: ExperimentStorage, tracker, before: list, info: dict, *,
-                address: str | None, workers: int | None, warm: bool, show_progress: bool):
+                address: str | None, workers: int | None, warm: bool, show_progress: bool, opponent_procs: int = 1):
     """The Tune experiment's ResultGrid, run (or resumed) on one capture-time service actor over
     the plan's store: the lattice of every trial's maps warmed first while a trial is left to run
     (unless warm is False), then the trials, `workers` at a time (default: the cluster's CPUs),
@@ -119,7 +124,7 @@ def _run_trials(the_plan: Plan, storage: ExperimentStorage, tracker, before: lis
         display = Display(the_plan, show_progress, before)
         PROGRESS["display"] = display
         try:
-            results = _fit(the_plan, storage, k, share, [] if tracker is None else [tracker])
+            results = _fit(the_plan, storage, k, share, [] if tracker is None else [tracker], opponent_procs)
         finally:
             PROGRESS.pop("display", None)
             display.close()
@@ -190,7 +195,8 @@ def _mlflow_callback(config: ExperimentConfig, the_plan: Plan, storage: Experime
                      tags={"farm.kind": "experiment", "farm.experiment": name})
 
 
-def _fit(plan: Plan, storage: ExperimentStorage, workers: int, share: float, callbacks: list):
+def _fit(plan: Plan, storage: ExperimentStorage, workers: int, share: float, callbacks: list,
+         opponent_procs: int = 1):
     """Run (or restore and go on with) the Tune experiment in the storage; returns its
     ResultGrid. callbacks: Tune callbacks beside the progress display (the MLflow logger); a
     restored experiment keeps the callbacks it was started with (Tune saves them in its state; an
@@ -203,11 +209,12 @@ def _fit(plan: Plan, storage: ExperimentStorage, workers: int, share: float, cal
     root, filesystem = storage.tune_storage()
     path = f"{root}/{TUNE_DIR}"
     with old_names(), _quiet_tune():
-        return _tuner(tune, trainable, plan, storage, path, root, filesystem, workers, callbacks).fit()
+        return _tuner(tune, trainable, plan, storage, path, root, filesystem, workers, callbacks,
+                      opponent_procs).fit()
 
 
 def _tuner(tune, trainable, plan: Plan, storage: ExperimentStorage, path: str, root: str, filesystem, workers: int,
-           callbacks: list):
+           callbacks: list, opponent_procs: int = 1):
     """The Tune experiment at path restored to go on, or a new one of the plan's trials."""
     from farm.studies.experiments.tune import Progress
 
@@ -218,6 +225,8 @@ def _tuner(tune, trainable, plan: Plan, storage: ExperimentStorage, path: str, r
         policies = reference_specs()  # the registry's, as this process has it: carried to every trial
         specs = [{"trial": t.model_dump(), "storage": storage.uri, "episodes": plan.episodes,
                   "eval_seed": plan.eval_seed, "policies": policies} for t in plan.trials]
+        if opponent_procs > 1:
+            specs = [{**spec, "opponent_procs": opponent_procs} for spec in specs]
         tuner = tune.Tuner(
             trainable,
             param_space={"spec": tune.grid_search(specs)},

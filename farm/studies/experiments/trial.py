@@ -55,7 +55,8 @@ def run_trial(params: dict) -> None:
     """The Tune trainable. params: {"spec": {"trial": Trial as plain values, "storage": the
     experiment's folder or URI (ExperimentStorage; an older spec's "dir" instead: the trial's folder in a
     local experiment), "episodes", "eval_seed", "policies": the PolicySpecs to compare with
-    (default: the registry's baselines and planners)}}. The trial trains in its run folder
+    (default: the registry's baselines and planners), "opponent_procs": train's (default 1)}}.
+    The trial trains in its run folder
     (ExperimentStorage.run_dir), written again from its Tune checkpoint first when it lacks
     it (restore_run)."""
     from ray import tune
@@ -76,7 +77,8 @@ def run_trial(params: dict) -> None:
     every = max(1, min(config.checkpoint_freq, config.learner.n_timesteps // 10 or 1))
     t0 = time.perf_counter()
     metrics = train(config, run.path, resume=run.is_run(), show_progress=False,
-                    callbacks=[TuneReport(run.path, every)], on_pretrain=PretrainReport(run.path))
+                    callbacks=[TuneReport(run.path, every)], on_pretrain=PretrainReport(run.path),
+                    opponent_procs=spec.get("opponent_procs", 1))
     t1 = time.perf_counter()
     specs = spec.get("policies")
     if config.side == "intruders":  # the opponent's measures against the trained intruders

@@ -160,7 +160,7 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
                 from farm.studies.robust.oracles import trained_responses
 
                 responses = trained_responses(config, out, k, allocators, intruders, solution, address=address,
-                                              workers=workers, show_progress=show_progress)
+                                              workers=workers, show_progress=show_progress, procs=n)
             ra, ri = responses["allocators"], responses["intruders"]
             pairs = [(ra, b) for b in intruders] + [(a, ri) for a in allocators] + [(ra, ri)]
             info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)

@@ -30,10 +30,13 @@ def iteration_experiment(config: RobustConfig, k: int, allocators: list, intrude
 
 
 def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list, intruders: list, solution, *,
-                      address: str | None = None, workers: int | None = None, show_progress: bool = True) -> dict:
+                      address: str | None = None, workers: int | None = None, show_progress: bool = True,
+                      procs: int = 1) -> dict:
     """Both sides' best responses of iteration k (iteration_experiment, run or resumed in
     out/iterations/<k>): {"allocators": the defenders' trained allocator, "intruders": the
-    intruders' trained policy}, Members whose `run` is their run folder."""
+    intruders' trained policy}, Members whose `run` is their run folder. procs: the processes
+    answering the allocators' moves in the intruders' training (run_experiment's opponent_procs:
+    their planning is most of an iteration; the same responses whatever procs)."""
     from farm.alloc.runs import RunFolder
     from farm.studies.experiments.plan import plan
     from farm.studies.experiments.run import run_experiment
@@ -41,7 +44,8 @@ def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list,
 
     experiment = iteration_experiment(config, k, allocators, intruders, solution)
     where = out / "iterations" / str(k)
-    run_experiment(experiment, where, address=address, workers=workers, show_progress=show_progress)
+    run_experiment(experiment, where, address=address, workers=workers, show_progress=show_progress,
+                   opponent_procs=procs)
     storage = ExperimentStorage(where)
     trials = plan(experiment).trials
     defenders, attackers = (storage.run_dir(t.key) for t in trials)
