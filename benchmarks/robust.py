@@ -10,7 +10,11 @@ train side by side and the intruders' trial has the allocators' moves answered b
 (opponent_procs). An untimed run first starts Ray's worker processes; then 1 and 2 workers are
 timed in turn, --repeats times each, and each one's fastest run is compared. Target: 2 workers at
 least 1.8x as fast as 1. Every run must give the same iteration (populations, mixtures, payoffs).
-Usage: python benchmarks/robust.py [--steps 8192] [--episodes 20] [--repeats 2]
+First, the part of an iteration that the second process speeds: the intruders' batched env (8
+episodes, pure routes drawn at random) against receding_horizon, its steps per second with the
+allocator's moves answered by 1 process and by 2 (opponent_procs), in turn, the best of --repeats
+windows of --seconds each.
+Usage: python benchmarks/robust.py [--steps 8192] [--episodes 20] [--repeats 2] [--seconds 10] [--skip-env]
 """
 
 from __future__ import annotations
@@ -43,11 +47,40 @@ def config(store: Path, steps: int, episodes: int):
                         store=str(store))
 
 
+def env_steps(client, cfg, repeats: int, seconds: float) -> dict:
+    """{procs: the best steps/s over repeats windows} of the intruders' env against receding_horizon."""
+    import numpy as np
+
+    from farm.alloc.intruder_env import SwarmIntruderVectorEnv
+
+    best = {1: 0.0, 2: 0.0}
+    for _ in range(repeats):
+        for procs in (1, 2):
+            env = SwarmIntruderVectorEnv(cfg.alloc_config(), num_envs=8, opponent="receding_horizon",
+                                         actions="pure", client=client, opponent_procs=procs)
+            try:
+                rng = np.random.default_rng(0)
+                env.reset(seed=0)
+                for _ in range(10):  # the helpers' first moves (their imports) untimed
+                    env.step(rng.integers(0, 2, size=env.action_space.shape))
+                n, t0 = 0, time.perf_counter()
+                while time.perf_counter() - t0 < seconds:
+                    env.step(rng.integers(0, 2, size=env.action_space.shape))
+                    n += env.num_envs
+                best[procs] = max(best[procs], n / (time.perf_counter() - t0))
+            finally:
+                env.close()
+            print(f"intruders' env, opponent_procs={procs}: {n / (time.perf_counter() - t0):.0f} steps/s", flush=True)
+    return best
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=8192, help="PPO steps of each best response")
     parser.add_argument("--episodes", type=int, default=20, help="episodes of each payoff")
     parser.add_argument("--repeats", type=int, default=2, help="timed runs of each number of workers")
+    parser.add_argument("--seconds", type=float, default=10.0, help="seconds of each env window")
+    parser.add_argument("--skip-env", action="store_true", help="skip the env's steps per second")
     args = parser.parse_args()
 
     from farm.alloc.lattice import lattice_groups, warm_lattices
@@ -61,6 +94,10 @@ def main() -> int:
         cfg = config(store, args.steps, args.episodes)
         with open_client(cfg.alloc_config().game_settings(), mode="ray", store=store) as client:
             warm_lattices(client, lattice_groups([cfg.alloc_config()]), show_progress=False)
+            if not args.skip_env:
+                best = env_steps(client, cfg, args.repeats, args.seconds)
+                print(f"intruders' env against receding_horizon: {best[1]:.0f} steps/s on 1 process, "
+                      f"{best[2]:.0f} on 2: {best[2] / best[1]:.2f}x")
             run_robust(cfg, tmp / "warm-up", workers=2, show_progress=False)
             seconds, states = {1: [], 2: []}, []
             for k in range(args.repeats):

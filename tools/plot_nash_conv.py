@@ -1,0 +1,49 @@
+"""NashConv and the meta-game's value by iteration of several `farm robust` runs (one line each, e.g.
+one per seed) in one figure: the figure of docs/results.md's robust section.
+
+Usage: python tools/plot_nash_conv.py OUT.png RUN_FOLDER [RUN_FOLDER ...] [--title TITLE]
+Each RUN_FOLDER holds a run's nash_conv.csv; its line is labelled with the folder's name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out", type=Path, help="the PNG to write")
+    parser.add_argument("runs", type=Path, nargs="+", help="farm robust output folders")
+    parser.add_argument("--title", default="NashConv by iteration")
+    args = parser.parse_args()
+
+    import pandas as pd
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 3.6))
+    FigureCanvasAgg(fig)
+    left, right = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    for run in args.runs:
+        path = run / "nash_conv.csv"
+        if not path.exists():
+            print(f"runs: {run} holds no nash_conv.csv", file=sys.stderr)
+            return 2
+        rows = pd.read_csv(path)
+        left.plot(rows["iteration"], rows["nash_conv"], "o-", label=run.name)
+        right.plot(rows["iteration"], rows["value"], "s--", label=run.name)
+    left.set(xlabel="iteration", ylabel="NashConv", title=args.title)
+    right.set(xlabel="iteration", ylabel="meta-game value (eliminated mass)", title="the meta-game's value")
+    for ax in (left, right):
+        ax.xaxis.get_major_locator().set_params(integer=True)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(args.out, dpi=100)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
