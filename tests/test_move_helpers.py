@@ -73,3 +73,16 @@ def test_helpers_need_the_service_on_ray(tmp_path):
     with pytest.raises(ConfigError, match="^opponent_procs: helpers need Ray"):
         SwarmIntruderVectorEnv(OUT.config(games=GAMES), num_envs=2, opponent="intercept", opponent_procs=2,
                                store=str(tmp_path / "s.sqlite"))
+
+
+def test_train_and_an_experiment_refuse_bad_opponent_procs_before_anything_is_written(tmp_path):
+    from farm.alloc.training import TrainConfig, train
+    from farm.studies.experiments.config import ExperimentConfig
+    from farm.studies.experiments.run import run_experiment
+
+    with pytest.raises(ConfigError, match="^opponent_procs: must be a whole number >= 1, got 0$"):
+        train(TrainConfig(name="t"), tmp_path / "run", opponent_procs=0)
+    experiment = ExperimentConfig(name="e", base="configs/train/tiny.yaml", seeds=[0], store=str(tmp_path / "s.sqlite"))
+    with pytest.raises(ConfigError, match="^opponent_procs: must be a whole number >= 1, got 'two'$"):
+        run_experiment(experiment, tmp_path / "exp", opponent_procs="two")
+    assert not any(tmp_path.iterdir())
