@@ -2,11 +2,12 @@
 
 One iteration of policy-space response oracles on outnumbered_3x3 (the planners and
 spread_evenly against drift and the heuristic intruders): its payoff rollouts (every pair, then
-the responses' pairs) and its two best-response trainings (the defenders' DAgger-started from
-intercept, the intruders', --steps PPO steps each), run with workers=1 (one task or trial at a
-time) and with workers=2, each into its own folder, on one local 2-CPU Ray started here and one
-capture-time store warmed first (no timed run computes a game). With 2 workers the two trials
-train side by side and the intruders' trial has the allocators' moves answered by two processes
+the responses' pairs) and its best-response trainings (the defenders' DAgger-started from
+intercept, the intruders', --steps PPO steps each, --responses seeds a side, the one gaining
+most kept), run with workers=1 (one task or trial at a time) and with workers=2, each into its
+own folder, on one local 2-CPU Ray started here and one capture-time store warmed first (no
+timed run computes a game). With 2 workers two trials train side by side; with one response a
+side the intruders' trial also has the allocators' moves answered by two processes
 (opponent_procs). An untimed run first starts Ray's worker processes; then 1 and 2 workers are
 timed in turn, --repeats times each, and each one's fastest run is compared. Target: 2 workers at
 least 1.8x as fast as 1. Every run must give the same iteration (populations, mixtures, payoffs).
@@ -14,7 +15,8 @@ First, the part of an iteration that the second process speeds: the intruders' b
 episodes, pure routes drawn at random) against receding_horizon, its steps per second with the
 allocator's moves answered by 1 process and by 2 (opponent_procs), in turn, the best of --repeats
 windows of --seconds each.
-Usage: python benchmarks/robust.py [--steps 8192] [--episodes 20] [--repeats 2] [--seconds 10] [--skip-env]
+Usage: python benchmarks/robust.py [--steps 8192] [--episodes 20] [--responses 1] [--repeats 2] [--seconds 10]
+                                  [--skip-env]
 """
 
 from __future__ import annotations
@@ -31,8 +33,9 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__)
 TARGET = 1.8
 
 
-def config(store: Path, steps: int, episodes: int):
-    """One iteration's RobustConfig: `steps` PPO steps a best response, `episodes` a payoff."""
+def config(store: Path, steps: int, episodes: int, responses: int = 1):
+    """One iteration's RobustConfig: `steps` PPO steps a best response, `responses` of them a side,
+    `episodes` a payoff."""
     from farm.studies.robust import RobustConfig
 
     ppo = {"algo": "ppo", "ppo.n_timesteps": steps, "ppo.n_steps": 128, "ppo.batch_size": 256, "n_envs": 8,
@@ -40,7 +43,7 @@ def config(store: Path, steps: int, episodes: int):
     return RobustConfig(name="bench", scenario="outnumbered_3x3", iterations=1, distill=None,
                         allocators=["intercept", "mmr", "receding_horizon", "transport", "spread_evenly"],
                         intruders=["drift", "fewest_ahead", "least_defended", "split_away"],
-                        payoffs={"episodes": episodes},
+                        payoffs={"episodes": episodes}, responses=responses,
                         training={"defenders": {**ppo, "pretrain": {"expert": "intercept", "iterations": 1,
                                                                     "episodes": 16}, "repair": "levels"},
                                   "intruders": ppo},
@@ -78,6 +81,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=8192, help="PPO steps of each best response")
     parser.add_argument("--episodes", type=int, default=20, help="episodes of each payoff")
+    parser.add_argument("--responses", type=int, default=1, help="best responses trained a side")
     parser.add_argument("--repeats", type=int, default=2, help="timed runs of each number of workers")
     parser.add_argument("--seconds", type=float, default=10.0, help="seconds of each env window")
     parser.add_argument("--skip-env", action="store_true", help="skip the env's steps per second")
@@ -91,7 +95,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench-robust-") as tmp, ray_cluster(num_cpus=2):
         tmp = Path(tmp)
         store = tmp / "store.sqlite"
-        cfg = config(store, args.steps, args.episodes)
+        cfg = config(store, args.steps, args.episodes, args.responses)
         with open_client(cfg.alloc_config().game_settings(), mode="ray", store=store) as client:
             warm_lattices(client, lattice_groups([cfg.alloc_config()]), show_progress=False)
             if not args.skip_env:

@@ -1,6 +1,7 @@
 """The intruders' env with its allocator's moves answered by helper processes (opponent_procs): the
 same episodes, to the last bit, as one process answering them, for a planner, a mixture drawing
-per episode and one drawing per step; the helpers stop with the env; bad procs are one line."""
+per episode and one drawing per step; the helpers stop with the env, and with a training that fails
+before its steps; bad procs are one line."""
 
 import numpy as np
 import pytest
@@ -86,3 +87,35 @@ def test_train_and_an_experiment_refuse_bad_opponent_procs_before_anything_is_wr
     with pytest.raises(ConfigError, match="^opponent_procs: must be a whole number >= 1, got 'two'$"):
         run_experiment(experiment, tmp_path / "exp", opponent_procs="two")
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.ray
+def test_a_training_that_fails_before_its_steps_stops_its_helpers(client, tmp_path, monkeypatch):
+    import importlib
+
+    import ray
+
+    from farm.alloc.training import TrainConfig
+
+    train_module = importlib.import_module("farm.alloc.training.train")
+
+    made = []
+    original = train_module.training_envs
+
+    def kept(*args, **kwargs):
+        envs = original(*args, **kwargs)
+        made.extend(envs[1].opponent.helpers.actors)
+        return envs
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("the model cannot be made")
+
+    monkeypatch.setattr(train_module, "training_envs", kept)
+    monkeypatch.setattr(train_module, "make_model", broken)
+    config = TrainConfig(name="helpers", seed=0, scenario="outnumbered_3x3", env={"games": GAMES}, side="intruders",
+                         opponent={"name": "intercept"}, n_envs=2, eval={"freq": 100, "episodes": 1})
+    with pytest.raises(RuntimeError, match="cannot be made"):
+        train_module._start(config, tmp_path, False, False, client, None, None, opponent_procs=2)
+    (helper,) = made  # the node's 2 CPUs: the env's process and one helper
+    with pytest.raises(ray.exceptions.RayActorError):
+        ray.get(helper.predict.remote([()], np.zeros((1, 18), np.float32)), timeout=60)

@@ -1,5 +1,6 @@
 """`farm robust`: the config's refusals, the library oracle's loop (each iteration's meta-game the
-LP's solution of the kept payoffs, each response a best reply, a rerun that plays nothing twice),
+LP's solution of the kept payoffs, each response a best reply, a rerun that plays nothing twice), the
+trained oracle keeping the seed of its best response that gains most,
 and a driver killed mid-iteration whose rerun trains no trial twice and ends with the populations
 and payoffs of an uninterrupted run."""
 
@@ -36,6 +37,7 @@ GAMES = 8  # games per capture-time case: a cold store fills in seconds
     ({"payoffs": {"measure": "style"}}, "payoffs.measure"),
     ({"env": {"information": "psychic"}}, "information"),
     ({"iterations": -1}, "iterations"),
+    ({"responses": 0}, "responses"),
 ])
 def test_a_bad_robust_config_is_one_line_naming_its_field(settings, words):
     with pytest.raises(ValidationError) as e:
@@ -99,6 +101,35 @@ def trained_config(tmp_path) -> Path:
     path = tmp_path / "robust.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
+
+
+@pytest.mark.ray
+@pytest.mark.slow
+def test_the_trained_oracle_keeps_the_seed_gaining_most(ray_local, tmp_path):
+    from farm.studies.experiments.storage import ExperimentStorage
+    from farm.studies.robust import load_robust_config
+    from farm.studies.robust.members import Member
+    from farm.studies.robust.oracles import response_seeds
+
+    config = load_robust_config(trained_config(tmp_path))
+    config = config.model_copy(update={"iterations": 1, "responses": 2, "seed": 1})
+    out = tmp_path / "out"
+    (it,), _ = run_robust(config, out, show_progress=False)
+    seeds = response_seeds(config, 0)
+    assert seeds == [1000, 1100]  # seed 1: the second seed gains most on both sides
+    trials = sorted(p.name for p in (out / "iterations" / "0" / "trials").iterdir() if (p / "run").is_dir())
+    assert trials == sorted(f"p{p}_s{s}" for p in (0, 1) for s in seeds)
+    store, storage = PayoffStore(out / "payoffs"), ExperimentStorage(out / "iterations" / "0")
+    for point, side, key in ((0, "allocators", "defenders"), (1, "intruders", "intruders")):
+        kept = it.responses[side]
+        candidates = [Member(side, kept.name, {"run": str(storage.run_dir(f"p{point}_s{s}"))}) for s in seeds]
+        if side == "allocators":
+            gains = payoff_matrix(store, config, candidates, it.intruders) @ np.asarray(it.column) - it.value
+        else:
+            gains = it.value - np.asarray(it.row) @ payoff_matrix(store, config, it.allocators, candidates)
+        assert it.gains[f"{key}_candidates"] == pytest.approx(gains.tolist(), abs=1e-12)
+        assert kept.options == candidates[int(np.argmax(gains))].options
+        assert it.gains[key] == pytest.approx(float(gains.max()), abs=1e-12)
 
 
 def session_pids(sid: int) -> list[int]:

@@ -216,9 +216,14 @@ def _learn(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
         _run_steps(training, config, run_dir, show_progress, extra)
         return _finish(training, config, run_dir)
     finally:
-        opponent = getattr(training.train_env, "opponent", None)
-        if opponent is not None:  # the intruders' side: its allocator's helpers stop with the training
-            opponent.close()
+        _close_opponent(training.train_env)
+
+
+def _close_opponent(train_env) -> None:
+    """The intruders' side: its allocator's helper processes stop with the training."""
+    opponent = getattr(train_env, "opponent", None)
+    if opponent is not None:
+        opponent.close()
 
 
 @dataclass
@@ -249,29 +254,34 @@ def _start(config: TrainConfig, run_dir: Path, resume: bool, show_progress: bool
     if config.service.warm_lattice:
         warm_lattices(client, lattice_groups(config.envs()), show_progress)
     env, train_env, monitor = training_envs(config, client, opponent_procs)
-    eval_vec, eval_env = _eval_envs(config, client)
-    timer = UpdateTimer()
-    evaluation = EvalCallback(eval_vec, eval_freq=max(1, config.eval.freq // config.n_envs),
-                              n_eval_episodes=config.eval.episodes, log_path=str(run_dir),
-                              best_model_save_path=str(run_dir / "best"), deterministic=True, verbose=0,
-                              # MLflow: each evaluation logged as it is made (farm.alloc.training.tracking)
-                              callback_after_eval=tracker.eval_logger if tracker is not None else None)
-    state = RunState(train_env, monitor, eval_env, evaluation, timer, config.n_envs)
-    cls = algorithm_class(config.algo)
+    try:
+        eval_vec, eval_env = _eval_envs(config, client)
+        timer = UpdateTimer()
+        evaluation = EvalCallback(eval_vec, eval_freq=max(1, config.eval.freq // config.n_envs),
+                                  n_eval_episodes=config.eval.episodes, log_path=str(run_dir),
+                                  best_model_save_path=str(run_dir / "best"), deterministic=True, verbose=0,
+                                  # MLflow: each evaluation logged as it is made (farm.alloc.training.tracking)
+                                  callback_after_eval=tracker.eval_logger if tracker is not None else None)
+        state = RunState(train_env, monitor, eval_env, evaluation, timer, config.n_envs)
+        cls = algorithm_class(config.algo)
 
-    done_steps, pretrained = 0, None
-    checkpoint = _resume_point(cls, config, run_dir, env) if resume else None
-    if checkpoint:
-        model, saved, done_steps = checkpoint
-        env.reset()  # through the wrappers (the Monitor refuses a step before a reset); the state replaces the episode
-        state.restore(model, saved)
-    else:
-        model = make_model(config, env, run_dir)
-        if config.pretrain is not None:
-            pretrained = pretrain(model, config, client, run_dir, show_progress=show_progress, on_progress=on_pretrain)
-            returns = _evaluate_pretrained(model, evaluation, eval_vec, config, run_dir)
-            state.pretrain = _pretrain_figures(pretrained, returns)  # every checkpoint keeps them
-    return _Training(model, env, train_env, evaluation, timer, state, done_steps, bool(checkpoint), pretrained)
+        done_steps, pretrained = 0, None
+        checkpoint = _resume_point(cls, config, run_dir, env) if resume else None
+        if checkpoint:
+            model, saved, done_steps = checkpoint
+            env.reset()  # through the wrappers (the Monitor refuses a step before a reset); the state replaces it
+            state.restore(model, saved)
+        else:
+            model = make_model(config, env, run_dir)
+            if config.pretrain is not None:
+                pretrained = pretrain(model, config, client, run_dir, show_progress=show_progress,
+                                      on_progress=on_pretrain)
+                returns = _evaluate_pretrained(model, evaluation, eval_vec, config, run_dir)
+                state.pretrain = _pretrain_figures(pretrained, returns)  # every checkpoint keeps them
+        return _Training(model, env, train_env, evaluation, timer, state, done_steps, bool(checkpoint), pretrained)
+    except BaseException:  # nothing trains: the helpers the env started stop now
+        _close_opponent(train_env)
+        raise
 
 
 def _run_steps(training: _Training, config: TrainConfig, run_dir: Path, show_progress: bool, extra: list) -> None:

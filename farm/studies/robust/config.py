@@ -60,6 +60,8 @@ class RobustConfig(StrictFile):
     threshold: float | None = Field(None, ge=0)  # stop once NashConv is at most this; None: run every iteration
     payoffs: PayoffParams = PayoffParams()  # how a pair's payoff is played
     oracle: Literal["trained", "library"] = "trained"  # trained best responses, or the best of a fixed library
+    # trained oracles: seeds of each side's best response trained an iteration, the one gaining most kept
+    responses: int = Field(1, ge=1, le=9)
     library: LibraryParams = LibraryParams()  # the library oracle's candidates
     training: TrainingParams = TrainingParams()  # the trained oracles' settings
     # one network distilled from the final allocators' mixture: dotted TrainConfig settings of a training

@@ -4,7 +4,8 @@ allocation game, on the farm. docs/robust.md tells the algorithm and how it resu
 Each iteration: every (allocator, intruder policy) pair of the two populations is played on the
 same seeded episodes (the missing ones as Ray tasks; farm.studies.robust.payoffs keeps each);
 the zero-sum meta-game of their mean payoff is solved by LP (farm.core.matrix_game); each side's
-oracle answers the other side's meta-Nash mixture with a best response; the responses are played
+oracle answers the other side's meta-Nash mixture with a best response (the trained oracle: the one
+of its `responses` seeds gaining most); the responses are played
 against the other population and NashConv (the sum of both sides' best-response gains) is
 recorded; the responses join the populations. The loop stops at `iterations`, or once NashConv
 is at most `threshold` when one is set. The state is saved after each iteration (robust.json), so a run stopped
@@ -71,6 +72,8 @@ def digest(config: RobustConfig) -> str:
     """The digest of everything in the config that decides the results (iterations and threshold
     only bound the loop, so they may change when a run is resumed)."""
     values = config.model_dump(mode="json", exclude={"iterations", "threshold", "store"})
+    if values["responses"] == 1:  # the default leaves the digest of a run written before the setting
+        del values["responses"]
     return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -151,6 +154,7 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
             M = payoff_matrix(store, config, allocators, intruders)
             solution = solve(M)
             k = len(iterations)
+            candidates = {}
             if config.oracle == "library":
                 responses = {"allocators": _library_response("allocators", config, store, client, allocators,
                                                              intruders, solution.column, n),
@@ -159,16 +163,19 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
             else:
                 from farm.studies.robust.oracles import trained_responses
 
-                responses = trained_responses(config, out, k, allocators, intruders, solution, address=address,
-                                              workers=workers, show_progress=show_progress, procs=n)
+                found = trained_responses(config, out, k, allocators, intruders, solution, address=address,
+                                          workers=workers, show_progress=show_progress,
+                                          procs=max(1, n // config.responses))
+                responses, candidates = _best_responses(config, store, client, n, found, allocators, intruders,
+                                                        solution, info)
             ra, ri = responses["allocators"], responses["intruders"]
             pairs = [(ra, b) for b in intruders] + [(a, ri) for a in allocators] + [(ra, ri)]
             info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
             gain_d = float(payoff_matrix(store, config, [ra], intruders)[0] @ solution.column) - solution.value
             gain_i = solution.value - float(solution.row @ payoff_matrix(store, config, allocators, [ri])[:, 0])
+            gains = {"defenders": gain_d, "intruders": gain_i, **candidates}
             it = Iteration(list(allocators), list(intruders), solution.row.tolist(), solution.column.tolist(),
-                           solution.value, responses, {"defenders": gain_d, "intruders": gain_i},
-                           max(0.0, gain_d) + max(0.0, gain_i))
+                           solution.value, responses, gains, max(0.0, gain_d) + max(0.0, gain_i))
             iterations.append(it)
             _save_state(out, config, iterations)
             if show_progress:
@@ -188,6 +195,24 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
         info["files"] = write_results(out, config, store, iterations, distilled) if iterations else []
     info["seconds"] = time.perf_counter() - t0
     return iterations, info
+
+
+def _best_responses(config: RobustConfig, store, client, n: int, found: dict, allocators: list, intruders: list,
+                    solution, info: dict) -> tuple[dict, dict]:
+    """Each side's response gaining most over the meta-game's value among its trained seeds (found:
+    lists of Members), their candidates' pairs played first: ({side: the kept Member}, {
+    "defenders_candidates", "intruders_candidates": every seed's gain} or {} for one seed a side)."""
+    if config.responses == 1:
+        return {side: found[side][0] for side in ("allocators", "intruders")}, {}
+    env, p = config.alloc_config(), config.payoffs
+    pairs = [(a, b) for a in found["allocators"] for b in intruders] + \
+            [(a, b) for a in allocators for b in found["intruders"]]
+    info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
+    gain_d = payoff_matrix(store, config, found["allocators"], intruders) @ solution.column - solution.value
+    gain_i = solution.value - solution.row @ payoff_matrix(store, config, allocators, found["intruders"])
+    kept = {"allocators": found["allocators"][int(np.argmax(gain_d))],
+            "intruders": found["intruders"][int(np.argmax(gain_i))]}
+    return kept, {"defenders_candidates": gain_d.tolist(), "intruders_candidates": gain_i.tolist()}
 
 
 def final_populations(iterations: list[Iteration]) -> tuple[list, list]:

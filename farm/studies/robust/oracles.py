@@ -1,6 +1,7 @@
 """The trained oracles of `farm robust`: each side's best response to the other side's meta-Nash
-mixture, trained as the two trials of one experiment an iteration (farm.studies.experiments), so
-that they train side by side, resume after a stop, and never train twice."""
+mixture, trained as the trials of one experiment an iteration (farm.studies.experiments: each
+side's `responses` seeds), so that they train side by side, resume after a stop, and never train
+twice."""
 
 from __future__ import annotations
 
@@ -9,13 +10,13 @@ from pathlib import Path
 from farm.studies.robust.config import RobustConfig
 from farm.studies.robust.members import Member, mixture_options
 
-__all__ = ["trained_responses", "iteration_experiment", "distilled"]
+__all__ = ["trained_responses", "iteration_experiment", "response_seeds", "distilled"]
 
 
 def iteration_experiment(config: RobustConfig, k: int, allocators: list, intruders: list, solution):
     """Iteration k's experiment: point 0 the defenders' best response (an allocator trained in the
     env whose intruders are the intruders' mixture), point 1 the intruders' (trained against the
-    allocators' mixture), one seed (config.seed * 1000 + k)."""
+    allocators' mixture), config.responses seeds (response_seeds)."""
     from farm.studies.experiments.config import ExperimentConfig
 
     defenders = {"env.intruders": "mixture", "env.intruder_options": mixture_options(intruders, solution.column),
@@ -25,16 +26,23 @@ def iteration_experiment(config: RobustConfig, k: int, allocators: list, intrude
     shared = {f"env.{name}": value for name, value in config.env.items()}
     points = [{k_: v for k_, v in point.items() if k_ not in shared} for point in (defenders, attackers)]
     return ExperimentConfig(name=f"{config.name}-it{k}", scenario=config.scenario, overrides=shared, points=points,
-                            seeds=[config.seed * 1000 + k], episodes=3, eval_seed=config.payoffs.seed,
+                            seeds=response_seeds(config, k), episodes=3, eval_seed=config.payoffs.seed,
                             store=config.store)
+
+
+def response_seeds(config: RobustConfig, k: int) -> list[int]:
+    """The seeds of iteration k's responses: config.seed * 1000 + k, then + 100, + 200, ... for
+    each further response (k < 100, responses <= 9: below the distillation's + 999)."""
+    return [config.seed * 1000 + 100 * j + k for j in range(config.responses)]
 
 
 def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list, intruders: list, solution, *,
                       address: str | None = None, workers: int | None = None, show_progress: bool = True,
                       procs: int = 1) -> dict:
     """Both sides' best responses of iteration k (iteration_experiment, run or resumed in
-    out/iterations/<k>): {"allocators": the defenders' trained allocator, "intruders": the
-    intruders' trained policy}, Members whose `run` is their run folder. procs: the processes
+    out/iterations/<k>): {"allocators": the defenders' trained allocators, "intruders": the
+    intruders' trained policies}, each a list of config.responses Members (labels brK, then
+    brK.1, brK.2, ...) whose `run` is their run folder. procs: the processes
     answering the allocators' moves in the intruders' training (run_experiment's opponent_procs:
     their planning is most of an iteration; the same responses whatever procs)."""
     from farm.alloc.runs import RunFolder
@@ -47,10 +55,15 @@ def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list,
     run_experiment(experiment, where, address=address, workers=workers, show_progress=show_progress,
                    opponent_procs=procs)
     storage = ExperimentStorage(where)
-    trials = plan(experiment).trials
-    defenders, attackers = (storage.run_dir(t.key) for t in trials)
-    return {"allocators": Member("allocators", RunFolder(defenders).learner(), {"run": str(defenders)}, f"br{k}"),
-            "intruders": Member("intruders", "learned", {"run": str(attackers)}, f"br{k}")}
+    found = {"allocators": [], "intruders": []}
+    for t in plan(experiment).trials:
+        run, j = storage.run_dir(t.key), len(found["allocators" if t.point == 0 else "intruders"])
+        label = f"br{k}" + (f".{j}" if j else "")
+        if t.point == 0:
+            found["allocators"].append(Member("allocators", RunFolder(run).learner(), {"run": str(run)}, label))
+        else:
+            found["intruders"].append(Member("intruders", "learned", {"run": str(run)}, label))
+    return found
 
 
 def distilled(config: RobustConfig, out: Path, allocators: list, intruders: list, solution, *,
