@@ -72,7 +72,7 @@ def digest(config: RobustConfig) -> str:
     """The digest of everything in the config that decides the results (iterations and threshold
     only bound the loop, so they may change when a run is resumed)."""
     values = config.model_dump(mode="json", exclude={"iterations", "threshold", "store"})
-    if values["responses"] == 1:  # the default leaves the digest of a run written before the setting
+    if values["responses"] == 1:  # at its default the digest is that of a config without the field
         del values["responses"]
     return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
 
