@@ -67,9 +67,8 @@ bench: $(STAMP)
 
 # The exploitability table (configs/exploit/table.yaml): every allocator against drift, the heuristic
 # intruders and the exact best response (3 x 3); then the PPO best responses over 3 seeds
-# (validate.yaml and validate_paper.yaml on 3 x 3, learned_large.yaml on 5 x 5, learned_8x8.yaml on 8 x 8). Each
-# scenario's best
-# learned allocator (configs/train/best_<scenario>.yaml) is trained first when missing.
+# (validate.yaml and validate_paper.yaml on 3 x 3, learned_large.yaml on 5 x 5, learned_8x8*.yaml on 8 x 8).
+# Each scenario's best learned allocator (configs/train/best_<scenario>.yaml) is trained first when missing.
 EXPLOIT_RUNS := best_paper_3x3_c1_1.5 best_outnumbered_3x3 best_outnumbered_5x5 best_wide_front_8x8
 exploit: $(STAMP)
 	for e in $(EXPLOIT_RUNS); do \
@@ -80,6 +79,7 @@ exploit: $(STAMP)
 	$(VENV)/bin/farm exploit configs/exploit/validate_paper.yaml --out results/exploit/validate_paper
 	$(VENV)/bin/farm exploit configs/exploit/learned_large.yaml --out results/exploit/learned_large
 	$(VENV)/bin/farm exploit configs/exploit/learned_8x8.yaml --out results/exploit/learned_8x8
+	$(VENV)/bin/farm exploit configs/exploit/learned_8x8_rh.yaml --out results/exploit/learned_8x8_rh
 	$(VENV)/bin/farm report results
 
 # Policy-space response oracles on the four maps (configs/robust/<scenario>.yaml), seeds 0, 1 and 2,
