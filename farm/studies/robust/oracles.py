@@ -57,12 +57,10 @@ def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list,
     storage = ExperimentStorage(where)
     found = {"allocators": [], "intruders": []}
     for t in plan(experiment).trials:
-        run, j = storage.run_dir(t.key), len(found["allocators" if t.point == 0 else "intruders"])
-        label = f"br{k}" + (f".{j}" if j else "")
-        if t.point == 0:
-            found["allocators"].append(Member("allocators", RunFolder(run).learner(), {"run": str(run)}, label))
-        else:
-            found["intruders"].append(Member("intruders", "learned", {"run": str(run)}, label))
+        side = "allocators" if t.point == 0 else "intruders"
+        run, j = storage.run_dir(t.key), len(found[side])
+        name = RunFolder(run).learner() if side == "allocators" else "learned"
+        found[side].append(Member(side, name, {"run": str(run)}, f"br{k}" + (f".{j}" if j else "")))
     return found
 
 
