@@ -162,6 +162,36 @@ def test_a_damaged_tracking_store_is_one_line(tmp_path):
                    f"(file is not a database)"
 
 
+def test_a_store_a_killed_writer_left_mid_transaction_is_rolled_back_not_refused(tmp_path):
+    """A writer killed mid-transaction leaves a hot journal; the check rolls it back (as MLflow's
+    next connection would) instead of calling the store unsound."""
+    import os
+    import signal
+    import sqlite3
+    import subprocess
+    import sys
+
+    from farm.core.tracking import MlflowParams, check_tracking_uri
+
+    db = tmp_path / "mlflow.db"
+    with sqlite3.connect(db) as con:
+        con.executescript("CREATE TABLE experiments (id INTEGER); CREATE TABLE runs (id INTEGER, body TEXT);"
+                          "INSERT INTO runs VALUES (0, 'kept');")
+    con.close()
+    writer = ("import os, signal, sqlite3, sys\n"
+              "db = sqlite3.connect(sys.argv[1]); db.execute('PRAGMA cache_size=1'); db.execute('BEGIN')\n"
+              "for i in range(2000): db.execute('INSERT INTO runs VALUES (?, ?)', (i, 'x' * 2000))\n"
+              "os.kill(os.getpid(), signal.SIGKILL)\n")
+    done = subprocess.run([sys.executable, "-c", writer, str(db)], capture_output=True)
+    assert done.returncode == -signal.SIGKILL
+    assert (tmp_path / "mlflow.db-journal").stat().st_size > 0  # the killed transaction's pages
+    check_tracking_uri(MlflowParams(tracking_uri=str(db)))
+    assert not os.path.exists(tmp_path / "mlflow.db-journal")
+    with sqlite3.connect(db) as con:
+        assert con.execute("SELECT id, body FROM runs").fetchall() == [(0, "kept")]
+    con.close()
+
+
 def test_a_tracking_store_in_a_read_only_folder_is_one_line(tmp_path):
     folder = tmp_path / "ro"
     folder.mkdir()

@@ -214,11 +214,14 @@ def _check_sqlite(uri: str, store) -> None:
         folder = folder.parent
     if not folder.is_dir():
         raise _refusal(uri, f"cannot be made: {folder} is a file, not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise _refusal(uri, f"is read-only (its folder {folder} is not writable); make it writable or name "
+                            f"another")
     if path.exists():
         if not os.access(path, os.R_OK | os.W_OK):
             raise _refusal(uri, "is read-only (the file is not writable); make it writable or name another")
-        try:
-            db = sqlite3.connect(f"{path.as_uri()}?mode=ro", uri=True)
+        try:  # read-write: a hot journal left by a killed writer is rolled back here, as MLflow would
+            db = sqlite3.connect(f"{path.as_uri()}?mode=rw", uri=True)
             try:
                 tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
             finally:
@@ -228,9 +231,6 @@ def _check_sqlite(uri: str, store) -> None:
         if tables and not _MLFLOW_TABLES <= tables:
             names = ", ".join(sorted(tables)[:3]) + (", ..." if len(tables) > 3 else "")
             raise _refusal(uri, f"holds tables that are not MLflow's ({names}); name a file of its own")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise _refusal(uri, f"is read-only (its folder {folder} is not writable); make it writable or name "
-                            f"another")
 
 
 def _check_driver(uri: str) -> None:
