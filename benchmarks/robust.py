@@ -77,6 +77,22 @@ def env_steps(client, cfg, repeats: int, seconds: float) -> dict:
     return best
 
 
+def busy_seconds() -> float:
+    """CPU seconds this machine has spent busy (all cores, every process) since boot."""
+    import psutil
+
+    t = psutil.cpu_times()
+    return sum(t) - t.idle - getattr(t, "iowait", 0.0)
+
+
+def trial_seconds(out: Path) -> list[tuple[str, float]]:
+    """[(trial, its training's and evaluation's seconds)] of iteration 0's best responses in out."""
+    import json
+
+    return [(f.parent.name, (r := json.loads(f.read_text()))["train_seconds"] + r["evaluate_seconds"])
+            for f in sorted((out / "iterations" / "0" / "trials").glob("*/result.json"))]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=8192, help="PPO steps of each best response")
@@ -106,13 +122,16 @@ def main() -> int:
             seconds, states = {1: [], 2: []}, []
             for k in range(args.repeats):
                 for workers in (1, 2):
-                    t0 = time.perf_counter()
+                    t0, busy0 = time.perf_counter(), busy_seconds()
                     iterations, _ = run_robust(cfg, tmp / f"w{workers}-{k}", workers=workers, show_progress=False)
                     seconds[workers].append(time.perf_counter() - t0)
+                    busy = (busy_seconds() - busy0) / seconds[workers][-1]
                     it = iterations[0]
                     states.append((it.row, it.column, it.value, it.gains))
+                    trials = trial_seconds(tmp / f"w{workers}-{k}")
                     print(f"workers={workers}: {seconds[workers][-1]:.1f} s (value {it.value:.4f}, NashConv "
-                          f"{it.nash_conv:.4f})", flush=True)
+                          f"{it.nash_conv:.4f}); cores busy on average {busy:.2f}; trials "
+                          + ", ".join(f"{name} {s:.1f} s" for name, s in trials), flush=True)
     same = all(s == states[0] for s in states)
     ratio = min(seconds[1]) / min(seconds[2])
     print(f"speed-up of 2 workers over 1: {ratio:.2f}x (target >= {TARGET}); the same iteration: {same}")
