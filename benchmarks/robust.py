@@ -8,14 +8,16 @@ most kept), run with workers=1 (one task or trial at a time) and with workers=2,
 own folder, on one local 2-CPU Ray started here and one capture-time store warmed first (no
 timed run computes a game). With 2 workers two trials train side by side; with one response a
 side the intruders' trial also has the allocators' moves answered by two processes
-(opponent_procs). An untimed run first starts Ray's worker processes; then 1 and 2 workers are
-timed in turn, --repeats times each, and each one's fastest run is compared. Target: 2 workers at
-least 1.8x as fast as 1. Every run must give the same iteration (populations, mixtures, payoffs).
+(opponent_procs). An untimed short run first starts Ray's worker processes; then 1 and 2 workers
+are timed in turn, --repeats times each, and each one's fastest run is compared. Each run prints
+its trials' seconds and the cores busy on average (the whole machine's CPU time over the run's).
+Target: 2 workers at least 1.8x as fast as 1. Every run must give the same iteration
+(populations, mixtures, payoffs).
 First, the part of an iteration that the second process speeds: the intruders' batched env (8
 episodes, pure routes drawn at random) against receding_horizon, its steps per second with the
 allocator's moves answered by 1 process and by 2 (opponent_procs), in turn, the best of --repeats
 windows of --seconds each.
-Usage: python benchmarks/robust.py [--steps 8192] [--episodes 20] [--responses 1] [--repeats 2] [--seconds 10]
+Usage: python benchmarks/robust.py [--steps 20000] [--episodes 20] [--responses 2] [--repeats 2] [--seconds 10]
                                   [--skip-env]
 """
 
@@ -95,9 +97,9 @@ def trial_seconds(out: Path) -> list[tuple[str, float]]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=8192, help="PPO steps of each best response")
+    parser.add_argument("--steps", type=int, default=20000, help="PPO steps of each best response")
     parser.add_argument("--episodes", type=int, default=20, help="episodes of each payoff")
-    parser.add_argument("--responses", type=int, default=1, help="best responses trained a side")
+    parser.add_argument("--responses", type=int, default=2, help="best responses trained a side")
     parser.add_argument("--repeats", type=int, default=2, help="timed runs of each number of workers")
     parser.add_argument("--seconds", type=float, default=10.0, help="seconds of each env window")
     parser.add_argument("--skip-env", action="store_true", help="skip the env's steps per second")
@@ -118,7 +120,8 @@ def main() -> int:
                 best = env_steps(client, cfg, args.repeats, args.seconds)
                 print(f"intruders' env against receding_horizon: {best[1]:.0f} steps/s on 1 process, "
                       f"{best[2]:.0f} on 2: {best[2] / best[1]:.2f}x")
-            run_robust(cfg, tmp / "warm-up", workers=2, show_progress=False)
+            warm = config(store, min(args.steps, 1024), args.episodes, args.responses)  # Ray's workers started
+            run_robust(warm, tmp / "warm-up", workers=2, show_progress=False)
             seconds, states = {1: [], 2: []}, []
             for k in range(args.repeats):
                 for workers in (1, 2):
