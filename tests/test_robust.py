@@ -1,5 +1,6 @@
 """`farm robust`: the config's refusals, the library oracle's loop (each iteration's meta-game the
-LP's solution of the kept payoffs, each response a best reply, a rerun that plays nothing twice), the
+LP's solution of the kept payoffs, each response a best reply, each mixture's value against the
+exact search that of its members' searches, a rerun that plays or searches nothing twice), the
 trained oracle keeping the seed of its best response that gains most,
 and a driver killed mid-iteration whose rerun trains no trial twice and ends with the populations
 and payoffs of an uninterrupted run."""
@@ -18,11 +19,15 @@ import pytest
 import yaml
 from pydantic import ValidationError
 
+from farm.alloc.intruders.search import exact_response
+from farm.alloc.policies import make_policy
 from farm.core.config import first_line
 from farm.core.matrix_game import solve
+from farm.service.client import CaptureTimeClient
 from farm.studies.robust import RobustConfig, run_robust
+from farm.studies.robust.exact import searchable
 from farm.studies.robust.loop import payoff_matrix
-from farm.studies.robust.payoffs import PayoffStore
+from farm.studies.robust.payoffs import PayoffStore, payoff_key
 
 ROOT = Path(__file__).resolve().parent.parent
 GAMES = 8  # games per capture-time case: a cold store fills in seconds
@@ -75,17 +80,49 @@ def test_the_library_oracles_loop_and_its_resumed_rerun(ray_local, tmp_path):
             best = worth.max() if side == "allocators" else worth.min()
             chosen = worth[[m.key() for m in options].index(it.responses[side].key())]
             assert chosen == pytest.approx(best)
-    # a finished run again: nothing played, the same files
+    # each iteration's allocators' mixture against the intruders' exact best response: its support's
+    # searches redone here, in this process, weighted by the mixture; no intruder policy does better
+    env, p = config.alloc_config(), config.payoffs
+    client = CaptureTimeClient(env.game_settings(), local_store=tmp_path / "store.sqlite")
+    searched = {}
+    for it in iterations:
+        value = 0.0
+        for a, w in zip(it.allocators, it.row):
+            if w > 0:
+                key = json.dumps(a.key(), sort_keys=True)
+                if key not in searched:
+                    policy = make_policy(a.name, env, client, **a.options)
+                    searched[key] = np.array([exact_response(env, policy, client, p.seed + k).summary["eliminated"]
+                                                  for k in range(p.episodes)])
+                    for b in it.intruders:  # episode by episode, no intruder policy below the search
+                        played = store.get(payoff_key(env, a, b, p.episodes, p.seed))["eliminated"]
+                        assert np.all(searched[key] <= played + 1e-12)
+                value += w * searched[key].mean()
+        assert it.exact["value"] == pytest.approx(value, abs=1e-12)
+        assert it.exact["gain_intruders"] == pytest.approx(it.value - value, abs=1e-12)
+        assert it.exact["gain_intruders"] >= it.gains["intruders"] - 1e-12
+        assert it.exact["nash_conv"] >= it.nash_conv - 1e-12
+    assert info["exact_searched"] + again["exact_searched"] == len(searched)
+    # a finished run again: nothing played or searched, the same files
     _, third = run_robust(config, out, show_progress=False)
-    assert third["pairs_played"] == 0 and len(list((out / "payoffs").iterdir())) == files_before
+    assert third["pairs_played"] == 0 and third["exact_searched"] == 0
+    assert len(list((out / "payoffs").iterdir())) == files_before
     table = pd.read_csv(out / "nash_conv.csv")
     assert list(table["iteration"]) == list(range(len(iterations)))
+    assert list(table["exact_value"]) == [it.exact["value"] for it in iterations]
     mixture = yaml.safe_load((out / "mixture.yaml").read_text())
     assert mixture["allocator"]["name"] == "mixture" and sum(mixture["allocator"]["options"]["weights"]) == \
         pytest.approx(1.0)
     with pytest.raises(Exception, match="holds a robust run of another config"):
         run_robust(config.model_copy(update={"payoffs": config.payoffs.model_copy(update={"episodes": 4})}), out,
                    show_progress=False)
+
+
+def test_the_exact_valuation_is_only_on_maps_whose_search_tree_fits():
+    from farm.alloc.scenarios import SCENARIOS
+
+    assert searchable(SCENARIOS["outnumbered_3x3"].config(), 20, 2000)
+    assert not searchable(SCENARIOS["outnumbered_5x5"].config(), 20, 2000)
 
 
 TINY = {"algo": "ppo", "ppo.n_timesteps": 256, "ppo.n_steps": 32, "ppo.batch_size": 64, "ppo.n_epochs": 2,

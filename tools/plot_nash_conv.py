@@ -2,7 +2,8 @@
 one per seed) in one figure: the figure of docs/results.md's robust section.
 
 Usage: python tools/plot_nash_conv.py OUT.png RUN_FOLDER [RUN_FOLDER ...] [--title TITLE]
-Each RUN_FOLDER holds a run's nash_conv.csv; its line is labelled with the folder's name.
+Each RUN_FOLDER holds a run's nash_conv.csv; its line is labelled with the folder's name, and
+beside it, dotted, NashConv with the intruders' exact half where the run has it.
 """
 
 from __future__ import annotations
@@ -32,7 +33,10 @@ def main() -> int:
             print(f"runs: {run} holds no nash_conv.csv", file=sys.stderr)
             return 2
         rows = pd.read_csv(path)
-        left.plot(rows["iteration"], rows["nash_conv"], "o-", label=run.name)
+        line, = left.plot(rows["iteration"], rows["nash_conv"], "o-", label=run.name)
+        if "exact_nash_conv" in rows:
+            left.plot(rows["iteration"], rows["exact_nash_conv"], "^:", color=line.get_color(),
+                      label=f"{run.name}, intruders' exact")
         right.plot(rows["iteration"], rows["value"], "s--", label=run.name)
     left.set(xlabel="iteration", ylabel="NashConv", title=args.title)
     right.set(xlabel="iteration", ylabel="meta-game value (eliminated mass)", title="the meta-game's value")

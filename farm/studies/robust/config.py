@@ -62,6 +62,9 @@ class RobustConfig(StrictFile):
     oracle: Literal["trained", "library"] = "trained"  # trained best responses, or the best of a fixed library
     # trained oracles: seeds of each side's best response trained an iteration, the one gaining most kept
     responses: int = Field(1, ge=1, le=9)
+    # each iteration's allocators' mixture valued against the intruders' exact best response, on maps whose
+    # search tree fits (auto), or never; it bounds the trained intruders' gain (farm.studies.robust.exact)
+    exact: Literal["auto", "never"] = "auto"
     library: LibraryParams = LibraryParams()  # the library oracle's candidates
     training: TrainingParams = TrainingParams()  # the trained oracles' settings
     # one network distilled from the final allocators' mixture: dotted TrainConfig settings of a training

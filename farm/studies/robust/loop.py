@@ -8,7 +8,10 @@ oracle answers the other side's meta-Nash mixture with a best response (the trai
 of its `responses` seeds gaining most); the responses are played
 against the other population and NashConv (the sum of both sides' best-response gains) is
 recorded; the responses join the populations. The loop stops at `iterations`, or once NashConv
-is at most `threshold` when one is set. The state is saved after each iteration (robust.json), so a run stopped
+is at most `threshold` when one is set. On maps whose search tree fits, each iteration's
+allocators' mixture is then valued against the intruders' exact best response
+(farm.studies.robust.exact): the intruders' half of NashConv without a trained oracle's shortfall.
+The state is saved after each iteration (robust.json), so a run stopped
 anywhere goes on from its last whole iteration; every payoff played before is kept, and the
 trained oracles' trials resume as an experiment's do.
 """
@@ -41,7 +44,10 @@ class Iteration:
     the meta-Nash mixes (row: allocators', column: intruders', as lists of floats) and value, the
     oracles' responses (Members), their gains over the value (defenders: >= 0 when the response
     does better than the mixture; intruders: the same for the intruders) and NashConv (the sum
-    of both gains, each floored at 0: a response no better than the population adds nothing)."""
+    of both gains, each floored at 0: a response no better than the population adds nothing);
+    exact, on maps whose search tree fits: the allocators' mixture against the intruders' exact best
+    response ({"value", "gain_intruders": the value's drop to it, "nash_conv": with that gain}),
+    None where not valued."""
 
     allocators: list
     intruders: list
@@ -51,6 +57,7 @@ class Iteration:
     responses: dict
     gains: dict
     nash_conv: float
+    exact: dict | None = None
 
     def to_dict(self) -> dict:
         """Plain values for robust.json."""
@@ -58,20 +65,22 @@ class Iteration:
                 "intruders": [m.to_dict() for m in self.intruders],
                 "row": self.row, "column": self.column, "value": self.value,
                 "responses": {k: m.to_dict() for k, m in self.responses.items()}, "gains": self.gains,
-                "nash_conv": self.nash_conv}
+                "nash_conv": self.nash_conv, **({"exact": self.exact} if self.exact is not None else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> Iteration:
         """An Iteration from robust.json's values."""
         return cls([member_of("allocators", m, "allocators") for m in d["allocators"]],
                    [member_of("intruders", m, "intruders") for m in d["intruders"]], d["row"], d["column"],
-                   d["value"], {k: member_of(k, m, k) for k, m in d["responses"].items()}, d["gains"], d["nash_conv"])
+                   d["value"], {k: member_of(k, m, k) for k, m in d["responses"].items()}, d["gains"], d["nash_conv"],
+                   d.get("exact"))
 
 
 def digest(config: RobustConfig) -> str:
     """The digest of everything in the config that decides the results (iterations and threshold
-    only bound the loop, so they may change when a run is resumed)."""
-    values = config.model_dump(mode="json", exclude={"iterations", "threshold", "store"})
+    only bound the loop, and exact only values its iterations, so they may change when a run is
+    resumed)."""
+    values = config.model_dump(mode="json", exclude={"iterations", "threshold", "store", "exact"})
     if values["responses"] == 1:  # at its default the digest is that of a config without the field
         del values["responses"]
     return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
@@ -136,7 +145,7 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
     out.mkdir(parents=True, exist_ok=True)
     store = PayoffStore(out / "payoffs")
     env, p = config.alloc_config(), config.payoffs
-    info = {"pairs_played": 0, "iterations_before": len(iterations)}
+    info = {"pairs_played": 0, "iterations_before": len(iterations), "exact_searched": 0}
     t0 = time.perf_counter()
     with open_client(env.game_settings(), mode="ray", store=Path(config.store or default_store_path()),
                      address=address, num_cpus=max(2, workers or 2) if starts_local_ray(address) else None) as client:
@@ -182,6 +191,12 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
                 print(f"robust {config.name}: iteration {k}: value {solution.value:.4f}, NashConv {it.nash_conv:.4f}",
                       file=sys.stderr)
             allocators, intruders = allocators + _new(it, "allocators"), intruders + _new(it, "intruders")
+        if config.exact == "auto" and any(it.exact is None for it in iterations):
+            _exact_measures(config, store, iterations, client, n, info)
+            _save_state(out, config, iterations)
+            if show_progress and iterations[-1].exact is not None:
+                print(f"robust {config.name}: NashConv with the intruders' exact best response by iteration: "
+                      + ", ".join(f"{it.exact['nash_conv']:.4f}" for it in iterations), file=sys.stderr)
         distilled = None
         if iterations and config.distill is not None:
             from farm.studies.robust.oracles import distilled as distil
@@ -215,6 +230,29 @@ def _best_responses(config: RobustConfig, store, client, n: int, found: dict, al
     return kept, {"defenders_candidates": gain_d.tolist(), "intruders_candidates": gain_i.tolist()}
 
 
+def _exact_measures(config: RobustConfig, store: PayoffStore, iterations: list[Iteration], client, n: int,
+                    info: dict) -> None:
+    """Each iteration lacking it gets its allocators' mixture valued against the intruders' exact
+    best response (Iteration.exact), on maps whose search tree fits; every member of a mixture's
+    support searched once (farm.studies.robust.exact)."""
+    from farm.studies.robust.exact import exact_values, fill_exact, searchable
+
+    env, p = config.alloc_config(), config.payoffs
+    todo = [it for it in iterations if it.exact is None]
+    if not searchable(env, p.episodes, p.seed):
+        return
+    support = {json.dumps(a.key(), sort_keys=True): a for it in todo for a, w in zip(it.allocators, it.row) if w > 0}
+    info["exact_searched"] += fill_exact(store, env, list(support.values()), p.episodes, p.seed, p.measure,
+                                         client, n)
+    for it in todo:
+        members = [a for a, w in zip(it.allocators, it.row) if w > 0]
+        weights = np.array([w for w in it.row if w > 0])
+        value = float(weights @ exact_values(store, env, members, p.episodes, p.seed, p.measure))
+        gain = it.value - value
+        it.exact = {"value": value, "gain_intruders": gain,
+                    "nash_conv": max(0.0, it.gains["defenders"]) + max(0.0, gain)}
+
+
 def final_populations(iterations: list[Iteration]) -> tuple[list, list]:
     """The populations after the last iteration: its own and its responses."""
     last = iterations[-1]
@@ -238,7 +276,9 @@ def write_results(out: Path, config: RobustConfig, store: PayoffStore, iteration
     final = solve(M)
     rows = [{"iteration": k, "value": it.value, "gain_defenders": it.gains["defenders"],
              "gain_intruders": it.gains["intruders"], "nash_conv": it.nash_conv, "allocators": len(it.allocators),
-             "intruders": len(it.intruders)} for k, it in enumerate(iterations)]
+             "intruders": len(it.intruders),
+             **({f"exact_{name}": v for name, v in it.exact.items()} if it.exact is not None else {})}
+            for k, it in enumerate(iterations)]
     files = [out / "nash_conv.csv", out / "payoffs.csv", out / "mixture.yaml", out / "nash_conv.png"]
     pd.DataFrame(rows).to_csv(files[0], index=False)
     shown = pd.DataFrame(M, index=[a.shown() for a in allocators], columns=[b.shown() for b in intruders])
@@ -267,6 +307,8 @@ def _plot_nash_conv(rows: list[dict], path: Path, name: str) -> None:
     ax = fig.add_subplot(1, 1, 1)
     k = [r["iteration"] for r in rows]
     ax.plot(k, [r["nash_conv"] for r in rows], "o-", label="NashConv")
+    if any("exact_nash_conv" in r for r in rows):
+        ax.plot(k, [r.get("exact_nash_conv", np.nan) for r in rows], "^:", label="NashConv, intruders' exact")
     ax.plot(k, [r["value"] for r in rows], "s--", label="meta-game value")
     ax.set_xlabel("iteration")
     ax.set_title(f"{name}: NashConv by iteration")

@@ -1,5 +1,6 @@
-"""The meta-game's Ray task: one (allocator, intruder policy) pair's episodes (play_pair on a
-worker). Imports Ray: imported only by farm.studies.robust.payoffs.fill once Ray is up."""
+"""The meta-game's Ray tasks: one (allocator, intruder policy) pair's episodes (play_pair on a
+worker), one allocator's exact searches (remote_exact). Imports Ray: imported only by
+farm.studies.robust.payoffs.fill and farm.studies.robust.exact.fill_exact once Ray is up."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import ray
 from farm.games.tasks import MAX_RETRIES
 from farm.studies.robust.members import play_pair
 
-__all__ = ["remote_pair"]
+__all__ = ["remote_pair", "remote_exact"]
 
 
 @ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)
@@ -21,3 +22,23 @@ def remote_pair(config, allocator, intruders, service, episodes: int, seed: int)
     torch.set_num_threads(1)
     client = CaptureTimeClient(config.game_settings(), service=service)
     return play_pair(config, allocator, intruders, client, episodes, seed)
+
+
+@ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)
+def remote_exact(config, allocator, service, episodes: int, seed: int, objective: str) -> dict:
+    """The intruders' exact best response (minimising objective) against allocator (a Member) on
+    episodes seeded seed .. seed + episodes - 1 of config: {measure: list of floats, one an
+    episode}, as remote_pair's."""
+    import torch
+
+    from farm.alloc.intruders.search import exact_response
+    from farm.alloc.policies import make_policy
+    from farm.service.client import CaptureTimeClient
+    from farm.studies.robust.members import MEASURES
+
+    torch.set_num_threads(1)
+    client = CaptureTimeClient(config.game_settings(), service=service)
+    policy = make_policy(allocator.name, config, client, **allocator.options)
+    found = [exact_response(config, policy, client, seed + k, objective=objective).summary
+             for k in range(episodes)]
+    return {m: [s[m] for s in found] for m in MEASURES}
