@@ -25,7 +25,7 @@ from farm.core.config import first_line
 from farm.core.matrix_game import solve
 from farm.service.client import CaptureTimeClient
 from farm.studies.robust import RobustConfig, run_robust
-from farm.studies.robust.exact import searchable
+from farm.studies.robust.exact import deterministic, searchable
 from farm.studies.robust.loop import payoff_matrix
 from farm.studies.robust.payoffs import PayoffStore, payoff_key
 
@@ -118,11 +118,19 @@ def test_the_library_oracles_loop_and_its_resumed_rerun(ray_local, tmp_path):
                    show_progress=False)
 
 
-def test_the_exact_valuation_is_only_on_maps_whose_search_tree_fits():
+def test_the_exact_valuation_is_only_on_maps_whose_search_tree_fits_and_of_deterministic_allocators():
     from farm.alloc.scenarios import SCENARIOS
+    from farm.studies.robust.members import member_of
 
     assert searchable(SCENARIOS["outnumbered_3x3"].config(), 20, 2000)
     assert not searchable(SCENARIOS["outnumbered_5x5"].config(), 20, 2000)
+    members = ["intercept", "spread_evenly"]
+    assert deterministic(member_of("allocators", "intercept", "allocators"))
+    assert deterministic(member_of("allocators", {"name": "mixture", "options": {"members": members, "draw": "mean"}},
+                                   "allocators"))
+    for draw in ("episode", "step"):
+        assert not deterministic(member_of("allocators", {"name": "mixture", "options": {"members": members,
+                                                                                          "draw": draw}}, "allocators"))
 
 
 TINY = {"algo": "ppo", "ppo.n_timesteps": 256, "ppo.n_steps": 32, "ppo.batch_size": 64, "ppo.n_epochs": 2,

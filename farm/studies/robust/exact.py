@@ -14,12 +14,18 @@ from farm.core.errors import ConfigError
 from farm.studies.robust.members import Member
 from farm.studies.robust.payoffs import PayoffStore, payoff_key
 
-__all__ = ["exact_member", "searchable", "fill_exact", "exact_values"]
+__all__ = ["exact_member", "deterministic", "searchable", "fill_exact", "exact_values"]
 
 
 def exact_member(measure: str) -> Member:
     """The search minimising the defenders' measure, as a payoff's column."""
     return Member("intruders", "exact", {"objective": measure})
+
+
+def deterministic(member: Member) -> bool:
+    """Whether an allocator can be searched against: every one but a mixture that draws its members
+    (a mixture of mean moves is one deterministic allocator)."""
+    return member.name != "mixture" or member.options.get("draw", "episode") == "mean"
 
 
 def searchable(config: AllocConfig, episodes: int, seed: int) -> bool:

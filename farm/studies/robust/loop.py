@@ -234,11 +234,14 @@ def _exact_measures(config: RobustConfig, store: PayoffStore, iterations: list[I
                     info: dict) -> None:
     """Each iteration lacking it gets its allocators' mixture valued against the intruders' exact
     best response (Iteration.exact), on maps whose search tree fits; every member of a mixture's
-    support searched once (farm.studies.robust.exact)."""
-    from farm.studies.robust.exact import exact_values, fill_exact, searchable
+    support searched once (farm.studies.robust.exact). An iteration whose support holds an
+    allocator that draws its moves (a population member that is itself a drawn mixture) is left
+    unvalued: the search answers deterministic allocators only."""
+    from farm.studies.robust.exact import deterministic, exact_values, fill_exact, searchable
 
     env, p = config.alloc_config(), config.payoffs
-    todo = [it for it in iterations if it.exact is None]
+    todo = [it for it in iterations if it.exact is None
+            and all(deterministic(a) for a, w in zip(it.allocators, it.row) if w > 0)]
     if not searchable(env, p.episodes, p.seed):
         return
     support = {json.dumps(a.key(), sort_keys=True): a for it in todo for a, w in zip(it.allocators, it.row) if w > 0}
