@@ -140,7 +140,7 @@ TINY = {"algo": "ppo", "ppo.n_timesteps": 256, "ppo.n_steps": 32, "ppo.batch_siz
 def trained_config(tmp_path) -> Path:
     config = {"name": "killed", "scenario": "outnumbered_3x3", "env": {"games": GAMES}, "iterations": 2,
               "allocators": ["spread_evenly", "intercept"], "intruders": ["drift", "fewest_ahead"],
-              "payoffs": {"episodes": 3}, "distill": None, "store": str(tmp_path / "store.sqlite"),
+              "payoffs": {"episodes": 3}, "distill": None, "exact": "never", "store": str(tmp_path / "store.sqlite"),
               "training": {"defenders": {**TINY, "pretrain": {"expert": "intercept", "iterations": 1, "episodes": 2}},
                            "intruders": TINY}}
     path = tmp_path / "robust.yaml"

@@ -8,12 +8,11 @@ oracle answers the other side's meta-Nash mixture with a best response (the trai
 of its `responses` seeds gaining most); the responses are played
 against the other population and NashConv (the sum of both sides' best-response gains) is
 recorded; the responses join the populations. The loop stops at `iterations`, or once NashConv
-is at most `threshold` when one is set. On maps whose search tree fits, each iteration's
-allocators' mixture is then valued against the intruders' exact best response
-(farm.studies.robust.exact): the intruders' half of NashConv without a trained oracle's shortfall.
-The state is saved after each iteration (robust.json), so a run stopped
-anywhere goes on from its last whole iteration; every payoff played before is kept, and the
-trained oracles' trials resume as an experiment's do.
+is at most `threshold` when one is set; then, on maps whose search tree fits, each iteration's
+allocators' mixture is valued against the intruders' exact best response (farm.studies.robust.exact).
+The state is saved after each iteration (robust.json), so a run stopped anywhere goes on from its
+last whole iteration; every payoff played before is kept, and the trained oracles' trials resume as
+an experiment's do.
 """
 
 from __future__ import annotations
