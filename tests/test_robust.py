@@ -21,6 +21,7 @@ from pydantic import ValidationError
 
 from farm.alloc.intruders.search import exact_response
 from farm.alloc.policies import make_policy
+from farm.alloc.rollout import play
 from farm.core.config import first_line
 from farm.core.matrix_game import solve
 from farm.service.client import CaptureTimeClient
@@ -43,6 +44,11 @@ GAMES = 8  # games per capture-time case: a cold store fills in seconds
     ({"env": {"information": "psychic"}}, "information"),
     ({"iterations": -1}, "iterations"),
     ({"responses": 0}, "responses"),
+    ({"intruders_oracle": "psychic"}, "intruders_oracle"),
+    ({"scenario": "outnumbered_5x5", "intruders_oracle": "search"},
+     "intruders_oracle: search: the search tree of outnumbered_5x5 does not fit"),
+    ({"intruders_oracle": "search", "allocators": [{"name": "mixture", "options": {"members": ["intercept"]}}]},
+     "intruders_oracle: search models deterministic allocators; mixture"),
 ])
 def test_a_bad_robust_config_is_one_line_naming_its_field(settings, words):
     with pytest.raises(ValidationError) as e:
@@ -116,6 +122,40 @@ def test_the_library_oracles_loop_and_its_resumed_rerun(ray_local, tmp_path):
     with pytest.raises(Exception, match="holds a robust run of another config"):
         run_robust(config.model_copy(update={"payoffs": config.payoffs.model_copy(update={"episodes": 4})}), out,
                    show_progress=False)
+
+
+@pytest.mark.ray
+def test_the_search_oracles_loop_answers_each_mixture_with_intruders_modelling_it(ray_local, tmp_path):
+    config = library_config(tmp_path, 2).model_copy(update={"intruders_oracle": "search"})
+    out = tmp_path / "out"
+    iterations, info = run_robust(config, out, show_progress=False)
+    env, p = config.alloc_config(), config.payoffs
+    store = PayoffStore(out / "payoffs")
+    client = CaptureTimeClient(env.game_settings(), local_store=tmp_path / "store.sqlite")
+    for k, it in enumerate(iterations):
+        response = it.responses["intruders"]
+        support = [(a, w) for a, w in zip(it.allocators, it.row) if w > 0]
+        assert response.name == "search" and response.label == f"br{k}"
+        assert response.options == {"allocators": [a.spec() for a, _ in support],
+                                     "weights": [w for _, w in support], "objective": "eliminated"}
+        # its payoffs (Ray tasks) are its play here, in this process; its gain is the exact one here, where
+        # each member's first move tells it apart, and no intruder policy of the population gains more
+        searcher = env.model_copy(update={"intruders": "search", "intruder_options": response.options})
+        worth = 0.0
+        for a, w in support:
+            here = play(searcher, make_policy(a.name, env, client, **a.options), client, p.episodes, p.seed)
+            stored = store.get(payoff_key(env, a, response, p.episodes, p.seed))["eliminated"]
+            np.testing.assert_array_equal(stored, [e.summary["eliminated"] for e in here])
+            worth += w * np.mean(stored)
+        assert it.gains["intruders"] == pytest.approx(it.value - worth, abs=1e-12)
+        assert it.gains["intruders"] == pytest.approx(it.exact["gain_intruders"], abs=1e-12)
+        M = payoff_matrix(store, config, it.allocators, it.intruders)
+        assert it.gains["intruders"] >= float(it.value - (np.asarray(it.row) @ M).min()) - 1e-12
+    assert iterations[1].intruders[-1] == iterations[0].responses["intruders"]
+    _, again = run_robust(config, out, show_progress=False)
+    assert again["pairs_played"] == 0 and info["pairs_played"] > 0
+    with pytest.raises(Exception, match="holds a robust run of another config"):
+        run_robust(library_config(tmp_path, 2), out, show_progress=False)
 
 
 def test_the_exact_valuation_is_only_on_maps_whose_search_tree_fits_and_of_deterministic_allocators():

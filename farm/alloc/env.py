@@ -463,7 +463,7 @@ class SwarmAllocationEnv(GridEnv):
         self.src, self.dst, self.start = self.layout.src, self.layout.dst, self.layout.start
         self.n_moves = self.layout.n_moves
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.src),), dtype=np.float32)
-        self.intruders = configured_intruders(self.config)  # None: the drift law
+        self.intruders = configured_intruders(self.config, self.client)  # None: the drift law
         self._episode_intruders = self.intruders  # the episode's draw of intruders that draw per episode
 
     # ----- the MDP ------------------------------------------------------------------

@@ -92,7 +92,7 @@ def play(config, policy, client, episodes: int, seed: int, record_first: bool = 
 
     layout = Layout(config.grid_size)
     model = EngagementModel(config, client, False)
-    side = configured_intruders(config)  # the intruders' policy, None for the drift law
+    side = configured_intruders(config, client)  # the intruders' policy, None for the drift law
     if record_first:
         model = _Recording(model)
     engaged_cells: list = []

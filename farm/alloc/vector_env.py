@@ -384,7 +384,7 @@ class SwarmAllocationVectorEnv(GridVectorEnv):
         super().__init__("SwarmAllocationVectorEnv", config, num_envs, client, store, render_mode, estimates, kwargs)
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.layout.src),), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self.intruders = configured_intruders(self.config)  # None: the drift law
+        self.intruders = configured_intruders(self.config, self.client)  # None: the drift law
         self._episode_intruders = [self.intruders] * self.num_envs  # each episode's draw of intruders that draw
 
     def step(self, actions):

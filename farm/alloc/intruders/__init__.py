@@ -11,6 +11,7 @@ from farm.alloc.intruders.learned import LearnedIntruders
 from farm.alloc.intruders.least_defended import LeastDefended
 from farm.alloc.intruders.mixture import IntruderMixture
 from farm.alloc.intruders.play import configured_intruders, intruder_move
+from farm.alloc.intruders.searching import SearchingIntruders
 from farm.alloc.intruders.registry import (
                                            KINDS,
                                            IntruderEntry,
@@ -32,3 +33,4 @@ register_intruders("least_defended", LeastDefended.make, kind="heuristic")
 register_intruders("split_away", SplitAway.make, kind="heuristic")
 register_intruders("learned", LearnedIntruders.make, kind="learned")
 register_intruders("mixture", IntruderMixture.make, kind="mixture")
+register_intruders("search", SearchingIntruders.make, kind="search")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from farm.alloc.intruders.base import IntruderPolicy
+from farm.alloc.intruders.play import draw_state, for_episode
 from farm.alloc.intruders.registry import make_intruders
 from farm.core.checks import is_whole
 from farm.core.mixture import mixture_members
@@ -18,23 +19,24 @@ class IntruderMixture(IntruderPolicy):
 
     members: names or {intruders: NAME, options: {...}}; weights: None (uniform) or one number
     >= 0 a member; draw: episode, step, or mean (the members' routings averaged); seed: the
-    generator of a caller that runs no episodes (routing() then draws per row and call). An
+    generator of a caller that runs no episodes (routing() then draws per row and call); client:
+    the capture-time client, given to the members that take one. An
     episode's draw is made by whoever runs the episode, from the episode's generator
     (for_episode: the envs, farm.alloc.rollout.play).
     """
 
-    def __init__(self, config, members=None, weights=None, draw: str = "episode", seed: int = 0):
+    def __init__(self, config, members=None, weights=None, draw: str = "episode", seed: int = 0, client=None):
         super().__init__(config)
         parsed, self.weights = mixture_members("intruder_options", members, weights, draw, "intruders")
         self.names = [name for name, _ in parsed]
-        self.players = [make_intruders(name, config, **options) for name, options in parsed]
+        self.players = [make_intruders(name, config, client, **options) for name, options in parsed]
         self.draw = draw
         self._rng = np.random.default_rng(seed)
 
     @classmethod
-    def make(cls, config, members=None, weights=None, draw: str = "episode", seed: int = 0):
-        """The registry's maker."""
-        return cls(config, members, weights, draw, seed)
+    def make(cls, config, members=None, weights=None, draw: str = "episode", seed: int = 0, client=None):
+        """The registry's maker (client: given to the members that take one)."""
+        return cls(config, members, weights, draw, seed, client)
 
     def _pick(self, rng, size=None):
         return rng.choice(len(self.players), p=self.weights, size=size)
@@ -44,7 +46,8 @@ class IntruderMixture(IntruderPolicy):
         if self.draw == "mean":
             return self
         if self.draw == "episode":
-            return _Member(self, int(self._pick(rng)))
+            member = int(self._pick(rng))
+            return _Member(self, member, for_episode(self.players[member], rng))
         return _Draws(self, np.random.default_rng(rng.integers(2 ** 63)))
 
     def resume_episode(self, state: dict):
@@ -53,7 +56,10 @@ class IntruderMixture(IntruderPolicy):
             member = state["member"]
             if not is_whole(member, numpy=True) or not 0 <= member < len(self.players):
                 raise ValueError(f"member: {member!r} is not one of the {len(self.players)} members")
-            return _Member(self, int(member))
+            played = self.players[int(member)]
+            if state.get("played") is not None:
+                played = played.resume_episode(state["played"])
+            return _Member(self, int(member), played)
         rng = np.random.default_rng()
         rng.bit_generator.state = state["rng"]
         return _Draws(self, rng)
@@ -76,16 +82,18 @@ class IntruderMixture(IntruderPolicy):
 
 
 class _Member:
-    """One episode's member of a mixture drawn per episode."""
+    """One episode's member of a mixture drawn per episode: its index and its play of the episode
+    (for_episode's: the member itself, or its own episode's play for a member that keeps one)."""
 
-    def __init__(self, mixture: IntruderMixture, member: int):
-        self.mixture, self.member = mixture, member
+    def __init__(self, mixture: IntruderMixture, member: int, played):
+        self.mixture, self.member, self.played = mixture, member, played
 
     def routing(self, D, I):
-        return self.mixture.players[self.member].routing(D, I)
+        return self.played.routing(D, I)
 
     def get_state(self) -> dict:
-        return {"member": self.member}
+        saved = draw_state(self.played)
+        return {"member": self.member} if saved is None else {"member": self.member, "played": saved}
 
 
 class _Draws:

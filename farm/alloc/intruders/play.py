@@ -7,12 +7,13 @@ from farm.alloc.intruders.registry import make_intruders
 __all__ = ["configured_intruders", "intruder_move", "for_episode", "draw_state", "EpisodeIntruders"]
 
 
-def configured_intruders(config):
-    """The intruder policy of an AllocConfig (`intruders`, `intruder_options`), or None for the
-    drift law, which dynamics.step applies itself (the default path, unchanged)."""
+def configured_intruders(config, client=None):
+    """The intruder policy of an AllocConfig (`intruders`, `intruder_options`; client: the
+    capture-time client of the caller, for a policy that plans on it), or None for the drift law,
+    which dynamics.step applies itself (the default path, unchanged)."""
     if config.intruders == "drift":
         return None
-    return make_intruders(config.intruders, config, **config.intruder_options)
+    return make_intruders(config.intruders, config, client, **config.intruder_options)
 
 
 def intruder_move(policy, information: str, D, I):

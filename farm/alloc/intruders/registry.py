@@ -1,9 +1,10 @@
 """The intruder policies' registry, beside the allocators' (farm.alloc.policies.registry): every
 intruder policy listed once and made one way.
 
-An entry is a name, a kind (`law`, `heuristic`, `learned` or `mixture`) and a maker,
+An entry is a name, a kind (`law`, `heuristic`, `learned`, `mixture` or `search`) and a maker,
 `make(config, **options) -> policy`: config is the map's AllocConfig, options the policy's own
-keywords (a learned policy's `run`). A policy answers `routing(D, I) -> (up, down)`: D, I:
+keywords (a learned policy's `run`); a maker with a `client` keyword is also given the caller's
+capture-time client (a policy that plans on the engagements). A policy answers `routing(D, I) -> (up, down)`: D, I:
 (B, N^2) float64 the defenders it sees and the intruders; up, down: (B, N^2) float64 each
 cell's share of intruder mass sent up-left and down-left, the rest going straight left
 (farm.alloc.model.route_intruders_many). An IntruderSpec carries an entry to a Ray worker, as a
@@ -23,7 +24,7 @@ from farm.core.pickling import dumps_by_value
 __all__ = ["KINDS", "IntruderEntry", "IntruderSpec", "register_intruders", "unregister_intruders",
            "intruder_entry", "intruder_names", "make_intruders"]
 
-KINDS = ("law", "heuristic", "learned", "mixture")
+KINDS = ("law", "heuristic", "learned", "mixture", "search")
 _REGISTRY: dict[str, IntruderEntry] = {}
 
 
@@ -37,9 +38,14 @@ class IntruderEntry:
     description: str = ""
 
     def options(self) -> list[str]:
-        """The keyword options make accepts (its parameters but config)."""
+        """The keyword options make accepts (its parameters but config and client)."""
         params = inspect.signature(self.make).parameters.values()
-        return [p.name for p in params if p.name != "config" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+        return [p.name for p in params
+                if p.name not in ("config", "client") and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+
+    def takes_client(self) -> bool:
+        """Whether make takes the caller's capture-time client (a `client` keyword)."""
+        return "client" in inspect.signature(self.make).parameters
 
 
 @dataclass(frozen=True)
@@ -54,9 +60,10 @@ class IntruderSpec:
         """The entry's name."""
         return self.entry.name
 
-    def make(self, config):
-        """The intruder policy for config's map."""
-        return self.entry.make(config, **self.options)
+    def make(self, config, client=None):
+        """The intruder policy for config's map (client: the capture-time client, for a policy taking one)."""
+        extra = {"client": client} if self.entry.takes_client() else {}
+        return self.entry.make(config, **self.options, **extra)
 
     def __reduce__(self):
         return _spec_from_bytes, (dumps_by_value((self.entry, self.options)),)
@@ -102,12 +109,12 @@ def intruder_entry(name, field_name: str = "intruders") -> IntruderEntry:
     return entry
 
 
-def make_intruders(name: str, config, **options):
-    """The intruder policy `name` for the AllocConfig config; an unknown option is a ConfigError
-    naming `intruder_options`."""
+def make_intruders(name: str, config, client=None, **options):
+    """The intruder policy `name` for the AllocConfig config (client: the capture-time client, given
+    to a policy that takes one); an unknown option is a ConfigError naming `intruder_options`."""
     entry = intruder_entry(name)
     unknown = sorted(set(options) - set(entry.options()))
     if unknown:
         raise ConfigError(f"intruder_options: {name} has no option {unknown[0]!r} (options: "
                           f"{', '.join(entry.options()) or 'none'})", field="intruder_options")
-    return entry.make(config, **options)
+    return entry.make(config, **options, **({"client": client} if entry.takes_client() else {}))

@@ -60,6 +60,9 @@ class RobustConfig(StrictFile):
     threshold: float | None = Field(None, ge=0)  # stop once NashConv is at most this; None: run every iteration
     payoffs: PayoffParams = PayoffParams()  # how a pair's payoff is played
     oracle: Literal["trained", "library"] = "trained"  # trained best responses, or the best of a fixed library
+    # the intruders' best response: the oracle's, or `search` intruders planning against the allocators' mixture
+    # (its support as their model; farm.alloc.intruders.searching), on maps whose search tree fits
+    intruders_oracle: Literal["oracle", "search"] = "oracle"
     # trained oracles: seeds of each side's best response trained an iteration, the one gaining most kept
     responses: int = Field(1, ge=1, le=9)
     # each iteration's allocators' mixture valued against the intruders' exact best response, on maps whose
@@ -97,6 +100,17 @@ class RobustConfig(StrictFile):
                 member_of(side, v, f"{side}[{i}]")
             for i, v in enumerate(getattr(self.library, side)):
                 member_of(side, v, f"library.{side}[{i}]")
+        if self.intruders_oracle == "search":
+            from farm.studies.robust.exact import deterministic, searchable
+
+            drawing = [m.shown() for m in self.population("allocators") + self.candidates("allocators")
+                       if not deterministic(m)]
+            if drawing:
+                raise ValueError(f"intruders_oracle: search models deterministic allocators; {drawing[0]} draws its "
+                                 f"moves (list its members instead)")
+            if not searchable(self.alloc_config(), self.payoffs.episodes, self.payoffs.seed):
+                raise ValueError(f"intruders_oracle: search: the search tree of {self.scenario} does not fit the "
+                                 f"search's budget (use the oracle's intruders)")
         return self
 
     def alloc_config(self):

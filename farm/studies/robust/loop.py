@@ -80,8 +80,9 @@ def digest(config: RobustConfig) -> str:
     only bound the loop, and exact only values its iterations, so they may change when a run is
     resumed)."""
     values = config.model_dump(mode="json", exclude={"iterations", "threshold", "store", "exact"})
-    if values["responses"] == 1:  # at its default the digest is that of a config without the field
-        del values["responses"]
+    for name, default in (("responses", 1), ("intruders_oracle", "oracle")):
+        if values[name] == default:  # at its default the digest is that of a config without the field
+            del values[name]
     return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -165,9 +166,10 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
             candidates = {}
             if config.oracle == "library":
                 responses = {"allocators": _library_response("allocators", config, store, client, allocators,
-                                                             intruders, solution.column, n),
-                             "intruders": _library_response("intruders", config, store, client, intruders,
-                                                            allocators, solution.row, n)}
+                                                             intruders, solution.column, n)}
+                if config.intruders_oracle == "oracle":
+                    responses["intruders"] = _library_response("intruders", config, store, client, intruders,
+                                                               allocators, solution.row, n)
             else:
                 from farm.studies.robust.oracles import trained_responses
 
@@ -176,6 +178,8 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
                                           procs=max(1, n // config.responses))
                 responses, candidates = _best_responses(config, store, client, n, found, allocators, intruders,
                                                         solution, info)
+            if config.intruders_oracle == "search":
+                responses["intruders"] = searching_response(config, k, allocators, solution.row)
             ra, ri = responses["allocators"], responses["intruders"]
             pairs = [(ra, b) for b in intruders] + [(a, ri) for a in allocators] + [(ra, ri)]
             info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
@@ -217,16 +221,28 @@ def _best_responses(config: RobustConfig, store, client, n: int, found: dict, al
     lists of Members), their candidates' pairs played first: ({side: the kept Member}, {
     "defenders_candidates", "intruders_candidates": every seed's gain} or {} for one seed a side)."""
     if config.responses == 1:
-        return {side: found[side][0] for side in ("allocators", "intruders")}, {}
+        return {side: found[side][0] for side in ("allocators", "intruders") if found[side]}, {}
     env, p = config.alloc_config(), config.payoffs
     pairs = [(a, b) for a in found["allocators"] for b in intruders] + \
             [(a, b) for a in allocators for b in found["intruders"]]
     info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
     gain_d = payoff_matrix(store, config, found["allocators"], intruders) @ solution.column - solution.value
     gain_i = solution.value - solution.row @ payoff_matrix(store, config, allocators, found["intruders"])
-    kept = {"allocators": found["allocators"][int(np.argmax(gain_d))],
-            "intruders": found["intruders"][int(np.argmax(gain_i))]}
-    return kept, {"defenders_candidates": gain_d.tolist(), "intruders_candidates": gain_i.tolist()}
+    kept = {"allocators": found["allocators"][int(np.argmax(gain_d))]}
+    candidates = {"defenders_candidates": gain_d.tolist()}
+    if found["intruders"]:
+        kept["intruders"] = found["intruders"][int(np.argmax(gain_i))]
+        candidates["intruders_candidates"] = gain_i.tolist()
+    return kept, candidates
+
+
+def searching_response(config: RobustConfig, k: int, allocators: list, row) -> Member:
+    """The intruders' response of iteration k under `intruders_oracle: search`: search intruders whose
+    model is the allocators' mixture row (its support and weights), minimising the payoffs' measure."""
+    support = [(a, float(w)) for a, w in zip(allocators, row) if w > 0]
+    options = {"allocators": [a.spec() for a, _ in support], "weights": [w for _, w in support],
+               "objective": config.payoffs.measure}
+    return Member("intruders", "search", options, f"br{k}")
 
 
 def _exact_measures(config: RobustConfig, store: PayoffStore, iterations: list[Iteration], client, n: int,

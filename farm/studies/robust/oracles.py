@@ -16,7 +16,8 @@ __all__ = ["trained_responses", "iteration_experiment", "response_seeds", "disti
 def iteration_experiment(config: RobustConfig, k: int, allocators: list, intruders: list, solution):
     """Iteration k's experiment: point 0 the defenders' best response (an allocator trained in the
     env whose intruders are the intruders' mixture), point 1 the intruders' (trained against the
-    allocators' mixture), config.responses seeds (response_seeds)."""
+    allocators' mixture; none when the intruders' oracle is the search), config.responses seeds
+    (response_seeds)."""
     from farm.studies.experiments.config import ExperimentConfig
 
     defenders = {"env.intruders": "mixture", "env.intruder_options": mixture_options(intruders, solution.column),
@@ -24,7 +25,8 @@ def iteration_experiment(config: RobustConfig, k: int, allocators: list, intrude
     attackers = {"side": "intruders", "opponent.name": "mixture",
                  "opponent.options": mixture_options(allocators, solution.row), **config.training.intruders}
     shared = {f"env.{name}": value for name, value in config.env.items()}
-    points = [{k_: v for k_, v in point.items() if k_ not in shared} for point in (defenders, attackers)]
+    trained = (defenders, attackers) if config.intruders_oracle == "oracle" else (defenders,)
+    points = [{k_: v for k_, v in point.items() if k_ not in shared} for point in trained]
     return ExperimentConfig(name=f"{config.name}-it{k}", scenario=config.scenario, overrides=shared, points=points,
                             seeds=response_seeds(config, k), episodes=3, eval_seed=config.payoffs.seed,
                             store=config.store)
@@ -41,8 +43,8 @@ def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list,
                       procs: int = 1) -> dict:
     """Both sides' best responses of iteration k (iteration_experiment, run or resumed in
     out/iterations/<k>): {"allocators": the defenders' trained allocators, "intruders": the
-    intruders' trained policies}, each a list of config.responses Members (labels brK, then
-    brK.1, brK.2, ...) whose `run` is their run folder. procs: the processes
+    intruders' trained policies (none under `intruders_oracle: search`)}, each a list of
+    config.responses Members (labels brK, then brK.1, brK.2, ...) whose `run` is their run folder. procs: the processes
     answering the allocators' moves in the intruders' training (run_experiment's opponent_procs:
     their planning is most of an iteration; the same responses whatever procs)."""
     from farm.alloc.runs import RunFolder
