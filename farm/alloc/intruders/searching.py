@@ -86,8 +86,8 @@ class SearchingIntruders(IntruderPolicy):
         """The value of (D, I) after t steps, before the defenders move, to the members S."""
         key = (D.tobytes(), I.tobytes(), t, S)
         if key not in self._before:
-            if not len(self.search.routings(I)[0]):  # no intruder engages whatever the defenders do
-                self._before[key] = self.after(D, I, t, S)[0]
+            if not len(self.search.routings(I)[0]):  # the mass leaves: no cell engages whatever the defenders do
+                self._before[key] = 0.0 if self.search.objective == "eliminated" else self.after(D, I, t, S)[0]
             else:
                 groups: dict = {}
                 for i in S:
