@@ -40,7 +40,8 @@ def points_in(arena_vertices, shape, rng):
 #   ray      the test starts or joins a Ray: it takes ray_local (the shared local Ray), or it is
 #            own_ray too.
 #   own_ray  the test starts Rays of its own (`ray start` clusters, `farm` commands starting a
-#            local Ray), each under ray_start_lock, and never joins the shared one.
+#            local Ray, ray_own: one in its process), each under ray_start_lock, and never joins
+#            the shared one.
 #   slow     the test takes more than about 5 s (`--durations=0`), its module fixtures included.
 # `make test-fast` runs the tests neither ray nor slow; `make test` runs them all.
 #
@@ -79,6 +80,8 @@ def _mark_error(item) -> str | None:
         return "is marked own_ray but takes the shared ray_local"
     if ray and not (own or shared):
         return "is marked ray but neither takes ray_local nor is marked own_ray"
+    if "ray_own" in getattr(item, "fixturenames", ()) and not own:
+        return "takes ray_own but is not marked own_ray"
     return None
 
 
@@ -234,6 +237,19 @@ def ray_local():
             _SHARED_RAY.clean()
         else:
             _SHARED_RAY.stop()
+
+
+@pytest.fixture
+def ray_own():
+    """A local Ray of the test's own in this process (farm.runtime.ray_cluster, 2 CPUs), started
+    under ray_start_lock and shut down after the test: for an own_ray test whose in-process runs
+    and `farm` drivers (joining its address) need one Ray beside the shared one's tests."""
+    from farm.runtime import ray_cluster
+
+    with contextlib.ExitStack() as stack:
+        with ray_start_lock():
+            stack.enter_context(ray_cluster(num_cpus=2, dashboard=False))
+        yield
 
 
 @pytest.fixture(scope="module")

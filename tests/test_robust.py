@@ -224,8 +224,9 @@ def session_pids(sid: int) -> list[int]:
 
 
 @pytest.mark.ray
+@pytest.mark.own_ray
 @pytest.mark.slow
-def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(ray_local, tmp_path):
+def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(ray_own, tmp_path):
     import ray
 
     from farm.studies.robust import load_robust_config
