@@ -82,9 +82,10 @@ exploit: $(STAMP)
 	$(VENV)/bin/farm exploit configs/exploit/learned_8x8_rh.yaml --out results/exploit/learned_8x8_rh
 	$(VENV)/bin/farm report results
 
-# Policy-space response oracles on the four maps (configs/robust/<scenario>.yaml), seeds 0, 1 and 2,
-# each into results/robust/robust_<scenario>_s<seed>; the same command again resumes them.
-ROBUST_MAPS := outnumbered_3x3 paper_3x3_c1_1.5 outnumbered_5x5 wide_front_8x8
+# Policy-space response oracles on the four maps (configs/robust/<scenario>.yaml; on outnumbered_3x3
+# also with the intruders' exact oracle, outnumbered_3x3_search.yaml), seeds 0, 1 and 2, each into
+# results/robust/<the config's name>_s<seed>; the same command again resumes them.
+ROBUST_MAPS := outnumbered_3x3 outnumbered_3x3_search paper_3x3_c1_1.5 outnumbered_5x5 wide_front_8x8
 robust: $(STAMP)
 	for m in $(ROBUST_MAPS); do for s in 0 1 2; do \
 	  $(VENV)/bin/farm robust configs/robust/$$m.yaml --seed $$s || exit 1; \
