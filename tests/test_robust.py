@@ -152,10 +152,26 @@ def test_the_search_oracles_loop_answers_each_mixture_with_intruders_modelling_i
         M = payoff_matrix(store, config, it.allocators, it.intruders)
         assert it.gains["intruders"] >= float(it.value - (np.asarray(it.row) @ M).min()) - 1e-12
     assert iterations[1].intruders[-1] == iterations[0].responses["intruders"]
+    for it in iterations:  # a response the population holds already (by name and options) is not added again
+        keys = [json.dumps(m.key(), sort_keys=True) for m in it.intruders]
+        assert len(set(keys)) == len(keys)
     _, again = run_robust(config, out, show_progress=False)
     assert again["pairs_played"] == 0 and info["pairs_played"] > 0
     with pytest.raises(Exception, match="holds a robust run of another config"):
         run_robust(library_config(tmp_path, 2), out, show_progress=False)
+
+
+def test_a_response_the_population_holds_already_whatever_its_label_joins_it_once():
+    from farm.studies.robust.loop import Iteration, final_populations
+    from farm.studies.robust.members import Member
+
+    model = {"allocators": [{"policy": "minimax", "options": {}}], "weights": [1.0], "objective": "eliminated"}
+    held, again = Member("intruders", "search", model, "br0"), Member("intruders", "search", dict(model), "br1")
+    new = Member("allocators", "ppo", {"run": "r1"}, "br1")
+    it = Iteration([Member("allocators", "minimax")], [Member("intruders", "drift"), held], [1.0], [0.5, 0.5], 0.5,
+                   {"allocators": new, "intruders": again}, {"defenders": 0.0, "intruders": 0.0}, 0.0)
+    allocators, intruders = final_populations([it])
+    assert allocators == [Member("allocators", "minimax"), new] and intruders == [Member("intruders", "drift"), held]
 
 
 def test_the_exact_valuation_is_only_on_maps_whose_search_tree_fits_and_of_deterministic_allocators():

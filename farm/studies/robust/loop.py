@@ -341,6 +341,7 @@ def _converged(config: RobustConfig, iterations: list[Iteration]) -> bool:
 
 
 def _new(it: Iteration, side: str) -> list:
-    """The iteration's response of side as a new member ([] when it is one already)."""
+    """The iteration's response of side as a new member ([] when a member is that strategy already:
+    the same name and options, whatever its label)."""
     response = it.responses[side]
-    return [] if response in getattr(it, side) else [response]
+    return [] if response.key() in [m.key() for m in getattr(it, side)] else [response]
