@@ -56,6 +56,15 @@ def test_a_bad_robust_config_is_one_line_naming_its_field(settings, words):
     assert words in first_line(e.value) and "\n" not in first_line(e.value)
 
 
+def test_every_robust_config_of_the_project_loads():
+    from farm.studies.robust import load_robust_config
+
+    paths = sorted((ROOT / "configs" / "robust").glob("*.yaml"))
+    assert len(paths) >= 4
+    for path in paths:
+        assert load_robust_config(path).name
+
+
 def library_config(tmp_path, iterations):
     return RobustConfig(name="lib", scenario="outnumbered_3x3", env={"games": GAMES}, iterations=iterations,
                         allocators=["spread_evenly"], intruders=["drift"], oracle="library",
