@@ -3,9 +3,9 @@
 exact_response searches one episode (its docstring has the algorithm, the tie rule and the
 guard on its size); ExactResponse holds what it finds; cell_options lays out a cell's routings on
 a share grid (1: the pure routings, each cell's whole mass along one route); tree_bound and
-check_search are the refusal it makes before searching; ScriptedIntruders replays a found
-routing sequence through farm.alloc.rollout.play. The information structure is the follower's
-of docs/model.md section 6.
+check_search are the refusal it makes before searching; Routings lays out a state's routings;
+ScriptedIntruders replays a found routing sequence through farm.alloc.rollout.play. The
+information structure is the follower's of docs/model.md section 6.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ __all__ = [
     "DEFAULT_MAX_NODES",
     "OBJECTIVES",
     "ExactResponse",
+    "Routings",
     "ScriptedIntruders",
     "cell_options",
     "check_search",
@@ -181,22 +182,20 @@ def routing_text(routings: list, routed: list, shares: int = 1) -> str:
     return "; ".join(steps)
 
 
-class _Search:
-    """One episode's search (exact_response): the allocator, the config's model and the memo
-    {(D bytes, I bytes, step): (value, up, down, cells, reward, eliminated, breach, child key)}."""
+class Routings:
+    """A map's routings on a share grid: config (AllocConfig), layout, n, rows, cols ((N^2,)
+    int64 each cell's row and column) and options (each cell's cell_options); routings(I) lays
+    out every routing of a state's intruders."""
 
-    def __init__(self, config: AllocConfig, policy, client, objective: str, shares: int):
-        self.config, self.policy, self.objective = config, policy, objective
+    def __init__(self, config: AllocConfig, shares: int = 1):
+        self.config = config
         self.layout = Layout(config.grid_size)
-        self.model = EngagementModel(config, client, False)
         n = config.grid_size
         self.n, self.A = n, len(self.layout.src)
         self.rows, self.cols = np.divmod(np.arange(n * n), n)
         options = {edge: cell_options(edge, shares) for edge in ((False, True, True), (True, True, False),
                                                                   (True, True, True))}
         self.options = [options[(r > 0, True, r < n - 1)] for r in self.rows.tolist()]
-        self.memo: dict = {}
-        self.nodes = self.resolved = 0
 
     def routings(self, I: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every routing of a state's intruders I: (N^2,) float64, in the tie order: (cells: (k,)
@@ -212,6 +211,18 @@ class _Search:
                 up[:, c] = o[pick, 0]
                 down[:, c] = o[pick, 2]
         return cells, up, down
+
+
+class _Search(Routings):
+    """One episode's search (exact_response): the allocator, the config's model and the memo
+    {(D bytes, I bytes, step): (value, up, down, cells, reward, eliminated, breach, child key)}."""
+
+    def __init__(self, config: AllocConfig, policy, client, objective: str, shares: int):
+        super().__init__(config, shares)
+        self.policy, self.objective = policy, objective
+        self.model = EngagementModel(config, client, False)
+        self.memo: dict = {}
+        self.nodes = self.resolved = 0
 
     def value(self, D: np.ndarray, I: np.ndarray, steps: int) -> tuple[float, tuple]:
         """(the value of state (D, I) after `steps` steps, its memo key): D, I: (N^2,) float64."""

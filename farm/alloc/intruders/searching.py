@@ -13,8 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from farm.alloc.dynamics import check_actions, episode_end, move_defenders, move_probabilities, observe, resolve
+from farm.alloc.model import EngagementModel
 from farm.alloc.intruders.base import IntruderPolicy
-from farm.alloc.intruders.search import OBJECTIVES, _Search
+from farm.alloc.intruders.search import OBJECTIVES, Routings
 from farm.core.errors import ConfigError
 from farm.core.mixture import mixture_members
 
@@ -59,7 +60,8 @@ class SearchingIntruders(IntruderPolicy):
                 raise ConfigError(f"intruder_options.allocators: {name} draws its moves; the search models "
                                   f"deterministic allocators (list a mixture's members)",
                                   field="intruder_options.allocators")
-        self.search = _Search(config, None, client, objective, 1)
+        self.tree, self.objective = Routings(config), objective
+        self.model = EngagementModel(config, client, False)
         self.start = np.zeros(self.n * self.n)
         self.start[self.layout.base] = 1.0
         self.everyone = tuple(range(len(self.members)))
@@ -86,8 +88,8 @@ class SearchingIntruders(IntruderPolicy):
         """The value of (D, I) after t steps, before the defenders move, to the members S."""
         key = (D.tobytes(), I.tobytes(), t, S)
         if key not in self._before:
-            if not len(self.search.routings(I)[0]):  # the mass leaves: no cell engages whatever the defenders do
-                self._before[key] = 0.0 if self.search.objective == "eliminated" else self.after(D, I, t, S)[0]
+            if not len(self.tree.routings(I)[0]):  # the mass leaves: no cell engages whatever the defenders do
+                self._before[key] = 0.0 if self.objective == "eliminated" else self.after(D, I, t, S)[0]
             else:
                 groups: dict = {}
                 for i in S:
@@ -103,11 +105,11 @@ class SearchingIntruders(IntruderPolicy):
         the defenders D after their move at step t, the members S, and the state it leads to."""
         key = (D.tobytes(), I.tobytes(), t, S)
         if key not in self._after:
-            cells, up, down = self.search.routings(I)
+            cells, up, down = self.tree.routings(I)
             R = len(up)
-            r = resolve(self.layout, self.config, self.search.model, np.repeat(D[None], R, axis=0),
+            r = resolve(self.layout, self.config, self.model, np.repeat(D[None], R, axis=0),
                         np.repeat(I[None], R, axis=0), (up, down))
-            eliminated = self.search.objective == "eliminated"
+            eliminated = self.objective == "eliminated"
             values = (r.eliminated if eliminated else r.reward).copy()
             terminated, truncated = episode_end(self.config, np.full(R, t + 1), r.remaining)
             going = ~(terminated | truncated)
@@ -170,7 +172,7 @@ class _Episode:
             before = self.expected[0]
         else:
             before = None  # not the state it led to: the members cannot be checked against this move
-        if before is not None and len(p.search.routings(I)[0]):
+        if before is not None and len(p.tree.routings(I)[0]):
             matching = tuple(i for i in self.members
                              if np.allclose(p.move(i, before, I), D, rtol=0.0, atol=_MATCH))
             self.members = matching or p.everyone
