@@ -84,7 +84,7 @@ def routings_by_hand(I, n):
     for c in cells:
         row, grown = c // n, []
         for up, down in out:
-            for u, s, d in cell_options((row > 0, True, row < n - 1)):
+            for u, _, d in cell_options((row > 0, True, row < n - 1)):
                 a, b = up.copy(), down.copy()
                 a[c], b[c] = u, d
                 grown.append((a, b))
