@@ -22,6 +22,7 @@ from farm.core.mixture import mixture_members
 __all__ = ["SearchingIntruders"]
 
 _MATCH = 1e-9  # a member's predicted move matches the seen one within this, cell by cell
+_MEMO = 200_000  # the states the memos may hold before an episode's start clears them (a cache only)
 
 
 class SearchingIntruders(IntruderPolicy):
@@ -38,7 +39,8 @@ class SearchingIntruders(IntruderPolicy):
     matching members S, is the weighted mean over the distinct moves of S's members of the value
     after that move (the members making it); after a move D', it is the least over the routings
     (farm.alloc.intruders.search's tie order) of the step's measure plus the value of the state
-    it leads to. Every state is searched once a policy (memoised on its bytes, t and S).
+    it leads to. A state is searched once (memoised on its bytes, t and S; the memos are a cache,
+    cleared between episodes once large).
     ConfigError (one line naming intruder_options) for a bad objective, no client, or a member
     that draws its moves.
     """
@@ -142,7 +144,10 @@ class SearchingIntruders(IntruderPolicy):
         return up, down
 
     def for_episode(self, rng):
-        """One episode's play, which keeps the members matching the moves it has seen (rng unused: it draws nothing)."""
+        """One episode's play, which keeps the members matching the moves it has seen (rng unused: it
+        draws nothing). The memos are cleared first once they hold more than _MEMO states."""
+        if len(self._moves) + len(self._before) + len(self._after) > _MEMO:
+            self._moves, self._before, self._after = {}, {}, {}
         return _Episode(self)
 
     def resume_episode(self, state: dict):
