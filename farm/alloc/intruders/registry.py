@@ -117,4 +117,4 @@ def make_intruders(name: str, config, client=None, **options):
     if unknown:
         raise ConfigError(f"intruder_options: {name} has no option {unknown[0]!r} (options: "
                           f"{', '.join(entry.options()) or 'none'})", field="intruder_options")
-    return entry.make(config, **options, **({"client": client} if entry.takes_client() else {}))
+    return IntruderSpec(entry, options).make(config, client)

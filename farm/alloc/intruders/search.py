@@ -38,6 +38,7 @@ __all__ = [
     "ScriptedIntruders",
     "cell_options",
     "check_search",
+    "draws_moves",
     "episode_start",
     "exact_response",
     "routing_text",
@@ -197,6 +198,10 @@ class Routings:
                                                                   (True, True, True))}
         self.options = [options[(r > 0, True, r < n - 1)] for r in self.rows.tolist()]
 
+    def moving(self, I: np.ndarray) -> bool:
+        """Whether any cell of intruders I: (N^2,) float64 takes part in a routing (holds mass outside column 0)."""
+        return bool(np.any((I > 0) & (self.cols > 0)))
+
     def routings(self, I: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every routing of a state's intruders I: (N^2,) float64, in the tie order: (cells: (k,)
         int64 the cells taking part, up, down: (R, N^2) float64)."""
@@ -254,6 +259,12 @@ class _Search(Routings):
         return values[best], key
 
 
+def draws_moves(policy) -> bool:
+    """Whether an allocator draws its moves (a mixture drawn per episode or step; one of mean moves
+    does not): the search answers the others."""
+    return getattr(policy, "for_episode", None) is not None and getattr(policy, "draw", None) != "mean"
+
+
 def exact_response(config: AllocConfig, policy, client, seed: int, *, objective: str = "eliminated",
                    shares: int = 1, max_nodes: int = DEFAULT_MAX_NODES) -> ExactResponse:
     """The intruders' best response in episode `seed` of config against policy, a deterministic
@@ -292,7 +303,7 @@ def exact_response(config: AllocConfig, policy, client, seed: int, *, objective:
     for a bad objective, shares or max_nodes, a tree that could exceed max_nodes, or an
     allocator that draws its moves (a mixture but of mean moves).
     """
-    if getattr(policy, "for_episode", None) is not None and getattr(policy, "draw", None) != "mean":
+    if draws_moves(policy):
         raise ConfigError("allocator: the exact search answers a deterministic allocator; this one draws its moves "
                           "(search a mixture's members one by one)", field="allocator")
     D, I = episode_start(config, seed)

@@ -15,7 +15,7 @@ import numpy as np
 from farm.alloc.dynamics import check_actions, episode_end, move_defenders, move_probabilities, observe, resolve
 from farm.alloc.model import EngagementModel
 from farm.alloc.intruders.base import IntruderPolicy
-from farm.alloc.intruders.search import OBJECTIVES, Routings
+from farm.alloc.intruders.search import OBJECTIVES, Routings, draws_moves
 from farm.core.errors import ConfigError
 from farm.core.mixture import mixture_members
 
@@ -58,7 +58,7 @@ class SearchingIntruders(IntruderPolicy):
         parsed, self.weights = mixture_members("intruder_options", allocators, weights, "episode", "policy")
         self.members = [make_policy(name, config, client, **options) for name, options in parsed]
         for (name, _), member in zip(parsed, self.members):
-            if getattr(member, "for_episode", None) is not None and getattr(member, "draw", None) != "mean":
+            if draws_moves(member):
                 raise ConfigError(f"intruder_options.allocators: {name} draws its moves; the search models "
                                   f"deterministic allocators (list a mixture's members)",
                                   field="intruder_options.allocators")
@@ -90,7 +90,7 @@ class SearchingIntruders(IntruderPolicy):
         """The value of (D, I) after t steps, before the defenders move, to the members S."""
         key = (D.tobytes(), I.tobytes(), t, S)
         if key not in self._before:
-            if not len(self.tree.routings(I)[0]):  # the mass leaves: no cell engages whatever the defenders do
+            if not self.tree.moving(I):  # the mass leaves: no cell engages whatever the defenders do
                 self._before[key] = 0.0 if self.objective == "eliminated" else self.after(D, I, t, S)[0]
             else:
                 groups: dict = {}
@@ -177,7 +177,7 @@ class _Episode:
             before = self.expected[0]
         else:
             before = None  # not the state it led to: the members cannot be checked against this move
-        if before is not None and len(p.tree.routings(I)[0]):
+        if before is not None and p.tree.moving(I):
             matching = tuple(i for i in self.members
                              if np.allclose(p.move(i, before, I), D, rtol=0.0, atol=_MATCH))
             self.members = matching or p.everyone

@@ -227,10 +227,10 @@ def _best_responses(config: RobustConfig, store, client, n: int, found: dict, al
             [(a, b) for a in allocators for b in found["intruders"]]
     info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
     gain_d = payoff_matrix(store, config, found["allocators"], intruders) @ solution.column - solution.value
-    gain_i = solution.value - solution.row @ payoff_matrix(store, config, allocators, found["intruders"])
     kept = {"allocators": found["allocators"][int(np.argmax(gain_d))]}
     candidates = {"defenders_candidates": gain_d.tolist()}
     if found["intruders"]:
+        gain_i = solution.value - solution.row @ payoff_matrix(store, config, allocators, found["intruders"])
         kept["intruders"] = found["intruders"][int(np.argmax(gain_i))]
         candidates["intruders_candidates"] = gain_i.tolist()
     return kept, candidates
