@@ -60,9 +60,10 @@ class RobustConfig(StrictFile):
     threshold: float | None = Field(None, ge=0)  # stop once NashConv is at most this; None: run every iteration
     payoffs: PayoffParams = PayoffParams()  # how a pair's payoff is played
     oracle: Literal["trained", "library"] = "trained"  # trained best responses, or the best of a fixed library
-    # the intruders' best response: the oracle's, or `search` intruders planning against the allocators' mixture
-    # (its support as their model; farm.alloc.intruders.searching), on maps whose search tree fits
-    intruders_oracle: Literal["oracle", "search"] = "oracle"
+    # the intruders' best response: the same oracle as the defenders' (oracle), trained, the best of the library,
+    # or `search` intruders planning against the allocators' mixture (its support as their model;
+    # farm.alloc.intruders.searching), on maps whose search tree fits
+    intruders_oracle: Literal["oracle", "trained", "library", "search"] = "oracle"
     # trained oracles: seeds of each side's best response trained an iteration, the one gaining most kept
     responses: int = Field(1, ge=1, le=9)
     # each iteration's allocators' mixture valued against the intruders' exact best response, on maps whose
@@ -112,6 +113,16 @@ class RobustConfig(StrictFile):
                 raise ValueError(f"intruders_oracle: search: the search tree of {self.scenario} does not fit the "
                                  f"search's budget (use the oracle's intruders)")
         return self
+
+    def oracle_of(self, side: str) -> str:
+        """The oracle of a side (allocators or intruders): trained, library or search."""
+        if side == "allocators" or self.intruders_oracle == "oracle":
+            return self.oracle
+        return self.intruders_oracle
+
+    def trained_sides(self) -> list[str]:
+        """The sides whose best responses are trained, allocators first."""
+        return [side for side in ("allocators", "intruders") if self.oracle_of(side) == "trained"]
 
     def alloc_config(self):
         """The map's AllocConfig: the scenario's settings with `env` over them."""

@@ -163,14 +163,8 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
             M = payoff_matrix(store, config, allocators, intruders)
             solution = solve(M)
             k = len(iterations)
-            candidates = {}
-            if config.oracle == "library":
-                responses = {"allocators": _library_response("allocators", config, store, client, allocators,
-                                                             intruders, solution.column, n)}
-                if config.intruders_oracle == "oracle":
-                    responses["intruders"] = _library_response("intruders", config, store, client, intruders,
-                                                               allocators, solution.row, n)
-            else:
+            responses, candidates = {}, {}
+            if config.trained_sides():
                 from farm.studies.robust.oracles import trained_responses
 
                 found = trained_responses(config, out, k, allocators, intruders, solution, address=address,
@@ -178,7 +172,13 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
                                           procs=max(1, n // config.responses))
                 responses, candidates = _best_responses(config, store, client, n, found, allocators, intruders,
                                                         solution, info)
-            if config.intruders_oracle == "search":
+            if config.oracle_of("allocators") == "library":
+                responses["allocators"] = _library_response("allocators", config, store, client, allocators,
+                                                            intruders, solution.column, n)
+            if config.oracle_of("intruders") == "library":
+                responses["intruders"] = _library_response("intruders", config, store, client, intruders,
+                                                           allocators, solution.row, n)
+            elif config.oracle_of("intruders") == "search":
                 responses["intruders"] = searching_response(config, k, allocators, solution.row)
             ra, ri = responses["allocators"], responses["intruders"]
             pairs = [(ra, b) for b in intruders] + [(a, ri) for a in allocators] + [(ra, ri)]
@@ -226,9 +226,11 @@ def _best_responses(config: RobustConfig, store, client, n: int, found: dict, al
     pairs = [(a, b) for a in found["allocators"] for b in intruders] + \
             [(a, b) for a in allocators for b in found["intruders"]]
     info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
-    gain_d = payoff_matrix(store, config, found["allocators"], intruders) @ solution.column - solution.value
-    kept = {"allocators": found["allocators"][int(np.argmax(gain_d))]}
-    candidates = {"defenders_candidates": gain_d.tolist()}
+    kept, candidates = {}, {}
+    if found["allocators"]:
+        gain_d = payoff_matrix(store, config, found["allocators"], intruders) @ solution.column - solution.value
+        kept["allocators"] = found["allocators"][int(np.argmax(gain_d))]
+        candidates["defenders_candidates"] = gain_d.tolist()
     if found["intruders"]:
         gain_i = solution.value - solution.row @ payoff_matrix(store, config, allocators, found["intruders"])
         kept["intruders"] = found["intruders"][int(np.argmax(gain_i))]

@@ -14,9 +14,9 @@ __all__ = ["trained_responses", "iteration_experiment", "response_seeds", "disti
 
 
 def iteration_experiment(config: RobustConfig, k: int, allocators: list, intruders: list, solution):
-    """Iteration k's experiment: point 0 the defenders' best response (an allocator trained in the
-    env whose intruders are the intruders' mixture), point 1 the intruders' (trained against the
-    allocators' mixture; none when the intruders' oracle is the search), config.responses seeds
+    """Iteration k's experiment: a point a trained side (config.trained_sides(), in its order): the
+    defenders' best response (an allocator trained in the env whose intruders are the intruders'
+    mixture), the intruders' (trained against the allocators' mixture); config.responses seeds
     (response_seeds)."""
     from farm.studies.experiments.config import ExperimentConfig
 
@@ -25,7 +25,7 @@ def iteration_experiment(config: RobustConfig, k: int, allocators: list, intrude
     attackers = {"side": "intruders", "opponent.name": "mixture",
                  "opponent.options": mixture_options(allocators, solution.row), **config.training.intruders}
     shared = {f"env.{name}": value for name, value in config.env.items()}
-    trained = (defenders, attackers) if config.intruders_oracle == "oracle" else (defenders,)
+    trained = [{"allocators": defenders, "intruders": attackers}[side] for side in config.trained_sides()]
     points = [{k_: v for k_, v in point.items() if k_ not in shared} for point in trained]
     return ExperimentConfig(name=f"{config.name}-it{k}", scenario=config.scenario, overrides=shared, points=points,
                             seeds=response_seeds(config, k), episodes=3, eval_seed=config.payoffs.seed,
@@ -41,9 +41,9 @@ def response_seeds(config: RobustConfig, k: int) -> list[int]:
 def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list, intruders: list, solution, *,
                       address: str | None = None, workers: int | None = None, show_progress: bool = True,
                       procs: int = 1) -> dict:
-    """Both sides' best responses of iteration k (iteration_experiment, run or resumed in
+    """The trained sides' best responses of iteration k (iteration_experiment, run or resumed in
     out/iterations/<k>): {"allocators": the defenders' trained allocators, "intruders": the
-    intruders' trained policies (none under `intruders_oracle: search`)}, each a list of
+    intruders' trained policies (none for a side whose oracle is not trained)}, each a list of
     config.responses Members (labels brK, then brK.1, brK.2, ...) whose `run` is their run folder. procs: the processes
     answering the allocators' moves in the intruders' training (run_experiment's opponent_procs:
     their planning is most of an iteration; the same responses whatever procs)."""
@@ -58,8 +58,9 @@ def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list,
                    opponent_procs=procs)
     storage = ExperimentStorage(where)
     found = {"allocators": [], "intruders": []}
+    sides = config.trained_sides()
     for t in plan(experiment).trials:
-        side = "allocators" if t.point == 0 else "intruders"
+        side = sides[t.point]
         run, j = storage.run_dir(t.key), len(found[side])
         name = RunFolder(run).learner() if side == "allocators" else "learned"
         found[side].append(Member(side, name, {"run": str(run)}, f"br{k}" + (f".{j}" if j else "")))
