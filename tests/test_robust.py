@@ -242,6 +242,32 @@ def test_the_trained_oracle_keeps_the_seed_gaining_most(ray_local, tmp_path):
         assert it.gains[key] == pytest.approx(float(gains.max()), abs=1e-12)
 
 
+@pytest.mark.ray
+@pytest.mark.slow
+def test_an_oracle_a_side_the_defenders_library_against_trained_intruders(ray_local, tmp_path):
+    from farm.studies.robust import load_robust_config
+
+    config = RobustConfig(**{**load_robust_config(trained_config(tmp_path)).model_dump(), "iterations": 1,
+                             "oracle": "library", "intruders_oracle": "trained",
+                             "library": {"allocators": ["transport"], "intruders": ["split_away"]}})
+    assert config.trained_sides() == ["intruders"] and config.oracle_of("allocators") == "library"
+    out = tmp_path / "out"
+    (it,), _ = run_robust(config, out, show_progress=False)
+    trials = sorted(p.name for p in (out / "iterations" / "0" / "trials").iterdir() if (p / "run").is_dir())
+    assert trials == ["p0_s0"]  # the intruders' training only, as point 0
+    store = PayoffStore(out / "payoffs")
+    defenders, intruders = it.responses["allocators"], it.responses["intruders"]
+    assert intruders.name == "learned" and Path(intruders.options["run"]).is_dir()
+    assert "/trials/p0_s0/" in intruders.options["run"]
+    options = it.allocators + config.candidates("allocators")
+    worth = payoff_matrix(store, config, options, it.intruders) @ np.asarray(it.column)
+    assert defenders == options[int(np.argmax(worth))]  # the library's answer, not a trained one
+    assert it.gains["defenders"] == pytest.approx(float(worth.max()) - it.value, abs=1e-12)
+    assert it.gains["intruders"] == pytest.approx(
+        it.value - float(np.asarray(it.row) @ payoff_matrix(store, config, it.allocators, [intruders])[:, 0]),
+        abs=1e-12)
+
+
 def session_pids(sid: int) -> list[int]:
     from conftest import session
 
