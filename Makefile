@@ -63,6 +63,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/vector_env.py
 	$(PY) benchmarks/exploit.py all
 	$(PY) benchmarks/minimax.py
+	$(PY) benchmarks/searching.py --store results/capture_times.sqlite
 	$(PY) benchmarks/robust.py
 
 # The exploitability table (configs/exploit/table.yaml): every allocator against drift, the heuristic
