@@ -242,6 +242,30 @@ def test_the_trained_oracle_keeps_the_seed_gaining_most(ray_local, tmp_path):
         assert it.gains[key] == pytest.approx(float(gains.max()), abs=1e-12)
 
 
+@pytest.mark.parametrize("oracle, intruders_oracle, trained", [
+    ("trained", "oracle", ["allocators", "intruders"]), ("trained", "trained", ["allocators", "intruders"]),
+    ("trained", "search", ["allocators"]), ("trained", "library", ["allocators"]),
+    ("library", "trained", ["intruders"]), ("library", "oracle", []), ("library", "search", [])])
+def test_an_iterations_experiment_holds_a_point_a_trained_side(oracle, intruders_oracle, trained):
+    from farm.core.matrix_game import solve
+    from farm.studies.robust.oracles import iteration_experiment
+
+    config = RobustConfig(name="x", scenario="outnumbered_3x3", oracle=oracle, intruders_oracle=intruders_oracle,
+                          allocators=["intercept"], intruders=["drift", "fewest_ahead"])
+    assert config.trained_sides() == trained
+    if not trained:
+        return
+    experiment = iteration_experiment(config, 0, config.population("allocators"), config.population("intruders"),
+                                      solve(np.array([[0.7, 0.4]])))
+    sides = ["intruders" if point.get("side") == "intruders" else "allocators" for point in experiment.points]
+    assert sides == trained
+    for point in experiment.points:  # each side trains against the other's mixture
+        if point.get("side") == "intruders":
+            assert point["opponent.options"]["members"] == [{"policy": "intercept", "options": {}}]
+        else:
+            assert point["env.intruder_options"]["weights"] == pytest.approx([0.0, 1.0])
+
+
 @pytest.mark.ray
 @pytest.mark.slow
 def test_an_oracle_a_side_the_defenders_library_against_trained_intruders(ray_local, tmp_path):
