@@ -28,6 +28,7 @@ def main() -> int:
     fig = Figure(figsize=(11, 4.2))
     FigureCanvasAgg(fig)
     left, right = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    exact = False
     for run in args.runs:
         path = run / "nash_conv.csv"
         if not path.exists():
@@ -35,6 +36,7 @@ def main() -> int:
             return 2
         rows = pd.read_csv(path)
         line, = left.plot(rows["iteration"], rows["nash_conv"], "o-", label=run.name)
+        exact |= "exact_nash_conv" in rows or "exact_value" in rows
         if "exact_nash_conv" in rows:
             left.plot(rows["iteration"], rows["exact_nash_conv"], "^:", color=line.get_color(),
                       label=f"{run.name}, exact")
@@ -43,10 +45,12 @@ def main() -> int:
             right.plot(rows["iteration"], rows["exact_value"], "^:", color=line.get_color(),
                        label=f"{run.name}, exact")
     left.set(xlabel="iteration", ylabel="NashConv", title=args.title)
-    left.text(0.01, -0.2, "dotted: with the intruders' exact best response", transform=left.transAxes, fontsize=8)
     right.set(xlabel="iteration", ylabel="eliminated mass", title="the meta-game's value")
-    right.text(0.01, -0.2, "dotted: the allocators' mixture against the exact search", transform=right.transAxes,
-               fontsize=8)
+    if exact:
+        left.text(0.01, -0.2, "dotted: with the intruders' exact best response", transform=left.transAxes,
+                  fontsize=8)
+        right.text(0.01, -0.2, "dotted: the allocators' mixture against the exact search", transform=right.transAxes,
+                   fontsize=8)
     for ax in (left, right):
         ax.xaxis.get_major_locator().set_params(integer=True)
         ax.legend(fontsize=7, ncol=2)
