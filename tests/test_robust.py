@@ -27,7 +27,7 @@ from farm.core.matrix_game import solve
 from farm.service.client import CaptureTimeClient
 from farm.studies.robust import RobustConfig, run_robust
 from farm.studies.robust.exact import deterministic, searchable
-from farm.studies.robust.loop import payoff_matrix
+from farm.studies.robust.loop import digest, payoff_matrix
 from farm.studies.robust.payoffs import PayoffStore, payoff_key
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -253,6 +253,9 @@ def test_an_iterations_experiment_holds_a_point_a_trained_side(oracle, intruders
     config = RobustConfig(name="x", scenario="outnumbered_3x3", oracle=oracle, intruders_oracle=intruders_oracle,
                           allocators=["intercept"], intruders=["drift", "fewest_ahead"])
     assert config.trained_sides() == trained
+    spelled_out = config.model_copy(update={"intruders_oracle": config.oracle_of("intruders")})
+    assert (digest(spelled_out) == digest(config.model_copy(update={"intruders_oracle": "oracle"}))) == \
+        (intruders_oracle in ("oracle", oracle))  # naming the defenders' oracle again is the same experiment
     if not trained:
         return
     experiment = iteration_experiment(config, 0, config.population("allocators"), config.population("intruders"),

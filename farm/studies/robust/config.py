@@ -59,7 +59,9 @@ class RobustConfig(StrictFile):
     iterations: int = Field(4, ge=0, le=100)  # oracle iterations at most
     threshold: float | None = Field(None, ge=0)  # stop once NashConv is at most this; None: run every iteration
     payoffs: PayoffParams = PayoffParams()  # how a pair's payoff is played
-    oracle: Literal["trained", "library"] = "trained"  # trained best responses, or the best of a fixed library
+    # the defenders' oracle (and the intruders' unless intruders_oracle says otherwise): trained best responses,
+    # or the best of a fixed library
+    oracle: Literal["trained", "library"] = "trained"
     # the intruders' best response: the same oracle as the defenders' (oracle), trained, the best of the library,
     # or `search` intruders planning against the allocators' mixture (its support as their model;
     # farm.alloc.intruders.searching), on maps whose search tree fits

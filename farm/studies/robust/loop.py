@@ -80,9 +80,10 @@ def digest(config: RobustConfig) -> str:
     only bound the loop, and exact only values its iterations, so they may change when a run is
     resumed)."""
     values = config.model_dump(mode="json", exclude={"iterations", "threshold", "store", "exact"})
-    for name, default in (("responses", 1), ("intruders_oracle", "oracle")):
-        if values[name] == default:  # at its default the digest is that of a config without the field
-            del values[name]
+    if values["responses"] == 1:  # at its default the digest is that of a config without the field
+        del values["responses"]
+    if config.oracle_of("intruders") == config.oracle:  # the intruders' oracle the defenders': as if unset
+        del values["intruders_oracle"]
     return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
 
 
