@@ -26,6 +26,7 @@ from farm.core.config import first_line
 from farm.core.matrix_game import solve
 from farm.service.client import CaptureTimeClient
 from farm.studies.robust import RobustConfig, run_robust
+from farm.studies.robust.config import FloorParams
 from farm.studies.robust.exact import deterministic, searchable
 from farm.studies.robust.loop import digest, payoff_matrix
 from farm.studies.robust.payoffs import PayoffStore, payoff_key
@@ -49,6 +50,11 @@ GAMES = 8  # games per capture-time case: a cold store fills in seconds
      "intruders_oracle: search: the search tree of outnumbered_5x5 does not fit"),
     ({"intruders_oracle": "search", "allocators": [{"name": "mixture", "options": {"members": ["intercept"]}}]},
      "intruders_oracle: search models deterministic allocators; mixture"),
+    ({"floor": {"allocator": "minimax"}}, "floor: 'minimax' is not one of the starting allocators"),
+    ({"floor": {"intruders": "fewest_ahead"}, "intruders": ["drift"]},
+     "floor: 'fewest_ahead' is not one of the starting intruders"),
+    ({"floor": {"margin": -0.1}}, "floor.margin"),
+    ({"floor": {"reference": "x"}}, "floor.reference"),
 ])
 def test_a_bad_robust_config_is_one_line_naming_its_field(settings, words):
     with pytest.raises(ValidationError) as e:
@@ -131,6 +137,42 @@ def test_the_library_oracles_loop_and_its_resumed_rerun(ray_local, tmp_path):
     with pytest.raises(Exception, match="holds a robust run of another config"):
         run_robust(config.model_copy(update={"payoffs": config.payoffs.model_copy(update={"episodes": 4})}), out,
                    show_progress=False)
+
+
+@pytest.mark.ray
+def test_the_floored_loop_keeps_the_drift_case_and_answers_with_the_floors_price(ray_local, tmp_path):
+    robust = {"name": "minimax", "options": {"robustness": 1.0}, "label": "minimax_r1"}
+    config = RobustConfig(name="floor", scenario="outnumbered_3x3", env={"games": GAMES}, iterations=2,
+                          allocators=["receding_horizon"], intruders=["drift"], oracle="library",
+                          library={"allocators": ["intercept", robust], "intruders": ["fewest_ahead", "split_away"]},
+                          floor={"margin": 0.05}, payoffs={"episodes": 3}, distill=None, exact="never",
+                          store=str(tmp_path / "store.sqlite"))
+    out = tmp_path / "out"
+    iterations, _ = run_robust(config, out, show_progress=False)
+    store = PayoffStore(out / "payoffs")
+    for it in iterations:
+        M = payoff_matrix(store, config, it.allocators, it.intruders)
+        target = float(M[0, 0]) - 0.05  # receding_horizon against drift, less the margin
+        solution = solve(M, (0, target))
+        assert it.row == pytest.approx(solution.row.tolist(), abs=1e-9) and it.value == pytest.approx(solution.value)
+        assert it.floor == pytest.approx({"target": target, "held": float(solution.row @ M[:, 0]),
+                                          "price": solution.price})
+        assert it.floor["held"] >= target - 1e-9 and it.value <= solve(M).value + 1e-9
+        # the defenders' response: the best worth among the candidates and members, the floor's price on drift
+        options = it.allocators + [c for c in config.candidates("allocators") if c not in it.allocators]
+        worth = solution.row_worth(payoff_matrix(store, config, options, it.intruders))
+        chosen = [m.key() for m in options].index(it.responses["allocators"].key())
+        assert worth[chosen] == pytest.approx(worth.max())
+        assert it.gains["defenders"] == pytest.approx(float(worth[chosen]) - solution.value, abs=1e-12)
+    table = pd.read_csv(out / "nash_conv.csv")
+    assert list(table["floor_held"]) == pytest.approx([it.floor["held"] for it in iterations])
+    mixture = yaml.safe_load((out / "mixture.yaml").read_text())
+    weights = np.asarray(mixture["allocator"]["options"]["weights"])
+    assert mixture["floor"]["held"] >= mixture["floor"]["target"] - 1e-9
+    final = pd.read_csv(out / "payoffs.csv", index_col=0)
+    assert float(weights @ final["drift"].to_numpy()) == pytest.approx(mixture["floor"]["held"])
+    with pytest.raises(Exception, match="holds a robust run of another config"):
+        run_robust(config.model_copy(update={"floor": None}), out, show_progress=False)
 
 
 @pytest.mark.ray
@@ -256,6 +298,7 @@ def test_an_iterations_experiment_holds_a_point_a_trained_side(oracle, intruders
     spelled_out = config.model_copy(update={"intruders_oracle": config.oracle_of("intruders")})
     assert (digest(spelled_out) == digest(config.model_copy(update={"intruders_oracle": "oracle"}))) == \
         (intruders_oracle in ("oracle", oracle))  # naming the defenders' oracle again is the same experiment
+    assert digest(config) != digest(config.model_copy(update={"floor": FloorParams()}))
     if not trained:
         return
     experiment = iteration_experiment(config, 0, config.population("allocators"), config.population("intruders"),
@@ -267,6 +310,20 @@ def test_an_iterations_experiment_holds_a_point_a_trained_side(oracle, intruders
             assert point["opponent.options"]["members"] == [{"policy": "intercept", "options": {}}]
         else:
             assert point["env.intruder_options"]["weights"] == pytest.approx([0.0, 1.0])
+
+
+def test_under_a_floor_the_defenders_train_against_the_mixture_with_the_floors_price_on_drift():
+    from farm.studies.robust.oracles import iteration_experiment
+
+    config = RobustConfig(name="x", scenario="outnumbered_3x3", allocators=["receding_horizon", "intercept"],
+                          intruders=["drift", "fewest_ahead"], floor={"margin": 0.05})
+    allocators, intruders = config.population("allocators"), config.population("intruders")
+    M = np.array([[0.8, 0.0], [0.7, 0.5]])
+    assert config.floor_of(M, allocators, intruders) == (0, pytest.approx(0.75))
+    solution = solve(M, config.floor_of(M, allocators, intruders))  # price 5 on drift (tests/test_matrix_game.py)
+    defenders, attackers = iteration_experiment(config, 0, allocators, intruders, solution).points
+    assert defenders["env.intruder_options"]["weights"] == pytest.approx([5 / 6, 1 / 6])
+    assert attackers["opponent.options"]["weights"] == pytest.approx([0.5, 0.5])
 
 
 @pytest.mark.ray

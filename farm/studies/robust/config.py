@@ -9,7 +9,7 @@ from pydantic import Field, field_validator, model_validator
 
 from farm.core.config import Strict, StrictFile, load_yaml_model
 
-__all__ = ["RobustConfig", "load_robust_config", "PayoffParams", "LibraryParams", "TrainingParams"]
+__all__ = ["RobustConfig", "load_robust_config", "PayoffParams", "LibraryParams", "TrainingParams", "FloorParams"]
 
 
 class PayoffParams(Strict):
@@ -27,6 +27,18 @@ class LibraryParams(Strict):
 
     allocators: list[Any] = []  # candidate allocators: names or {name, options, label}
     intruders: list[Any] = []  # candidate intruder policies: names or {name, options, label}
+
+
+class FloorParams(Strict):
+    """A floor under the allocators' mixture in the drift case: against the intruder member
+    `intruders` it keeps at least the payoff of the allocator member `allocator` there, less margin.
+    The meta-solver then maximises the worst case under that constraint, and the defenders' oracle
+    answers the intruders' mixture with the floor's price on the drift case
+    (farm.core.matrix_game)."""
+
+    allocator: str = "receding_horizon"  # the reference: a starting allocator, as tables show it
+    intruders: str = "drift"  # the intruder member the floor holds against: a starting one, as tables show it
+    margin: float = Field(0.05, ge=0, le=1)  # how far below the reference's payoff the floor is
 
 
 class TrainingParams(Strict):
@@ -72,6 +84,9 @@ class RobustConfig(StrictFile):
     # search tree fits (auto), or never; it bounds the trained intruders' gain (farm.studies.robust.exact)
     exact: Literal["auto", "never"] = "auto"
     library: LibraryParams = LibraryParams()  # the library oracle's candidates
+    # the allocators' mixture held to the reference allocator's payoff against one intruder member (drift), less a
+    # margin; None: no floor (the plain meta-Nash)
+    floor: FloorParams | None = None
     training: TrainingParams = TrainingParams()  # the trained oracles' settings
     # one network distilled from the final allocators' mixture: dotted TrainConfig settings of a training
     # DAgger-started from the mixture's mean move against the final intruders' mixture; None: none
@@ -103,6 +118,11 @@ class RobustConfig(StrictFile):
                 member_of(side, v, f"{side}[{i}]")
             for i, v in enumerate(getattr(self.library, side)):
                 member_of(side, v, f"library.{side}[{i}]")
+        if self.floor is not None:
+            for side, name in (("allocators", self.floor.allocator), ("intruders", self.floor.intruders)):
+                shown = [m.shown() for m in self.population(side)]
+                if name not in shown:
+                    raise ValueError(f"floor: {name!r} is not one of the starting {side} ({', '.join(shown)})")
         if self.intruders_oracle == "search":
             from farm.studies.robust.exact import deterministic, searchable
 
@@ -125,6 +145,16 @@ class RobustConfig(StrictFile):
     def trained_sides(self) -> list[str]:
         """The sides whose best responses are trained, allocators first."""
         return [side for side in ("allocators", "intruders") if self.oracle_of(side) == "trained"]
+
+    def floor_of(self, M, allocators: list, intruders: list) -> tuple[int, float] | None:
+        """The meta-solver's floor over the payoff matrix M: (len(allocators), len(intruders)) float64
+        of these populations: (the floor's intruder column, the reference's payoff there less the
+        margin), or None without a floor."""
+        if self.floor is None:
+            return None
+        i = [a.shown() for a in allocators].index(self.floor.allocator)
+        j = [b.shown() for b in intruders].index(self.floor.intruders)
+        return j, float(M[i, j]) - self.floor.margin
 
     def alloc_config(self):
         """The map's AllocConfig: the scenario's settings with `env` over them."""

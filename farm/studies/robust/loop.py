@@ -46,7 +46,9 @@ class Iteration:
     of both gains, each floored at 0: a response no better than the population adds nothing);
     exact, on maps whose search tree fits: the allocators' mixture against the intruders' exact best
     response ({"value", "gain_intruders": the value's drop to it, "nash_conv": with that gain}),
-    None where not valued."""
+    None where not valued; floor, under the config's floor: {"target", "held", "price"} (the floor,
+    the allocators' mixture's payoff against its intruder member, the floor's price; the defenders'
+    gain is their response's worth with that price, Solution.row_worth), else None."""
 
     allocators: list
     intruders: list
@@ -57,6 +59,7 @@ class Iteration:
     gains: dict
     nash_conv: float
     exact: dict | None = None
+    floor: dict | None = None
 
     def to_dict(self) -> dict:
         """Plain values for robust.json."""
@@ -64,7 +67,8 @@ class Iteration:
                 "intruders": [m.to_dict() for m in self.intruders],
                 "row": self.row, "column": self.column, "value": self.value,
                 "responses": {k: m.to_dict() for k, m in self.responses.items()}, "gains": self.gains,
-                "nash_conv": self.nash_conv, **({"exact": self.exact} if self.exact is not None else {})}
+                "nash_conv": self.nash_conv, **({"exact": self.exact} if self.exact is not None else {}),
+                **({"floor": self.floor} if self.floor is not None else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> Iteration:
@@ -72,7 +76,7 @@ class Iteration:
         return cls([member_of("allocators", m, "allocators") for m in d["allocators"]],
                    [member_of("intruders", m, "intruders") for m in d["intruders"]], d["row"], d["column"],
                    d["value"], {k: member_of(k, m, k) for k, m in d["responses"].items()}, d["gains"], d["nash_conv"],
-                   d.get("exact"))
+                   d.get("exact"), d.get("floor"))
 
 
 def digest(config: RobustConfig) -> str:
@@ -84,6 +88,8 @@ def digest(config: RobustConfig) -> str:
         del values["responses"]
     if config.oracle_of("intruders") == config.oracle:  # the intruders' oracle the defenders': as if unset
         del values["intruders_oracle"]
+    if values["floor"] is None:
+        del values["floor"]
     return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -117,16 +123,18 @@ def _save_state(out: Path, config: RobustConfig, iterations: list[Iteration]) ->
 
 
 def _library_response(side: str, config: RobustConfig, store, client, population: list, opponents: list,
-                      mix, workers: int) -> Member:
-    """The library oracle: the candidate or member of side doing best against the opponents' mixture mix."""
+                      solution, workers: int) -> Member:
+    """The library oracle: the candidate or member of side doing best against the other side's
+    mixture of the solution (the defenders' worth with the floor's price: Solution.row_worth)."""
     env, p = config.alloc_config(), config.payoffs
     options = population + [c for c in config.candidates(side) if c not in population]
     pairs = [(c, o) if side == "allocators" else (o, c) for c in options for o in opponents]
     fill(store, env, pairs, p.episodes, p.seed, client, workers)
     M = payoff_matrix(store, config, options, opponents) if side == "allocators" else \
         payoff_matrix(store, config, opponents, options).T
-    worth = M @ np.asarray(mix)
-    return options[int(np.argmax(worth) if side == "allocators" else np.argmin(worth))]
+    if side == "allocators":
+        return options[int(np.argmax(solution.row_worth(M)))]
+    return options[int(np.argmin(M @ solution.row))]
 
 
 def run_robust(config: RobustConfig, out, *, address: str | None = None, workers: int | None = None,
@@ -162,7 +170,7 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
             info["pairs_played"] += fill(store, env, [(a, b) for a in allocators for b in intruders], p.episodes,
                                          p.seed, client, n)
             M = payoff_matrix(store, config, allocators, intruders)
-            solution = solve(M)
+            solution = solve(M, config.floor_of(M, allocators, intruders))
             k = len(iterations)
             responses, candidates = {}, {}
             if config.trained_sides():
@@ -175,20 +183,21 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
                                                         solution, info)
             if config.oracle_of("allocators") == "library":
                 responses["allocators"] = _library_response("allocators", config, store, client, allocators,
-                                                            intruders, solution.column, n)
+                                                            intruders, solution, n)
             if config.oracle_of("intruders") == "library":
                 responses["intruders"] = _library_response("intruders", config, store, client, intruders,
-                                                           allocators, solution.row, n)
+                                                           allocators, solution, n)
             elif config.oracle_of("intruders") == "search":
                 responses["intruders"] = searching_response(config, k, allocators, solution.row)
             ra, ri = responses["allocators"], responses["intruders"]
             pairs = [(ra, b) for b in intruders] + [(a, ri) for a in allocators] + [(ra, ri)]
             info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
-            gain_d = float(payoff_matrix(store, config, [ra], intruders)[0] @ solution.column) - solution.value
+            gain_d = float(solution.row_worth(payoff_matrix(store, config, [ra], intruders))[0]) - solution.value
             gain_i = solution.value - float(solution.row @ payoff_matrix(store, config, allocators, [ri])[:, 0])
             gains = {"defenders": gain_d, "intruders": gain_i, **candidates}
             it = Iteration(list(allocators), list(intruders), solution.row.tolist(), solution.column.tolist(),
-                           solution.value, responses, gains, max(0.0, gain_d) + max(0.0, gain_i))
+                           solution.value, responses, gains, max(0.0, gain_d) + max(0.0, gain_i),
+                           floor=_floor_record(M, solution))
             iterations.append(it)
             _save_state(out, config, iterations)
             if show_progress:
@@ -206,7 +215,8 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
             from farm.studies.robust.oracles import distilled as distil
 
             allocators, intruders = final_populations(iterations)
-            final = solve(payoff_matrix(store, config, allocators, intruders))
+            M = payoff_matrix(store, config, allocators, intruders)
+            final = solve(M, config.floor_of(M, allocators, intruders))
             distilled = distil(config, out, allocators, intruders, final, address=address, workers=workers,
                                show_progress=show_progress)
             info["pairs_played"] += fill(store, env, [(distilled, b) for b in intruders], p.episodes, p.seed,
@@ -214,6 +224,15 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
         info["files"] = write_results(out, config, store, iterations, distilled) if iterations else []
     info["seconds"] = time.perf_counter() - t0
     return iterations, info
+
+
+def _floor_record(M: np.ndarray, solution) -> dict | None:
+    """An iteration's floor: {"target": the floor, "held": the allocators' mixture's payoff against
+    its column, "price": the floor's price}, or None without one."""
+    if solution.floor is None:
+        return None
+    j, f = solution.floor
+    return {"target": f, "held": float(solution.row @ M[:, j]), "price": solution.price}
 
 
 def _best_responses(config: RobustConfig, store, client, n: int, found: dict, allocators: list, intruders: list,
@@ -229,7 +248,7 @@ def _best_responses(config: RobustConfig, store, client, n: int, found: dict, al
     info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
     kept, candidates = {}, {}
     if found["allocators"]:
-        gain_d = payoff_matrix(store, config, found["allocators"], intruders) @ solution.column - solution.value
+        gain_d = solution.row_worth(payoff_matrix(store, config, found["allocators"], intruders)) - solution.value
         kept["allocators"] = found["allocators"][int(np.argmax(gain_d))]
         candidates["defenders_candidates"] = gain_d.tolist()
     if found["intruders"]:
@@ -294,11 +313,12 @@ def write_results(out: Path, config: RobustConfig, store: PayoffStore, iteration
 
     allocators, intruders = final_populations(iterations)
     M = payoff_matrix(store, config, allocators, intruders)
-    final = solve(M)
+    final = solve(M, config.floor_of(M, allocators, intruders))
     rows = [{"iteration": k, "value": it.value, "gain_defenders": it.gains["defenders"],
              "gain_intruders": it.gains["intruders"], "nash_conv": it.nash_conv, "allocators": len(it.allocators),
              "intruders": len(it.intruders),
-             **({f"exact_{name}": v for name, v in it.exact.items()} if it.exact is not None else {})}
+             **({f"exact_{name}": v for name, v in it.exact.items()} if it.exact is not None else {}),
+             **({f"floor_{name}": v for name, v in it.floor.items()} if it.floor is not None else {})}
             for k, it in enumerate(iterations)]
     files = [out / "nash_conv.csv", out / "payoffs.csv", out / "mixture.yaml", out / "nash_conv.png"]
     pd.DataFrame(rows).to_csv(files[0], index=False)
@@ -311,6 +331,8 @@ def write_results(out: Path, config: RobustConfig, store: PayoffStore, iteration
                "intruders": {"name": "mixture", "options": mixture_options(intruders, final.column)},
                "weights": {"allocators": {a.shown(): float(w) for a, w in zip(allocators, final.row)},
                            "intruders": {b.shown(): float(w) for b, w in zip(intruders, final.column)}}}
+    if final.floor is not None:
+        mixture["floor"] = _floor_record(M, final)
     if distilled is not None:
         mixture["distilled"] = {"name": distilled.name, "options": distilled.options}
     atomic_write_bytes(files[2], yaml.safe_dump(mixture, sort_keys=False).encode())

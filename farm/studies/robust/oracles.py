@@ -16,11 +16,13 @@ __all__ = ["trained_responses", "iteration_experiment", "response_seeds", "disti
 def iteration_experiment(config: RobustConfig, k: int, allocators: list, intruders: list, solution):
     """Iteration k's experiment: a point a trained side (config.trained_sides(), in its order): the
     defenders' best response (an allocator trained in the env whose intruders are the intruders'
-    mixture), the intruders' (trained against the allocators' mixture); config.responses seeds
+    mixture, with the floor's price on its drift case when there is one: Solution.reply_column),
+    the intruders' (trained against the allocators' mixture); config.responses seeds
     (response_seeds)."""
     from farm.studies.experiments.config import ExperimentConfig
 
-    defenders = {"env.intruders": "mixture", "env.intruder_options": mixture_options(intruders, solution.column),
+    defenders = {"env.intruders": "mixture",
+                 "env.intruder_options": mixture_options(intruders, solution.reply_column()),
                  **config.training.defenders}
     attackers = {"side": "intruders", "opponent.name": "mixture",
                  "opponent.options": mixture_options(allocators, solution.row), **config.training.intruders}
@@ -79,7 +81,7 @@ def distilled(config: RobustConfig, out: Path, allocators: list, intruders: list
     from farm.studies.experiments.storage import ExperimentStorage
 
     expert = {**mixture_options(allocators, solution.row), "draw": "mean"}
-    point = {"env.intruders": "mixture", "env.intruder_options": mixture_options(intruders, solution.column),
+    point = {"env.intruders": "mixture", "env.intruder_options": mixture_options(intruders, solution.reply_column()),
              **config.distill, "pretrain.expert_options": expert}
     shared = {f"env.{name}": value for name, value in config.env.items()}
     experiment = ExperimentConfig(name=f"{config.name}-distilled", scenario=config.scenario, overrides=shared,
