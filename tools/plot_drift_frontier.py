@@ -1,11 +1,11 @@
 """The drift case against the worst case of `farm robust` runs' final meta-games: for each margin,
 the allocators' mixture keeping at least the reference allocator's payoff against drift less the
 margin with the best guaranteed value over the run's intruders (farm.studies.robust.frontier),
-as a line a run, each allocator alone a point (named once, by the first run); the table printed.
+as a line a run, each allocator alone a point (named once, by the first run holding it); the table printed.
 
 Usage: python tools/plot_drift_frontier.py OUT.png RUN_FOLDER [RUN_FOLDER ...]
            [--reference receding_horizon] [--against drift] [--margins 0 0.025 0.05 ...]
-           [--mark 0.05] [--write MARGIN]
+           [--mark 0.05] [--xmin X] [--write MARGIN]
 Each RUN_FOLDER holds a run's robust.json and payoffs.csv (its final populations' payoffs on the
 run's episodes); the worst case is over the run's intruders, an upper bound on the true one.
 --write MARGIN writes each run's floored mixture at that margin as RUN_FOLDER/floored_MARGIN.yaml
@@ -31,6 +31,7 @@ def main() -> int:
     parser.add_argument("--margins", type=float, nargs="+", default=MARGINS)
     parser.add_argument("--mark", type=float, default=0.05, help="a dashed line: the reference's drift less this")
     parser.add_argument("--write", type=float, default=None, help="write each run's floored mixture at this margin")
+    parser.add_argument("--xmin", type=float, default=None, help="the figure's least drift case shown")
     parser.add_argument("--title", default="The drift case against the worst case")
     args = parser.parse_args()
 
@@ -46,6 +47,7 @@ def main() -> int:
     fig = Figure(figsize=(7, 5))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
+    named = set()
     for k, run in enumerate(args.runs):
         if not (run / STATE).exists() or not (run / "payoffs.csv").exists():
             print(f"runs: {run} holds no {STATE} and payoffs.csv", file=sys.stderr)
@@ -69,7 +71,8 @@ def main() -> int:
         line, = ax.plot([p["drift"] for p in points], [p["worst"] for p in points], "o-", label=f"{run.name}: mixtures")
         for (x, y), n in zip(pure_points(M, j), names):
             ax.plot(x, y, "x", color=line.get_color())
-            if k == 0:  # the first run's names: the starting allocators are every run's
+            if n not in named:  # each name once, by the first run holding it
+                named.add(n)
                 ax.annotate(n, (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
         if k == 0:
             ax.axvline(M[i, j] - args.mark, color="grey", linestyle="--", linewidth=1,
@@ -82,6 +85,8 @@ def main() -> int:
             path.write_text(yaml.safe_dump({"allocator": spec, "drift": p["drift"], "worst": p["worst"]},
                                            sort_keys=False))
             print(f"wrote {path}")
+    if args.xmin is not None:
+        ax.set_xlim(left=args.xmin)
     ax.set_xlabel(f"against {args.against}")
     ax.set_ylabel("worst over the run's intruders")
     ax.set_title(args.title)
