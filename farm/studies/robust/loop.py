@@ -3,7 +3,8 @@ allocation game, on the farm. docs/robust.md tells the algorithm and how it resu
 
 Each iteration: every (allocator, intruder policy) pair of the two populations is played on the
 same seeded episodes (the missing ones as Ray tasks; farm.studies.robust.payoffs keeps each);
-the zero-sum meta-game of their mean payoff is solved by LP (farm.core.matrix_game); each side's
+the zero-sum meta-game of their mean payoff is solved by LP (farm.core.matrix_game; under the
+config's floor, the allocators' mixture keeps the drift case); each side's
 oracle answers the other side's meta-Nash mixture with a best response (the trained oracle: the one
 of its `responses` seeds gaining most); the responses are played
 against the other population and NashConv (the sum of both sides' best-response gains) is
