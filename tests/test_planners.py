@@ -219,10 +219,10 @@ def test_intercept_anticipates_the_advance():
 
 def _apportion_slowly(units, weights):
     """Hamilton's method the obvious way: each whole quota, then one unit at a time to the largest
-    remainder left (the lowest index on ties)."""
+    remainder left (the lowest index on ties: remainders equal to 9 decimals)."""
     quota = [units * w / sum(weights) for w in weights]
     whole = [math.floor(q) for q in quota]
-    rest = [q - f for q, f in zip(quota, whole)]
+    rest = [round(q - f, 9) for q, f in zip(quota, whole)]
     for _ in range(units - sum(whole)):
         k = max(range(len(rest)), key=lambda i: (rest[i], -i))
         whole[k], rest[k] = whole[k] + 1, -1.0
@@ -232,6 +232,7 @@ def _apportion_slowly(units, weights):
 @settings(max_examples=50, deadline=None)
 @given(units=st.integers(0, 40), weights=st.lists(st.sampled_from([0.0, 0.1, 0.25, 1.0, 3.0, 7.5]), min_size=1,
                                                    max_size=12).filter(lambda w: sum(w) > 0))
+@example(units=24, weights=[0.1, 0.25, 1.0, 3.0, 0.1, 0.1, 0.25, 1.0])  # remainders tied but for rounding
 def test_transport_apportions_whole_units_by_largest_remainders(units, weights):
     whole = apportion(units, np.array(weights))
     assert whole.tolist() == _apportion_slowly(units, weights)

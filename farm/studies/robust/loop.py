@@ -4,16 +4,15 @@ allocation game, on the farm. docs/robust.md tells the algorithm and how it resu
 Each iteration: every (allocator, intruder policy) pair of the two populations is played on the
 same seeded episodes (the missing ones as Ray tasks; farm.studies.robust.payoffs keeps each);
 the zero-sum meta-game of their mean payoff is solved by LP (farm.core.matrix_game; under the
-config's floor, the allocators' mixture keeps the drift case); each side's
-oracle answers the other side's meta-Nash mixture with a best response (the trained oracle: the one
-of its `responses` seeds gaining most); the responses are played
-against the other population and NashConv (the sum of both sides' best-response gains) is
-recorded; the responses join the populations. The loop stops at `iterations`, or once NashConv
-is at most `threshold` when one is set; then, on maps whose search tree fits, each iteration's
-allocators' mixture is valued against the intruders' exact best response (farm.studies.robust.exact).
-The state is saved after each iteration (robust.json), so a run stopped anywhere goes on from its
-last whole iteration; every payoff played before is kept, and the trained oracles' trials resume as
-an experiment's do.
+config's floor, the allocators' mixture keeps the drift case); each side's oracle answers the
+other side's meta-Nash mixture with a best response (the trained oracle: the one of its
+`responses` seeds gaining most); the responses are played against the other population and
+NashConv (the sum of both sides' best-response gains) is recorded; the responses join the
+populations. The loop stops at `iterations`, or once NashConv is at most `threshold` when one is
+set; then, on maps whose search tree fits, each iteration's allocators' mixture is valued against
+the intruders' exact best response (farm.studies.robust.exact). The state is saved after each
+iteration (robust.json), so a run stopped anywhere goes on from its last whole iteration; every
+payoff played before is kept, and the trained oracles' trials resume as an experiment's do.
 """
 
 from __future__ import annotations

@@ -10,17 +10,21 @@ from farm.core.errors import ConfigError
 
 __all__ = ["Transport", "apportion"]
 
+TIE_DECIMALS = 9  # apportion's remainders equal to this many decimals are a tie
+
 
 def apportion(units: int, weights: np.ndarray) -> np.ndarray:
     """Whole units shared in proportion to weights by largest remainders (Hamilton's method).
 
     units: int >= 0; weights: (n,) float64 >= 0, not all zero -> (n,) int64 summing to units;
-    ties of the remainders go to the lower index.
+    ties of the remainders (equal to TIE_DECIMALS decimals, so that rounding in the quotas does
+    not decide them) go to the lower index.
     """
     quota = units * weights / weights.sum()
     whole = np.floor(quota).astype(np.int64)
     left = units - int(whole.sum())
-    order = np.lexsort((np.arange(len(weights)), -(quota - whole)))  # largest remainder first
+    rest = np.round(quota - whole, TIE_DECIMALS)
+    order = np.lexsort((np.arange(len(weights)), -rest))  # largest remainder first
     whole[order[:left]] += 1
     return whole
 
