@@ -55,13 +55,13 @@ def main() -> int:
         saved = json.loads((run / STATE).read_text())
         allocators, intruders = final_populations([Iteration.from_dict(d) for d in saved["iterations"]])
         table = pd.read_csv(run / "payoffs.csv", index_col=0)
-        names = [a.shown() for a in allocators]
-        M = table.loc[names, [b.shown() for b in intruders]].to_numpy()
-        for field, name, where in (("reference", args.reference, names), ("against", args.against, list(table))):
+        names, columns = [a.shown() for a in allocators], [b.shown() for b in intruders]
+        M = table.loc[names, columns].to_numpy()
+        for field, name, where in (("reference", args.reference, names), ("against", args.against, columns)):
             if name not in where:
                 print(f"{field}: {name!r} is not in {run}'s populations", file=sys.stderr)
                 return 2
-        i, j = names.index(args.reference), [b.shown() for b in intruders].index(args.against)
+        i, j = names.index(args.reference), columns.index(args.against)
         points = drift_frontier(M, i, j, args.margins)
         print(f"{run}: {args.reference} against {args.against} {M[i, j]:.3f}")
         print("| margin | floor | drift | worst | support |\n|---|---|---|---|---|")

@@ -49,15 +49,16 @@ class Solution:
     def reply_column(self) -> np.ndarray:
         """(n,) float64: the column mix a row best reply answers, (y + price e_j) / (1 + price): a
         row's payoff against it is its row_worth plus price f, over 1 + price (y without a floor)."""
-        if self.floor is None or self.price == 0.0:
+        if self.price == 0.0:
             return self.column
         tilted = self.column.copy()
         tilted[self.floor[0]] += self.price
         return tilted / (1.0 + self.price)
 
 
-def _optimal_mix(A: np.ndarray) -> tuple[np.ndarray, float]:
-    """The maximising player's optimal mix of the rows of A: (m, n) and its guaranteed value."""
+def _optimal_mix(A: np.ndarray, floor: tuple[int, float] | None = None) -> tuple[np.ndarray, float]:
+    """The maximising player's optimal mix of the rows of A: (m, n) and its guaranteed value; with
+    floor (j, f), among the mixes keeping at least f against column j."""
     from scipy.optimize import linprog
 
     m, n = A.shape
@@ -65,26 +66,12 @@ def _optimal_mix(A: np.ndarray) -> tuple[np.ndarray, float]:
     c = np.zeros(m + 1)
     c[-1] = -1.0
     A_ub = np.hstack([-A.T, np.ones((n, 1))])
+    b_ub = np.zeros(n)
+    if floor is not None:  # and -(A^T x)_j <= -f
+        A_ub = np.vstack([A_ub, np.append(-A[:, floor[0]], 0.0)[None]])
+        b_ub = np.append(b_ub, -floor[1])
     A_eq = np.append(np.ones(m), 0.0)[None]
-    res = linprog(c, A_ub=A_ub, b_ub=np.zeros(n), A_eq=A_eq, b_eq=[1.0],
-                  bounds=[(0, None)] * m + [(None, None)], method="highs")
-    if res.status != 0:
-        raise RuntimeError(f"the matrix game's LP failed: {res.message}")
-    x = np.maximum(res.x[:m], 0.0)
-    return x / x.sum(), float(res.x[-1])
-
-
-def _floored_row_mix(A: np.ndarray, j: int, f: float) -> tuple[np.ndarray, float]:
-    """The row player's optimal mix of A: (m, n) keeping at least f against column j, and its
-    guaranteed value."""
-    from scipy.optimize import linprog
-
-    m, n = A.shape
-    c = np.zeros(m + 1)
-    c[-1] = -1.0
-    A_ub = np.vstack([np.hstack([-A.T, np.ones((n, 1))]), np.append(-A[:, j], 0.0)[None]])
-    b_ub = np.append(np.zeros(n), -f)
-    res = linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=np.append(np.ones(m), 0.0)[None], b_eq=[1.0],
+    res = linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=[1.0],
                   bounds=[(0, None)] * m + [(None, None)], method="highs")
     if res.status != 0:
         raise RuntimeError(f"the matrix game's LP failed: {res.message}")
@@ -93,7 +80,7 @@ def _floored_row_mix(A: np.ndarray, j: int, f: float) -> tuple[np.ndarray, float
 
 
 def _floored_column_mix(A: np.ndarray, j: int, f: float) -> tuple[np.ndarray, float, float]:
-    """The dual of _floored_row_mix: the columns' mix y, the floor's price lam and the value
+    """The dual of _optimal_mix with a floor: the columns' mix y, the floor's price lam and the value
     u - lam f of min u - lam f s.t. A y + lam A e_j <= u 1, sum y = 1, y >= 0, lam >= 0."""
     from scipy.optimize import linprog
 
@@ -128,7 +115,7 @@ def solve(A, floor: tuple[int, float] | None = None) -> Solution:
         raise ValueError(f"floor: column {j} is not one of the game's {A.shape[1]}")
     if A[:, j].max() < f:
         raise ValueError(f"floor: no row keeps {f} against column {j} (the most is {A[:, j].max()})")
-    x, v = _floored_row_mix(A, j, f)
+    x, v = _optimal_mix(A, (j, f))
     y, price, w = _floored_column_mix(A, j, f)
     return Solution(x, y, 0.5 * (v + w), (j, f), price)
 
