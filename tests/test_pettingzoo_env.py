@@ -1,11 +1,10 @@
 """The two-learner envs (farm.alloc.pettingzoo_env) as PettingZoo's users expect them: PettingZoo's
 own API and seed tests, zero-sum rewards, what the follower intruders see, the single env's
 episode to the bit when the intruders route by the drift law, and bad actions refused. No Ray:
-a stand-in client, or an in-process one over a copy of the warmed store."""
+a stand-in client, or an in-process one over a store warmed here."""
 
 import ast
 import os
-import shutil
 import subprocess
 import sys
 import warnings
@@ -30,7 +29,6 @@ from farm.alloc.pettingzoo_env import (
 from farm.core.errors import ActionError, ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
-WARMED = Path("/work/stores/alloc.sqlite")  # a store warmed for outnumbered_3x3, among others
 SMALL = {"grid_size": 3, "n_defenders": 10, "n_intruders": 5}
 NAMING = "We recommend agents to be named"  # PettingZoo's advice for names like player_0; ours are the sides
 
@@ -155,12 +153,14 @@ def test_the_follower_intruders_observe_the_defenders_after_their_move(rng):
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory):
-    """A copy of the warmed store (the envs' clients open it)."""
-    if not WARMED.is_file():
-        pytest.skip(f"no warmed store at {WARMED}")
-    copy = tmp_path_factory.mktemp("pettingzoo") / "alloc.sqlite"
-    shutil.copyfile(WARMED, copy)
-    return copy
+    """A store warmed here for outnumbered_3x3's lattice of team sizes (the envs' clients open it)."""
+    from farm.alloc.lattice import memo_client
+
+    path = tmp_path_factory.mktemp("pettingzoo") / "alloc.sqlite"
+    client, pairs, _ = memo_client([SCENARIOS["outnumbered_3x3"].config()], "local", path)
+    client.close()
+    assert pairs and path.is_file()
+    return path
 
 
 def drift_action(layout: Layout, drift: float) -> np.ndarray:
@@ -180,6 +180,7 @@ def same(a, b) -> bool:
     return type(a) is type(b) and repr(a) == repr(b)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("drift", [0.0, 0.25])
 def test_an_episode_with_drift_routing_is_the_single_env_episode_to_the_bit(store, rng, drift):
     config = SCENARIOS["outnumbered_3x3"].config(action_map="shifted", vertical_drift=drift)
