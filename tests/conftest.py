@@ -2,6 +2,7 @@ import collections
 import contextlib
 import fcntl
 import os
+import signal
 import socket
 import subprocess
 import tempfile
@@ -339,6 +340,45 @@ def signal_all(pids, signum: int) -> None:
     for pid in pids:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signum)
+
+
+DEADLINE = 600  # seconds for a file to appear, generous for a loaded 2-core machine (the tests poll)
+
+
+def ray_workers() -> list[int]:
+    """The shared Ray's workers (this process's descendants: never another xdist worker's)."""
+    return [pid for pid in descendants() if cmdline(pid).startswith(b"ray::")]
+
+
+def holder(folder: Path) -> int | None:
+    """The pid of a Ray worker of the shared Ray holding a file under folder open (Linux's
+    /proc; a trial's worker holds its run's TensorBoard file while it trains), or None."""
+    prefix = str(folder) + os.sep
+    for pid in ray_workers():
+        with contextlib.suppress(OSError):  # gone, or not ours to look into
+            if any(os.readlink(fd).startswith(prefix) for fd in Path(f"/proc/{pid}/fd").iterdir()):
+                return pid
+    return None
+
+
+def wait_for(what: str, ready, alive=lambda: True):
+    """Poll ready() until it returns something true (returned), at most DEADLINE seconds, while alive()."""
+    deadline = time.monotonic() + DEADLINE
+    while time.monotonic() < deadline:
+        value = ready()
+        if value:
+            return value
+        if not alive():
+            raise AssertionError(f"ended before {what}")
+        time.sleep(0.05)
+    raise AssertionError(f"no {what} within {DEADLINE} s")
+
+
+def kill_session(process: subprocess.Popen) -> None:
+    """SIGKILL a process started in a session of its own and every process of the session
+    (its local Ray and the Ray's workers, in process groups of their own)."""
+    signal_all(session(process.pid), signal.SIGKILL)  # the process itself among them
+    process.wait(timeout=60)
 
 
 def farm_main(*argv):

@@ -4,7 +4,6 @@ same trial twice, the driver SIGKILLed mid-training, a trial of an experiment in
 (an S3 server on localhost) SIGKILLed with its local folder deleted (the trials go on from their
 checkpoints, to the uninterrupted run's rows), and bad configs in one line."""
 
-import contextlib
 import json
 import os
 import shutil
@@ -18,7 +17,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import bucket_keys, cmdline, descendants, session, signal_all
+from conftest import DEADLINE, bucket_keys, cmdline, holder, kill_session, ray_workers, signal_all, wait_for
 
 from farm.core.errors import ClusterError, ConfigError
 from farm.studies.experiments import RESULT
@@ -273,7 +272,6 @@ def test_smoke_grid_then_a_rerun_trains_nothing(cold):
 # checkpoint and its row equals the cold run's (an uninterrupted run of the same trials: a
 # checkpoint's timing changes nothing of a run, so these runs checkpoint every 50 steps for a
 # wide window to kill in) but for the timings and resumed_from.
-DEADLINE = 600  # seconds for a file to appear: generous (240 ran out with three jobs on 2 cores); the tests poll
 
 
 @pytest.fixture(scope="module")
@@ -296,17 +294,6 @@ def kill_config(tmp: Path, store: Path, pretrain: dict | None = None, **changes)
                         overrides={"env.team_sizes": "lattice", "checkpoint_freq": 50}, **changes)
 
 
-def holder(folder: Path) -> int | None:
-    """The pid of a Ray worker of the shared Ray holding a file under folder open (Linux's
-    /proc; a trial's worker holds its run's TensorBoard file while it trains), or None."""
-    prefix = str(folder) + os.sep
-    for pid in ray_workers():
-        with contextlib.suppress(OSError):  # gone, or not ours to look into
-            if any(os.readlink(fd).startswith(prefix) for fd in Path(f"/proc/{pid}/fd").iterdir()):
-                return pid
-    return None
-
-
 def stopped_when(what: str, ready, stop, resume, run_for: float = 0.02, alive=lambda: True):
     """Let processes run in slices of run_for seconds, stopped (stop()) between them, until
     ready(), checked while they are stopped, returns something true; returns it with the
@@ -323,11 +310,6 @@ def stopped_when(what: str, ready, stop, resume, run_for: float = 0.02, alive=la
             raise AssertionError(f"ended before {what}")
         time.sleep(run_for)
     raise AssertionError(f"no {what} within {DEADLINE} s")
-
-
-def ray_workers() -> list[int]:
-    """The shared Ray's workers (this process's descendants: never another xdist worker's)."""
-    return [pid for pid in descendants() if cmdline(pid).startswith(b"ray::")]
 
 
 def held_at_checkpoint(run: Path, step: int, alive=lambda: True) -> int:
@@ -358,26 +340,6 @@ def held_at_checkpoint(run: Path, step: int, alive=lambda: True) -> int:
         raise
     signal_all([p for p in stopped if p != pid], signal.SIGCONT)
     return pid
-
-
-def wait_for(what: str, ready, alive=lambda: True):
-    """Poll ready() until it returns something true (returned), at most DEADLINE seconds, while alive()."""
-    deadline = time.monotonic() + DEADLINE
-    while time.monotonic() < deadline:
-        value = ready()
-        if value:
-            return value
-        if not alive():
-            raise AssertionError(f"ended before {what}")
-        time.sleep(0.05)
-    raise AssertionError(f"no {what} within {DEADLINE} s")
-
-
-def kill_session(process: subprocess.Popen) -> None:
-    """SIGKILL a process started in a session of its own and every process of the session
-    (its local Ray and the Ray's workers, in process groups of their own)."""
-    signal_all(session(process.pid), signal.SIGKILL)  # the process itself among them
-    process.wait(timeout=60)
 
 
 def latest_checkpoint_steps(run: Path) -> int | None:

@@ -10,13 +10,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from conftest import cmdline, holder, kill_session, ray_workers, signal_all, wait_for
 from pydantic import ValidationError
 
 from farm.alloc.intruders.search import exact_response
@@ -245,29 +245,41 @@ TINY = {"algo": "ppo", "ppo.n_timesteps": 256, "ppo.n_steps": 32, "ppo.batch_siz
         "n_envs": 2, "eval.freq": 128, "eval.episodes": 2, "checkpoint_freq": 64}
 
 
-def trained_config(tmp_path) -> Path:
-    config = {"name": "killed", "scenario": "outnumbered_3x3", "env": {"games": GAMES}, "iterations": 2,
+def trained_config(tmp_path, **changes) -> Path:
+    """Both sides trained (the defenders pretrained from intercept) on outnumbered_3x3, one iteration,
+    top-level fields replaced by changes; the config's path."""
+    config = {"name": "trained", "scenario": "outnumbered_3x3", "env": {"games": GAMES}, "iterations": 1,
               "allocators": ["spread_evenly", "intercept"], "intruders": ["drift", "fewest_ahead"],
               "payoffs": {"episodes": 3}, "distill": None, "exact": "never", "store": str(tmp_path / "store.sqlite"),
               "training": {"defenders": {**TINY, "pretrain": {"expert": "intercept", "iterations": 1, "episodes": 2}},
-                           "intruders": TINY}}
+                           "intruders": TINY}, **changes}
     path = tmp_path / "robust.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
 
 
+@pytest.fixture(scope="module")
+def trained_run(ray_local, tmp_path_factory):
+    """The trained oracle's loop run uninterrupted, two seeds a side (four trials, two at a time):
+    (config path, results folder, its iteration)."""
+    from farm.studies.robust import load_robust_config
+
+    root = tmp_path_factory.mktemp("trained")
+    path = trained_config(root, responses=2, seed=1)
+    (it,), _ = run_robust(load_robust_config(path), root / "whole", show_progress=False)
+    return path, root / "whole", it
+
+
 @pytest.mark.ray
 @pytest.mark.slow
-def test_the_trained_oracle_keeps_the_seed_gaining_most(ray_local, tmp_path):
+def test_the_trained_oracle_keeps_the_seed_gaining_most(trained_run):
     from farm.studies.experiments.storage import ExperimentStorage
     from farm.studies.robust import load_robust_config
     from farm.studies.robust.members import Member
     from farm.studies.robust.oracles import response_seeds
 
-    config = load_robust_config(trained_config(tmp_path))
-    config = config.model_copy(update={"iterations": 1, "responses": 2, "seed": 1})
-    out = tmp_path / "out"
-    (it,), _ = run_robust(config, out, show_progress=False)
+    path, out, it = trained_run
+    config = load_robust_config(path)
     seeds = response_seeds(config, 0)
     assert seeds == [1000, 1100]  # seed 1: the second seed gains most on both sides
     trials = sorted(p.name for p in (out / "iterations" / "0" / "trials").iterdir() if (p / "run").is_dir())
@@ -353,50 +365,46 @@ def test_an_oracle_a_side_the_defenders_library_against_trained_intruders(ray_lo
         abs=1e-12)
 
 
-def session_pids(sid: int) -> list[int]:
-    from conftest import session
-
-    return session(sid)
-
-
 @pytest.mark.ray
-@pytest.mark.own_ray
 @pytest.mark.slow
-def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(ray_own, tmp_path):
+def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(trained_run, tmp_path):
+    """`farm robust --address` (the shared Ray) SIGKILLed, with its trials' workers, once the first
+    of the iteration's four trials has finished; the same command again trains none of the finished
+    ones and plays no pair again, and ends with the uninterrupted run's populations and payoffs."""
     import ray
 
-    from farm.studies.robust import load_robust_config
-
-    path = trained_config(tmp_path)
-    whole, _ = run_robust(load_robust_config(path), tmp_path / "whole", show_progress=False)
+    path, whole, it = trained_run
     out = tmp_path / "killed"
     command = [sys.executable, "-m", "farm.cli", "robust", str(path), "--out", str(out), "--quiet",
                "--address", ray.get_runtime_context().gcs_address]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     env.pop("RAY_ADDRESS", None)
-    result = out / "iterations" / "1" / "trials"
+    trials = out / "iterations" / "0" / "trials"
     driver = subprocess.Popen(command, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 600
     try:
-        while not any(result.glob("*/result.json")) and driver.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_for("a finished trial", lambda: any(trials.glob("*/result.json")), alive=lambda: driver.poll() is None)
     finally:
-        for pid in session_pids(driver.pid):
-            os.kill(pid, signal.SIGKILL)
-        driver.wait(timeout=60)
-    done = sorted(result.glob("*/result.json"))
-    assert done and not (out / "nash_conv.csv").exists(), "the driver was not killed mid-iteration 1"
-    state = json.loads((out / "robust.json").read_text())
-    assert len(state["iterations"]) == 1
-    before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in done}
+        kill_session(driver)
+        signal_all([p for p in (holder(out),) if p], signal.SIGKILL)  # a trial's worker writing on
+    wait_for("the killed trials' workers gone", lambda: holder(out) is None and not any(
+        cmdline(pid).startswith(b"ray::ImplicitFunc") for pid in ray_workers()))
+    done = sorted(trials.glob("*/result.json"))
+    assert 0 < len(done) < 4 and not (out / "nash_conv.csv").exists(), "the driver was not killed mid-iteration"
+    state = out / "robust.json"  # written as each iteration ends
+    assert not state.exists() or json.loads(state.read_text())["iterations"] == []
+    kept = sorted((out / "payoffs").iterdir())
+    assert kept  # the starting populations' pairs, played before the trainings
+    before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in done + kept}
     rerun = subprocess.run(command, env=env, capture_output=True, text=True, timeout=900)
     assert rerun.returncode == 0, rerun.stderr[-3000:]
-    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in done} == before  # never trained again
-    killed = json.loads((out / "robust.json").read_text())["iterations"]
-    assert [[m["label"] or m["name"] for m in it["allocators"]] for it in killed] == \
-        [[m.label or m.name for m in it.allocators] for it in whole]
-    for a, b in zip(killed, whole):
-        assert a["row"] == pytest.approx(b.row, abs=1e-12) and a["value"] == pytest.approx(b.value, abs=1e-12)
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in done + kept} == before  # never trained or played again
+    assert len(list(trials.glob("*/result.json"))) == 4
+    (killed,) = json.loads((out / "robust.json").read_text())["iterations"]
+    for side in ("allocators", "intruders"):
+        assert [m["label"] or m["name"] for m in killed[side]] == [m.label or m.name for m in getattr(it, side)]
+    assert killed["row"] == pytest.approx(it.row, abs=1e-12) and killed["value"] == pytest.approx(it.value, abs=1e-12)
+    for key in ("defenders", "intruders"):
+        assert killed["gains"][key] == pytest.approx(it.gains[key], abs=1e-12)
     np.testing.assert_array_equal(pd.read_csv(out / "payoffs.csv", index_col=0).to_numpy(),
-                                  pd.read_csv(tmp_path / "whole" / "payoffs.csv", index_col=0).to_numpy())
+                                  pd.read_csv(whole / "payoffs.csv", index_col=0).to_numpy())
