@@ -44,14 +44,15 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	PYTHONPATH=$(CURDIR) $(VENV)/bin/lint-imports
 
-# Two xdist workers: the Ray group on one, the `ray start` clusters' module on the other, then the
-# modules without Ray over both (tests/conftest.py). The lint comes first: it takes seconds.
+# Three xdist workers on 2 cores (the tests wait on Ray starts and processes as much as they compute):
+# the two shared Rays' groups on two, the `ray start` clusters' module on the third, then the modules
+# without Ray over all three (tests/conftest.py). The lint comes first: it takes seconds.
 test: $(STAMP) browser lint
-	$(PY) -m pytest -q -n 2 --dist loadgroup --no-loadscope-reorder
+	$(PY) -m pytest -q -n 3 --dist loadgroup --no-loadscope-reorder
 
-# The tests marked neither `ray` nor `slow` (every module's quick ones), on the same two workers.
+# The tests marked neither `ray` nor `slow` (every module's quick ones), on the same three workers.
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadgroup --no-loadscope-reorder -m "not ray and not slow"
+	$(PY) -m pytest -q -n 3 --dist loadgroup --no-loadscope-reorder -m "not ray and not slow"
 
 bench: $(STAMP)
 	$(PY) benchmarks/engine.py

@@ -46,20 +46,24 @@ def points_in(arena_vertices, shape, rng):
 #   slow     the test takes more than about 5 s (`--durations=0`), its module fixtures included.
 # `make test-fast` runs the tests neither ray nor slow; `make test` runs them all.
 #
-# `make test` runs the suite on 2 pytest-xdist workers (--dist loadgroup: a group's tests on one
-# worker; --no-loadscope-reorder: the groups handed out in the order of the items below). The
-# tests on the shared Ray are one group, first: they run one after another on one worker, as
-# without xdist, on one Ray start, and are the suite's critical path. The own_ray tests are a
-# group of their own, second, so the other worker starts on it beside them. Two Rays starting
-# at once on 2 cores can miss Ray's 30 s start deadline, so the shared Ray and every own_ray
-# Ray start under ray_start_lock, one at a time across the workers; and a test that signals or
-# kills Ray workers picks them among its own process's descendants (descendants), never the
-# other worker's. Every other test starts no Ray: a module's such tests are a group of their own
-# (its module fixtures made once), spread over both workers, the groups with the most slow tests
-# first, then the largest, so that no long group is left for the end. A test not marked ray runs
-# with $RAY_ADDRESS naming a closed port (_not_ray_means_no_ray), so that it fails if it starts
-# or joins Ray after all.
-SHARED_RAY, OWN_RAY = "ray", "own-ray"  # the two groups of the ray tests
+# `make test` runs the suite on 3 pytest-xdist workers on 2 cores (--dist loadgroup: a group's
+# tests on one worker; --no-loadscope-reorder: the groups handed out in the order of the items
+# below): on 2 workers the suite kept the cores about half busy, its tests waiting on Ray starts,
+# process spawns and polls. The tests on a shared Ray are two groups, first, by module
+# (SECOND_SHARED_RAY: about half the shared tests' time, by `--durations=0`): each runs one test
+# after another on one worker, on one Ray start of that worker's own, and they are the suite's
+# critical path. The own_ray tests are a group of their own, third, so the third worker starts on
+# it beside them. Two Rays starting at once on 2 cores can miss Ray's 30 s start deadline, so every
+# shared Ray and every own_ray Ray start under ray_start_lock, one at a time across the workers;
+# and a test that signals or kills Ray workers picks them among its own process's descendants
+# (descendants), never another worker's. Every other test starts no Ray: a module's such tests are
+# a group of their own (its module fixtures made once), spread over the workers, the groups with
+# the most slow tests first, then the largest, so that no long group is left for the end. A test
+# not marked ray runs with $RAY_ADDRESS naming a closed port (_not_ray_means_no_ray), so that it
+# fails if it starts or joins Ray after all.
+SHARED_RAY, SECOND_RAY, OWN_RAY = "ray", "ray-2", "own-ray"  # the groups of the ray tests
+SECOND_SHARED_RAY = {"test_experiments", "test_runtime", "test_live_engagements", "test_exploit",
+                     "test_move_helpers", "test_pretrain_ray", "test_service"}  # modules on the second shared Ray
 
 
 def _marked(item, name: str) -> bool:
@@ -95,9 +99,12 @@ def pytest_runtest_setup(item):
 
 
 def _group(item) -> str:
+    module = Path(str(item.fspath)).stem
     if not _marked(item, "ray"):
-        return Path(str(item.fspath)).stem
-    return OWN_RAY if _marked(item, "own_ray") else SHARED_RAY
+        return module
+    if _marked(item, "own_ray"):
+        return OWN_RAY
+    return SECOND_RAY if module in SECOND_SHARED_RAY else SHARED_RAY
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's hook, which reads the groups, and before -m deselects
@@ -108,14 +115,14 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.xdist_group(groups[item.nodeid]))
     sizes = collections.Counter(groups.values())
     slow = collections.Counter(groups[item.nodeid] for item in items if _marked(item, "slow"))
-    first = {SHARED_RAY: 0, OWN_RAY: 1}
+    first = {SHARED_RAY: 0, SECOND_RAY: 1, OWN_RAY: 2}
 
-    # The shared Ray's group, then the own_ray group, then the others, the most slow tests first,
+    # The shared Rays' groups, then the own_ray group, then the others, the most slow tests first,
     # then the largest (as xdist's own --loadscope-reorder would). The sort is stable: a group's
     # tests stay in the order of their module, which ray_local's one Ray start relies on.
     def order(item):
         group = groups[item.nodeid]
-        return (first.get(group, 2), -slow[group], -sizes[group], group)
+        return (first.get(group, 3), -slow[group], -sizes[group], group)
 
     items.sort(key=order)
 
