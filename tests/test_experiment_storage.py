@@ -4,6 +4,7 @@ copy of a run folder, and an experiment in an S3 bucket (moto's server on localh
 what a local folder refuses, in one line."""
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,8 @@ from conftest import bucket_keys, s3_bucket
 
 from farm.core.errors import ConfigError
 from farm.studies.experiments.storage import ExperimentStorage, checkpoint_run, restore_run
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def fake_run(path: Path, steps: list[int], replay_buffer: bool = True) -> Path:
@@ -233,3 +236,30 @@ def test_an_older_folders_pickled_names_load_inside_old_names_only():
     assert "farm.experiments" not in sys.modules and "farm.experiments_tune" not in sys.modules
     with pytest.raises(ModuleNotFoundError):
         pickle.loads(callback)
+
+
+def test_a_run_folder_of_another_config_in_temporary_space_is_dropped_and_a_local_experiments_kept(s3, tmp_path):
+    from farm.alloc.runs import RunFolder
+    from farm.alloc.training.config import load_train_config
+    from farm.studies.experiments.storage import drop_stale_run
+
+    config = load_train_config(ROOT / "configs" / "train" / "tiny.yaml")
+    other = config.model_copy(update={"seed": config.seed + 1})
+    storage = ExperimentStorage("s3://farm/stale")
+    run = RunFolder(storage.run_dir("p0_s0"))
+    for trained, trial, dropped in ((config, config, False), (config, config.with_timesteps(7), False),
+                                    (other, config, True)):
+        shutil.rmtree(run.path, ignore_errors=True)
+        fake_run(run.path, [150])
+        run.write_config(trained)
+        assert drop_stale_run(storage, run, trial) is dropped
+        assert run.path.exists() is not dropped and (run.path / "checkpoints").exists() is not dropped
+    fake_run(run.path, [150])
+    (run.path / "config.yaml").write_text("{not yaml")  # unreadable: not this trial's either
+    assert drop_stale_run(storage, run, config) and not run.path.exists()
+    assert not drop_stale_run(storage, run, config)  # nothing there
+    local = ExperimentStorage(tmp_path / "exp")
+    mine = RunFolder(local.run_dir("p0_s0"))
+    fake_run(mine.path, [150])
+    mine.write_config(other)
+    assert not drop_stale_run(local, mine, config) and mine.read_config().seed == other.seed

@@ -443,6 +443,14 @@ class TrainConfig(Strict):
         """This config with the learner's n_timesteps set to n."""
         return self.model_copy(update={self.algo: self.learner.model_copy(update={"n_timesteps": n})})
 
+    def resumes(self, before: TrainConfig) -> bool:
+        """Whether a run trained with before may go on under this config: equal but for the
+        length of training, the threads and the tracking."""
+        def comparable(c: TrainConfig) -> dict:
+            return c.with_timesteps(0).model_copy(update={"threads": None, "tracking": None}).model_dump()
+
+        return comparable(before) == comparable(self)
+
     @field_validator("scenario")
     @classmethod
     def _known_scenario(cls, v):

@@ -75,12 +75,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     if resume:
         if not run.is_run():
             raise ConfigError(f"resume: {run_dir} holds no run to resume", field="resume")
-        before = run.read_config()  # parsed: fields added since compare equal at their defaults
-
-        def comparable(c: TrainConfig) -> dict:  # the length of training, the threads and tracking may change on resume
-            return c.with_timesteps(0).model_copy(update={"threads": None, "tracking": None}).model_dump()
-
-        if comparable(before) != comparable(config):
+        if not config.resumes(run.read_config()):  # parsed: fields added since compare equal at their defaults
             raise ConfigError(f"resume: {run_dir} was trained with another config", field="resume")
     tracker = None
     if config.tracking.mlflow is not None:  # before config.yaml: a store MLflow refuses leaves no run behind

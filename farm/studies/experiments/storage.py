@@ -18,6 +18,7 @@ import json
 import posixpath
 import re
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -405,6 +406,28 @@ def _progress_here(run: Path, replay_buffer: bool) -> tuple[int, int] | None:
 
 def _steps(progress: tuple[int, int] | None) -> int | None:
     return None if progress is None else (progress[1] if progress[0] == 1 else 0)
+
+
+def drop_stale_run(storage: ExperimentStorage, run, config) -> bool:
+    """Before a trial of an experiment in object storage trains: remove its run folder in the
+    node's temporary space when that folder is not this trial's (a run of another config left by
+    an earlier experiment at the same URI, or a folder whose config.yaml cannot be read). The
+    folder is only a copy of the state the trial's Tune checkpoints hold, so nothing of this
+    experiment is lost; kept, it would refuse the trial or resume it from another run. run: a
+    RunFolder; config: the trial's TrainConfig. Returns whether it removed the folder. A local
+    experiment's run folder is its record and is never removed here (train refuses another
+    config's in one line)."""
+    if storage.local is not None or not run.is_run():
+        return False
+    try:
+        if config.resumes(run.read_config()):
+            return False
+    except ConfigError:
+        pass
+    print(f"trial: {run.path} held another run (an earlier experiment at {storage.uri}); removed, the trial goes on "
+          f"from its own checkpoint", file=sys.stderr)
+    shutil.rmtree(run.path)
+    return True
 
 
 def restore_run(checkpoint, run: Path, replay_buffer: bool) -> int | None:

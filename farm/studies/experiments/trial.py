@@ -62,7 +62,7 @@ def run_trial(params: dict) -> None:
     from ray import tune
 
     from farm.alloc.training import TrainConfig, train
-    from farm.studies.experiments.storage import ExperimentStorage, restore_run
+    from farm.studies.experiments.storage import ExperimentStorage, drop_stale_run, restore_run
     from farm.studies.experiments.tune import PretrainReport, TuneReport
 
     spec = params["spec"]
@@ -73,6 +73,7 @@ def run_trial(params: dict) -> None:
         return
     config = TrainConfig(**trial.config)
     run = RunFolder(storage.run_dir(trial.key))
+    drop_stale_run(storage, run, config)
     restore_run(tune.get_checkpoint(), run.path, replay_buffer=config.replay_buffer)
     every = max(1, min(config.checkpoint_freq, config.learner.n_timesteps // 10 or 1))
     t0 = time.perf_counter()
