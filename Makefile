@@ -44,7 +44,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	PYTHONPATH=$(CURDIR) $(VENV)/bin/lint-imports
 
-# Three xdist workers on 2 cores (the tests wait on Ray starts and processes as much as they compute):
+# Three xdist workers on 2 cores (a third worker fills the time the tests wait on Ray starts and processes):
 # the two shared Rays' groups on two, the `ray start` clusters' module on the third, then the modules
 # without Ray over all three (tests/conftest.py). The lint comes first: it takes seconds.
 test: $(STAMP) browser lint

@@ -48,8 +48,8 @@ def points_in(arena_vertices, shape, rng):
 #
 # `make test` runs the suite on 3 pytest-xdist workers on 2 cores (--dist loadgroup: a group's
 # tests on one worker; --no-loadscope-reorder: the groups handed out in the order of the items
-# below): on 2 workers the suite kept the cores about half busy, its tests waiting on Ray starts,
-# process spawns and polls. The tests on a shared Ray are two groups, first, by module
+# below): a third worker fills the time the tests wait on Ray starts, process spawns and polls.
+# The tests on a shared Ray are two groups, first, by module
 # (SECOND_SHARED_RAY: about half the shared tests' time, by `--durations=0`): each runs one test
 # after another on one worker, on one Ray start of that worker's own, and they are the suite's
 # critical path. The own_ray tests are a group of their own, third, so the third worker starts on
