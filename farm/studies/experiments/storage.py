@@ -25,8 +25,8 @@ from pathlib import Path
 from farm.core.errors import ConfigError, StorageError, SwarmFarmError
 from farm.studies.experiments.folder import MANIFEST, RESULT, ExperimentFolder
 
-__all__ = ["ExperimentStorage", "is_uri", "restore_run", "checkpoint_run", "RUN_IN_CHECKPOINT", "NOT_UPLOADED",
-           "SCHEMES", "PROBE_SECONDS"]
+__all__ = ["ExperimentStorage", "is_uri", "restore_run", "drop_stale_run", "checkpoint_run", "RUN_IN_CHECKPOINT",
+           "NOT_UPLOADED", "SCHEMES", "PROBE_SECONDS"]
 
 RUN_IN_CHECKPOINT = "run"  # a Tune checkpoint's copy of the run folder
 NOT_UPLOADED = ("checkpoints", "pretrain")  # a finished trial's run folder keeps its state in Tune's checkpoints
