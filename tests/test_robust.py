@@ -382,13 +382,13 @@ def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(trained_
     trials = out / "iterations" / "0" / "trials"
     driver = subprocess.Popen(command, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
+    trainers = lambda: [pid for pid in ray_workers() if cmdline(pid).startswith(b"ray::ImplicitFunc")]  # noqa: E731
     try:
         wait_for("a finished trial", lambda: any(trials.glob("*/result.json")), alive=lambda: driver.poll() is None)
     finally:
         kill_session(driver)
-        signal_all([p for p in (holder(out),) if p], signal.SIGKILL)  # a trial's worker writing on
-    wait_for("the killed trials' workers gone", lambda: holder(out) is None and not any(
-        cmdline(pid).startswith(b"ray::ImplicitFunc") for pid in ray_workers()))
+        signal_all(trainers(), signal.SIGKILL)  # the trials' workers, which would write on
+    wait_for("the killed trials' workers gone", lambda: not trainers() and holder(out) is None)
     done = sorted(trials.glob("*/result.json"))
     assert 0 < len(done) < 4 and not (out / "nash_conv.csv").exists(), "the driver was not killed mid-iteration"
     state = out / "robust.json"  # written as each iteration ends
