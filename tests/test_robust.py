@@ -256,14 +256,14 @@ def test_the_players_values_are_the_same_whatever_their_number_and_a_killed_play
                     if "ray::Player.exact" in " ".join(p.info["cmdline"] or [])]
 
         with Players(client, 1) as players, ThreadPoolExecutor(1) as pool:
-            done = pool.submit(fill_exact, store, env, allocators, 40, seed, "eliminated", players)
+            done = pool.submit(fill_exact, store, env, allocators, 20, seed, "eliminated", players)
             killed = wait_for("a player searching", searching, alive=lambda: not done.done())
             for p in killed:
                 p.kill()
             assert done.result(timeout=300) == len(allocators)
     exact = exact_member("eliminated")
     for a in allocators:  # its first episodes those searched above
-        np.testing.assert_array_equal(store.get(payoff_key(env, a, exact, 40, seed))["eliminated"][:episodes],
+        np.testing.assert_array_equal(store.get(payoff_key(env, a, exact, 20, seed))["eliminated"][:episodes],
                                       stores[1].get(payoff_key(env, a, exact, episodes, seed))["eliminated"])
 
 

@@ -52,9 +52,8 @@ def fill_exact(store: PayoffStore, config: AllocConfig, allocators: list[Member]
         return 0
     import ray
 
-    parts = min(players.workers, episodes)
-    runs = [(first, min(episodes, first + -(-episodes // parts)) - first)
-            for first in range(0, episodes, -(-episodes // parts))]
+    size = -(-episodes // min(players.workers, episodes))  # episodes a run, rounded up
+    runs = [(first, min(size, episodes - first)) for first in range(0, episodes, size)]
     found: dict[int, dict] = {i: {} for i in range(len(missing))}
     jobs = [(i, first, count) for i in range(len(missing)) for first, count in runs]
     for (i, first, _), ref in players.map(
