@@ -213,56 +213,6 @@ def test_the_search_oracles_loop_answers_each_mixture_with_intruders_modelling_i
         run_robust(library_config(tmp_path, 2), out, show_progress=False)
 
 
-@pytest.mark.ray
-def test_the_players_values_are_the_same_whatever_their_number_and_a_killed_player_is_restarted(ray_local,
-                                                                                                tmp_path):
-    from concurrent.futures import ThreadPoolExecutor
-
-    from farm.service.client import open_client
-    from farm.studies.robust.exact import exact_member, fill_exact
-    from farm.studies.robust.members import Member
-    from farm.studies.robust.payoffs import fill
-    from farm.studies.robust.tasks import Players
-
-    env = library_config(tmp_path, 1).alloc_config()
-    allocators = [Member("allocators", name) for name in ("spread_evenly", "intercept")]
-    pairs = [(a, Member("intruders", b)) for a in allocators for b in ("drift", "split_away")]
-    episodes, seed = 5, 3
-    stores = {n: PayoffStore(tmp_path / f"players{n}") for n in (1, 2)}
-    with open_client(env.game_settings(), mode="ray", store=tmp_path / "store.sqlite") as client:
-        for n, store in stores.items():
-            with Players(client, n) as players:
-                assert fill(store, env, pairs, episodes, seed, players) == len(pairs)
-                assert fill_exact(store, env, allocators, episodes, seed, "eliminated", players) == len(allocators)
-                assert fill(store, env, pairs, episodes, seed, players) == 0  # kept: never played again
-        keys = [payoff_key(env, a, b, episodes, seed) for a, b in pairs] + \
-            [payoff_key(env, a, exact_member("eliminated"), episodes, seed) for a in allocators]
-        for key in keys:  # to the bit
-            assert stores[1].path(key).read_bytes() == stores[2].path(key).read_bytes()
-        # the search split over two players (runs of 3 and 2 episodes): each episode's own search, in this process
-        here = CaptureTimeClient(env.game_settings(), local_store=tmp_path / "store.sqlite")
-        for a in allocators:
-            policy = make_policy(a.name, env, here)
-            expected = [exact_response(env, policy, here, seed + k).summary["eliminated"] for k in range(episodes)]
-            np.testing.assert_array_equal(
-                stores[2].get(payoff_key(env, a, exact_member("eliminated"), episodes, seed))["eliminated"], expected)
-        # a player's process killed in the middle of its searches: restarted, its call retried, the same values
-        store = PayoffStore(tmp_path / "killed")
-
-        def searching():  # the shared Ray's player in its search (never another xdist worker's)
-            return [pid for pid in ray_workers() if cmdline(pid).startswith(b"ray::Player.exact")]
-
-        with Players(client, 1) as players, ThreadPoolExecutor(1) as pool:
-            done = pool.submit(fill_exact, store, env, allocators, 20, seed, "eliminated", players)
-            for pid in wait_for("a player searching", searching, alive=lambda: not done.done()):
-                os.kill(pid, signal.SIGKILL)
-            assert done.result(timeout=300) == len(allocators)
-    exact = exact_member("eliminated")
-    for a in allocators:  # its first episodes those searched above
-        np.testing.assert_array_equal(store.get(payoff_key(env, a, exact, 20, seed))["eliminated"][:episodes],
-                                      stores[1].get(payoff_key(env, a, exact, episodes, seed))["eliminated"])
-
-
 def test_a_response_the_population_holds_already_whatever_its_label_joins_it_once():
     from farm.studies.robust.loop import Iteration, final_populations
     from farm.studies.robust.members import Member

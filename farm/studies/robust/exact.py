@@ -11,7 +11,7 @@ import numpy as np
 
 from farm.alloc.config import AllocConfig
 from farm.core.errors import ConfigError
-from farm.studies.robust.members import MEASURES, Member
+from farm.studies.robust.members import Member
 from farm.studies.robust.payoffs import PayoffStore, payoff_key
 
 __all__ = ["exact_member", "deterministic", "searchable", "fill_exact", "exact_values"]
@@ -41,28 +41,22 @@ def searchable(config: AllocConfig, episodes: int, seed: int) -> bool:
 
 
 def fill_exact(store: PayoffStore, config: AllocConfig, allocators: list[Member], episodes: int, seed: int,
-               measure: str, players) -> int:
-    """Search, minimising measure, every allocator the store lacks a payoff against the search for,
-    on the run's players (farm.studies.robust.tasks.Players), each allocator's episodes split in
-    as many runs of consecutive episodes as there are players (the same values whatever the
-    split), each allocator kept once all of its episodes are searched; returns the searches run."""
+               measure: str, client, workers: int) -> int:
+    """Search, minimising measure, every allocator the store lacks a payoff against the search for
+    (Ray tasks on client's service actor, at most workers at once, each kept as it finishes);
+    returns the searches run."""
     exact = exact_member(measure)
     missing = [a for a in allocators if store.get(payoff_key(config, a, exact, episodes, seed)) is None]
     if not missing:
         return 0
     import ray
 
-    size = -(-episodes // min(players.workers, episodes))  # episodes a run, rounded up
-    runs = [(first, min(size, episodes - first)) for first in range(0, episodes, size)]
-    found: dict[int, dict] = {i: {} for i in range(len(missing))}
-    jobs = [(i, first, count) for i in range(len(missing)) for first, count in runs]
-    for (i, first, _), ref in players.map(
-            lambda actor, service, job: actor.exact.remote(config, missing[job[0]], service, job[2], seed + job[1],
-                                                           measure), jobs):
-        found[i][first] = ray.get(ref)
-        if len(found[i]) == len(runs):
-            values = {m: [x for first_, _ in runs for x in found[i][first_][m]] for m in MEASURES}
-            store.put(payoff_key(config, missing[i], exact, episodes, seed), values)
+    from farm.runtime import bounded
+    from farm.studies.robust.tasks import remote_exact
+
+    actor = client.backend.actor
+    for a, ref in bounded(lambda a: remote_exact.remote(config, a, actor, episodes, seed, measure), missing, workers):
+        store.put(payoff_key(config, a, exact, episodes, seed), ray.get(ref))
     return len(missing)
 
 

@@ -2,7 +2,7 @@
 allocation game, on the farm. docs/robust.md tells the algorithm and how it resumes.
 
 Each iteration: every (allocator, intruder policy) pair of the two populations is played on the
-same seeded episodes (the missing ones on the run's Ray actors; farm.studies.robust.payoffs keeps each);
+same seeded episodes (the missing ones as Ray tasks; farm.studies.robust.payoffs keeps each);
 the zero-sum meta-game of their mean payoff is solved by LP (farm.core.matrix_game; under the
 config's floor, the allocators' mixture keeps the drift case); each side's oracle answers the
 other side's meta-Nash mixture with a best response (the trained oracle: the one of its
@@ -20,7 +20,6 @@ from __future__ import annotations
 import hashlib
 import json
 import sys
-from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -123,14 +122,14 @@ def _save_state(out: Path, config: RobustConfig, iterations: list[Iteration]) ->
     atomic_write_bytes(out / STATE, json.dumps(state, indent=1).encode())
 
 
-def _library_response(side: str, config: RobustConfig, store, players, population: list, opponents: list,
-                      solution) -> Member:
+def _library_response(side: str, config: RobustConfig, store, client, population: list, opponents: list,
+                      solution, workers: int) -> Member:
     """The library oracle: the candidate or member of side doing best against the other side's
     mixture of the solution (the defenders' worth with the floor's price: Solution.row_worth)."""
     env, p = config.alloc_config(), config.payoffs
     options = population + [c for c in config.candidates(side) if c not in population]
     pairs = [(c, o) if side == "allocators" else (o, c) for c in options for o in opponents]
-    fill(store, env, pairs, p.episodes, p.seed, players)
+    fill(store, env, pairs, p.episodes, p.seed, client, workers)
     M = payoff_matrix(store, config, options, opponents) if side == "allocators" else \
         payoff_matrix(store, config, opponents, options).T
     if side == "allocators":
@@ -157,24 +156,19 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
     env, p = config.alloc_config(), config.payoffs
     info = {"pairs_played": 0, "iterations_before": len(iterations), "exact_searched": 0}
     t0 = time.perf_counter()
-    with ExitStack() as stack:
-        client = stack.enter_context(open_client(
-            env.game_settings(), mode="ray", store=Path(config.store or default_store_path()), address=address,
-            num_cpus=max(2, workers or 2) if starts_local_ray(address) else None))
+    with open_client(env.game_settings(), mode="ray", store=Path(config.store or default_store_path()),
+                     address=address, num_cpus=max(2, workers or 2) if starts_local_ray(address) else None) as client:
         import ray
 
-        from farm.studies.robust.tasks import Players
-
-        n = tasks_in_flight(workers, int(ray.cluster_resources().get("CPU", 1)), address)
-        players = stack.enter_context(Players(client, n))
         warm_lattices(client, lattice_groups([env]), show_progress)
+        n = tasks_in_flight(workers, int(ray.cluster_resources().get("CPU", 1)), address)
         allocators = iterations[-1].allocators + _new(iterations[-1], "allocators") if iterations \
             else config.population("allocators")
         intruders = iterations[-1].intruders + _new(iterations[-1], "intruders") if iterations \
             else config.population("intruders")
         while len(iterations) < config.iterations and not _converged(config, iterations):
             info["pairs_played"] += fill(store, env, [(a, b) for a in allocators for b in intruders], p.episodes,
-                                         p.seed, players)
+                                         p.seed, client, n)
             M = payoff_matrix(store, config, allocators, intruders)
             solution = solve(M, config.floor_of(M, allocators, intruders))
             k = len(iterations)
@@ -185,19 +179,19 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
                 found = trained_responses(config, out, k, allocators, intruders, solution, address=address,
                                           workers=workers, show_progress=show_progress,
                                           procs=max(1, n // config.responses))
-                responses, candidates = _best_responses(config, store, players, found, allocators, intruders,
+                responses, candidates = _best_responses(config, store, client, n, found, allocators, intruders,
                                                         solution, info)
             if config.oracle_of("allocators") == "library":
-                responses["allocators"] = _library_response("allocators", config, store, players, allocators,
-                                                            intruders, solution)
+                responses["allocators"] = _library_response("allocators", config, store, client, allocators,
+                                                            intruders, solution, n)
             if config.oracle_of("intruders") == "library":
-                responses["intruders"] = _library_response("intruders", config, store, players, intruders,
-                                                           allocators, solution)
+                responses["intruders"] = _library_response("intruders", config, store, client, intruders,
+                                                           allocators, solution, n)
             elif config.oracle_of("intruders") == "search":
                 responses["intruders"] = searching_response(config, k, allocators, solution.row)
             ra, ri = responses["allocators"], responses["intruders"]
             pairs = [(ra, b) for b in intruders] + [(a, ri) for a in allocators] + [(ra, ri)]
-            info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, players)
+            info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
             gain_d = float(solution.row_worth(payoff_matrix(store, config, [ra], intruders))[0]) - solution.value
             gain_i = solution.value - float(solution.row @ payoff_matrix(store, config, allocators, [ri])[:, 0])
             gains = {"defenders": gain_d, "intruders": gain_i, **candidates}
@@ -211,7 +205,7 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
                       file=sys.stderr)
             allocators, intruders = allocators + _new(it, "allocators"), intruders + _new(it, "intruders")
         if config.exact == "auto" and any(it.exact is None for it in iterations):
-            _exact_measures(config, store, iterations, players, info)
+            _exact_measures(config, store, iterations, client, n, info)
             _save_state(out, config, iterations)
             if show_progress and iterations[-1].exact is not None:
                 print(f"robust {config.name}: NashConv with the intruders' exact best response by iteration: "
@@ -226,7 +220,7 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
             distilled = distil(config, out, allocators, intruders, final, address=address, workers=workers,
                                show_progress=show_progress)
             info["pairs_played"] += fill(store, env, [(distilled, b) for b in intruders], p.episodes, p.seed,
-                                         players)
+                                         client, n)
         info["files"] = write_results(out, config, store, iterations, distilled) if iterations else []
     info["seconds"] = time.perf_counter() - t0
     return iterations, info
@@ -241,7 +235,7 @@ def _floor_record(M: np.ndarray, solution) -> dict | None:
     return {"target": f, "held": float(solution.row @ M[:, j]), "price": solution.price}
 
 
-def _best_responses(config: RobustConfig, store, players, found: dict, allocators: list, intruders: list,
+def _best_responses(config: RobustConfig, store, client, n: int, found: dict, allocators: list, intruders: list,
                     solution, info: dict) -> tuple[dict, dict]:
     """Each side's response gaining most over the meta-game's value among its trained seeds (found:
     lists of Members), their candidates' pairs played first: ({side: the kept Member}, {
@@ -251,7 +245,7 @@ def _best_responses(config: RobustConfig, store, players, found: dict, allocator
     env, p = config.alloc_config(), config.payoffs
     pairs = [(a, b) for a in found["allocators"] for b in intruders] + \
             [(a, b) for a in allocators for b in found["intruders"]]
-    info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, players)
+    info["pairs_played"] += fill(store, env, pairs, p.episodes, p.seed, client, n)
     kept, candidates = {}, {}
     if found["allocators"]:
         gain_d = solution.row_worth(payoff_matrix(store, config, found["allocators"], intruders)) - solution.value
@@ -273,7 +267,7 @@ def searching_response(config: RobustConfig, k: int, allocators: list, row) -> M
     return Member("intruders", "search", options, f"br{k}")
 
 
-def _exact_measures(config: RobustConfig, store: PayoffStore, iterations: list[Iteration], players,
+def _exact_measures(config: RobustConfig, store: PayoffStore, iterations: list[Iteration], client, n: int,
                     info: dict) -> None:
     """Each iteration lacking it gets its allocators' mixture valued against the intruders' exact
     best response (Iteration.exact), on maps whose search tree fits; every member of a mixture's
@@ -289,7 +283,7 @@ def _exact_measures(config: RobustConfig, store: PayoffStore, iterations: list[I
         return
     support = {json.dumps(a.key(), sort_keys=True): a for it in todo for a, w in zip(it.allocators, it.row) if w > 0}
     info["exact_searched"] += fill_exact(store, env, list(support.values()), p.episodes, p.seed, p.measure,
-                                         players)
+                                         client, n)
     for it in todo:
         members = [a for a, w in zip(it.allocators, it.row) if w > 0]
         weights = np.array([w for w in it.row if w > 0])

@@ -1,5 +1,5 @@
 """The meta-game's payoffs: each (allocator, intruder policy) pair's seeded episodes, played once and
-kept (PayoffStore), the missing ones played on the farm (fill)."""
+kept (PayoffStore), the missing ones as Ray tasks on the farm (fill)."""
 
 from __future__ import annotations
 
@@ -64,19 +64,21 @@ def _digest(values: dict) -> str:
 
 
 def fill(store: PayoffStore, config: AllocConfig, pairs: list[tuple[Member, Member]], episodes: int, seed: int,
-         players, progress=None) -> int:
-    """Play every pair the store lacks on the run's players (farm.studies.robust.tasks.Players),
-    each kept as it finishes; returns the pairs played. progress(n): called with each finished
-    pair's count."""
+         client, workers: int, progress=None) -> int:
+    """Play every pair the store lacks, as Ray tasks on client's service actor (at most workers at
+    once, farm.runtime.bounded), each kept as it finishes; returns the pairs played. progress(n):
+    called with each finished pair's count."""
     missing = [(a, b) for a, b in pairs if store.get(payoff_key(config, a, b, episodes, seed)) is None]
     if not missing:
         return 0
     import ray
 
-    def call(actor, service, pair):
-        return actor.pair.remote(config, pair[0], pair[1], service, episodes, seed)
+    from farm.runtime import bounded
+    from farm.studies.robust.tasks import remote_pair
 
-    for (a, b), ref in players.map(call, missing):
+    actor = client.backend.actor
+    for (a, b), ref in bounded(lambda pair: remote_pair.remote(config, pair[0], pair[1], actor, episodes, seed),
+                               missing, workers):
         store.put(payoff_key(config, a, b, episodes, seed), ray.get(ref))
         if progress is not None:
             progress(1)
