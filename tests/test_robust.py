@@ -382,7 +382,10 @@ def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(trained_
     trials = out / "iterations" / "0" / "trials"
     driver = subprocess.Popen(command, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
-    trainers = lambda: [pid for pid in ray_workers() if cmdline(pid).startswith(b"ray::ImplicitFunc")]  # noqa: E731
+
+    def trainers():
+        return [pid for pid in ray_workers() if cmdline(pid).startswith(b"ray::ImplicitFunc")]
+
     try:
         wait_for("a finished trial", lambda: any(trials.glob("*/result.json")), alive=lambda: driver.poll() is None)
     finally:
