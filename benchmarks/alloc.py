@@ -30,12 +30,11 @@ def main() -> None:
     a = ap.parse_args()
     import torch
     from stable_baselines3 import TD3
-
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from farm.alloc import AllocConfig, SwarmAllocationEnv
-    from farm.alloc.lattice import lattice_pairs
+    from farm.alloc.game.lattice import lattice_pairs
     from farm.alloc.training import ServiceParams, TrainConfig, UpdateTimer, load_train_config, train
     from farm.service import CaptureTimeClient
 

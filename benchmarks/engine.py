@@ -29,12 +29,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the numpy engine lives with the tests
 
 import numpy as np  # noqa: E402
-from numba import njit  # noqa: E402
-
 import numpy_engine  # noqa: E402
+from numba import njit  # noqa: E402
+from shapely_reference import reference_game  # noqa: E402
+
 from workers import Case, sample_initial_positions, simulate_games  # noqa: E402
 from workers.policies import get_evader_policy, get_pursuer_policy  # noqa: E402
-from shapely_reference import reference_game  # noqa: E402
 
 # label, n_p, n_e, pursuer policy, evader policy, batch B, reference games
 CASES = [

@@ -69,10 +69,10 @@ def main() -> None:
     steps = 1000 if a.quick else a.steps
     if steps < 1:
         ap.error(f"--steps: must be >= 1, got {steps}")
-    from farm.alloc.config import AllocConfig
-    from farm.alloc.lattice import lattice_pairs
-    from farm.studies.experiments import plan, run_experiment
+    from farm.alloc.game.config import AllocConfig
+    from farm.alloc.game.lattice import lattice_pairs
     from farm.runtime import ray_cluster
+    from farm.studies.experiments import plan, run_experiment
 
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="farm-bench-experiments-") as tmp, \

@@ -21,8 +21,12 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__)
 
 import yaml  # noqa: E402
 
-from farm.games.sweep import SweepConfig  # noqa: E402
-from farm.games.sweep import SweepRun, run_sweep, simulate_shard  # noqa: E402
+from farm.games.sweep import (  # noqa: E402
+    SweepConfig,  # noqa: E402
+    SweepRun,
+    run_sweep,
+    simulate_shard,
+)
 from farm.runtime import ray_cluster  # noqa: E402
 
 

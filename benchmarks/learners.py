@@ -1,17 +1,17 @@
 """The learned allocator's cost per step against receding_horizon's, side by side, on the 8x8 suite scenarios.
 
-For each of larger_8x8 and wide_front_8x8 (farm.alloc.scenarios; gymnasium ids farm/<name>-v0):
+For each of larger_8x8 and wide_front_8x8 (farm.alloc.game.scenarios; gymnasium ids farm/<name>-v0):
 the states of --episodes seeded episodes (seeds 1000..) played by receding_horizon (the expert
 the learners' DAgger pretraining imitates, so the states a learner meets), then every policy's
 predict(obs, deterministic=True) on those same observations, timed one by one:
-  receding_horizon  the planner (farm.alloc.policies.registry, default options);
+  receding_horizon  the planner (farm.alloc.allocators, default options);
   ppo               the learned allocator: a stable-baselines3 PPO model built exactly as
                     configs/train/best_<scenario>.yaml builds it (farm.alloc.training.train.
                     make_model on its TrainConfig and the training env of its n_envs, as
                     farm train builds it: MlpPolicy, 400-300 pi and vf networks), its
-                    policy wrapped by the registry's learned entry (make_policy("ppo", ...,
+                    policy wrapped by the registry's learned entry (make_allocator("ppo", ...,
                     policy=model.policy)), which is what `farm eval` and `farm suite` predict
-                    through, with the config's `repair` (levels: farm.alloc.policies.repair).
+                    through, with the config's `repair` (levels: farm.alloc.allocators.repair).
                     Its weights are untrained: the time of a step depends on the
                     architecture, not the weights, so no trained model.zip is needed;
   ppo network       the same network alone, without the repair;
@@ -54,9 +54,9 @@ TARGET = 0.1  # the learned allocator's ms/step over receding_horizon's, at most
 def states(config, client, episodes: int) -> list[np.ndarray]:
     """The observations of episodes seeded 1000.. of config, receding_horizon acting."""
     from farm.alloc import SwarmAllocationEnv
-    from farm.alloc.policies import make_policy
+    from farm.alloc.allocators import make_allocator
 
-    expert = make_policy("receding_horizon", config, client)
+    expert = make_allocator("receding_horizon", config, client)
     env = SwarmAllocationEnv(config, client=client)
     out = []
     for seed in range(1000, 1000 + episodes):
@@ -73,14 +73,14 @@ def states(config, client, episodes: int) -> list[np.ndarray]:
 
 def learned_policy(name: str, client, tmp: Path):
     """The registry's learned allocator over an untrained model built as configs/train/best_<name>.yaml builds it."""
-    from farm.alloc.policies import make_policy
+    from farm.alloc.allocators import make_allocator
     from farm.alloc.training.config import load_train_config
-    from farm.alloc.training.train import training_envs, make_model
+    from farm.alloc.training.train import make_model, training_envs
 
     tc = load_train_config(CONFIGS / f"best_{name}.yaml")
     vec_env, _, _ = training_envs(tc, client)  # the env training builds the model on (n_envs batched episodes)
     model = make_model(tc, vec_env, tmp / name)
-    return tc, make_policy(tc.algo, tc.env, client, policy=model.policy, repair=tc.repair), model.policy
+    return tc, make_allocator(tc.algo, tc.env, client, policy=model.policy, repair=tc.repair), model.policy
 
 
 def timed(policies: dict, observations: list, repeats: int) -> dict:
@@ -112,9 +112,9 @@ def main() -> None:
     a = ap.parse_args()
     import torch
 
-    from farm.alloc.lattice import memo_client
-    from farm.alloc.policies import make_policy
-    from farm.alloc.scenarios import SCENARIOS
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.game.lattice import memo_client
+    from farm.alloc.game.scenarios import SCENARIOS
 
     torch.set_num_threads(1)
     configs = {name: SCENARIOS[name].config() for name in SCENARIO_NAMES}
@@ -133,8 +133,8 @@ def main() -> None:
             tc, learned, network = learned_policy(name, client, Path(tmp))
             assert tc.env == config, f"best_{name}.yaml's env is not the scenario's"
             observations = states(config, client, a.episodes)
-            policies = {"receding_horizon": make_policy("receding_horizon", config, client), tc.algo: learned,
-                        f"{tc.algo} network": network, "intercept": make_policy("intercept", config, client)}
+            policies = {"receding_horizon": make_allocator("receding_horizon", config, client), tc.algo: learned,
+                        f"{tc.algo} network": network, "intercept": make_allocator("intercept", config, client)}
             misses = client.stats()["misses"]
             costs = timed(policies, observations, a.repeats)
             assert client.stats()["misses"] == misses, "a service query missed the memo while timing"

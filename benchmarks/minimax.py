@@ -64,8 +64,8 @@ class Myopic:
     client = None
 
     def __init__(self, config):
-        from farm.alloc.dynamics import Layout
-        from farm.alloc.model import EngagementModel
+        from farm.alloc.game.dynamics import Layout
+        from farm.alloc.game.model import EngagementModel
 
         self.config, self.layout = config, Layout(config.grid_size)
         self.model = EngagementModel(config, Myopic.client, False)
@@ -78,7 +78,7 @@ class Myopic:
     def resolved(self, D, I):
         """(every pure routing of one episode's intruders I: (n2,), the step resolved under each against
         the defenders D: (n2,)), or None when there are more than the budget."""
-        from farm.alloc.dynamics import resolve
+        from farm.alloc.game.dynamics import resolve
 
         routes = pure_routings(self.config.grid_size, I, self.config.engage_min_mass, Myopic.budget)
         if routes is None:
@@ -112,7 +112,7 @@ class Lookahead(Myopic):
 
     def routing(self, D, I):
         """Each episode's pure routing of the least two-step eliminated mass."""
-        from farm.alloc.dynamics import move_defenders, move_probabilities, observe, resolve
+        from farm.alloc.game.dynamics import move_defenders, move_probabilities, observe, resolve
 
         cfg, n = self.config, self.config.grid_size
         D, I = np.atleast_2d(D), np.atleast_2d(I)
@@ -159,8 +159,8 @@ def exact_worst(config, client, policy, episodes: int, seed: int) -> np.ndarray:
     (the minimum over the intruders' pure routings at every step, the allocator asked at each node)."""
     from gymnasium.utils import seeding
 
-    from farm.alloc.dynamics import Layout, move_defenders, move_probabilities, observe, resolve, start_densities
-    from farm.alloc.model import EngagementModel
+    from farm.alloc.game.dynamics import Layout, move_defenders, move_probabilities, observe, resolve, start_densities
+    from farm.alloc.game.model import EngagementModel
 
     layout, model, n = Layout(config.grid_size), EngagementModel(config, client, False), config.grid_size
 
@@ -203,11 +203,11 @@ def main() -> None:
     ap.add_argument("--max-lookahead", type=int, default=200, help="lookahead on maps of at most this many routings")
     ap.add_argument("--skip-exact", action="store_true", help="no exhaustive search (it runs on 3x3 maps only)")
     a = ap.parse_args()
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.evaluation.rollout import play
+    from farm.alloc.game.lattice import memo_client
+    from farm.alloc.game.scenarios import SCENARIOS as ALL
     from farm.alloc.intruders import register_intruders
-    from farm.alloc.lattice import memo_client
-    from farm.alloc.policies import make_policy
-    from farm.alloc.rollout import play
-    from farm.alloc.scenarios import SCENARIOS as ALL
 
     options = json.loads(a.options)
     rows = [(name, name, options if name == "minimax" else {}) for name in a.planners]
@@ -232,8 +232,8 @@ def main() -> None:
             means, ms, mean_ms = {}, None, None
             for side in sides:
                 cfg = config if side in ("drift", "exact") else ALL[scenario].config(intruders=side)
-                policy = Timed(make_policy(name, cfg, client, **opts))
-                Lookahead.allocator = make_policy(name, cfg, client, **opts)
+                policy = Timed(make_allocator(name, cfg, client, **opts))
+                Lookahead.allocator = make_allocator(name, cfg, client, **opts)
                 if side == "exact":
                     means[side] = float(exact_worst(cfg, client, policy, a.episodes, a.seed).mean())
                     continue

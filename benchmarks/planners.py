@@ -7,7 +7,7 @@
    CPU time, not wall time, is the measure because a shared machine's other work lengthens
    wall time by whatever it takes (the median wall ms is printed beside it).
 2. outcome: 10 seeded episodes (seeds 1000..1009) of each with
-   farm.alloc.rollout.evaluate_policies on paper_3x3_c1_1.5 and larger_8x8: intruder mass
+   farm.alloc.evaluation.rollout.evaluate_policies on paper_3x3_c1_1.5 and larger_8x8: intruder mass
    eliminated and return, each with its 95% t interval. `intercept/largest` is intercept
    sending a cell's mass to the largest of the intruder cells it meets earliest (the
    default, `split`, shares it in proportion to their mass).
@@ -37,10 +37,10 @@ BUDGET_MS = {"paper_3x3_c1_1.5": 50.0, "larger_8x8": 1000.0}
 
 def policies(config, client):
     """Every baseline and planner of config, by name, and intercept with the tie rule it replaced."""
-    from farm.alloc.policies import make_policy, policy_names
+    from farm.alloc.allocators import allocator_names, make_allocator
 
-    return {**{name: make_policy(name, config, client) for name in policy_names(("baseline", "planner"))},
-            "intercept/largest": make_policy("intercept", config, client, ties="largest")}
+    return {**{name: make_allocator(name, config, client) for name in allocator_names(("baseline", "planner"))},
+            "intercept/largest": make_allocator("intercept", config, client, ties="largest")}
 
 
 def cost(config, client, episodes: int) -> dict:
@@ -78,9 +78,9 @@ def main() -> None:
     ap.add_argument("--timing-episodes", type=int, default=3)
     ap.add_argument("--episodes", type=int, default=10, help="evaluation episodes, seeded 1000..")
     a = ap.parse_args()
-    from farm.alloc.rollout import evaluate_policies
-    from farm.alloc.scenarios import SCENARIOS
-    from farm.alloc.lattice import memo_client
+    from farm.alloc.evaluation.rollout import evaluate_policies
+    from farm.alloc.game.lattice import memo_client
+    from farm.alloc.game.scenarios import SCENARIOS
 
     names = list(BUDGET_MS)
     configs = {name: SCENARIOS[name].config() for name in names}

@@ -95,7 +95,7 @@ def env_steps(client, cfg, repeats: int, seconds: float) -> dict:
     """{procs: the best steps/s over repeats windows} of the intruders' env against receding_horizon."""
     import numpy as np
 
-    from farm.alloc.intruder_env import SwarmIntruderVectorEnv
+    from farm.alloc.envs.intruders import SwarmIntruderVectorEnv
 
     best = {1: 0.0, 2: 0.0}
     for _ in range(repeats):
@@ -145,7 +145,7 @@ def main() -> int:
     parser.add_argument("--ceiling-only", action="store_true", help="measure the machine's ceiling alone")
     args = parser.parse_args()
 
-    from farm.alloc.lattice import lattice_groups, warm_lattices
+    from farm.alloc.game.lattice import lattice_groups, warm_lattices
     from farm.runtime import ray_cluster
     from farm.service.client import open_client
     from farm.studies.robust import run_robust

@@ -40,12 +40,12 @@ def cpu(f, *args):
 def measure(config, name: str, second: str, client, episodes: int, seed: int) -> dict:
     """One row: the CPU seconds of drift, exact, search and search2 over the episodes, and whether
     search played exact's routings (the same eliminated mass, episode by episode)."""
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.evaluation.rollout import play
     from farm.alloc.intruders.search import exact_response
-    from farm.alloc.policies import make_policy
-    from farm.alloc.rollout import play
 
     def played(env):
-        return play(env, make_policy(name, env, client), client, episodes, seed)
+        return play(env, make_allocator(name, env, client), client, episodes, seed)
 
     def searched(policy):
         return [exact_response(config, policy, client, seed + k) for k in range(episodes)]
@@ -54,7 +54,7 @@ def measure(config, name: str, second: str, client, episodes: int, seed: int) ->
         return config.model_copy(update={"intruders": "search", "intruder_options": {"allocators": members}})
 
     _, drift = cpu(played, config)
-    exact, t_exact = cpu(searched, make_policy(name, config, client))
+    exact, t_exact = cpu(searched, make_allocator(name, config, client))
     one, search = cpu(played, against([name]))
     _, search2 = cpu(played, against([name, second]))
     same = bool(np.array_equal([e.summary["eliminated"] for e in one], [r.summary["eliminated"] for r in exact]))
@@ -70,8 +70,8 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=5)
     ap.add_argument("--seed", type=int, default=2000)
     a = ap.parse_args()
-    from farm.alloc.lattice import memo_client
-    from farm.alloc.scenarios import SCENARIOS
+    from farm.alloc.game.lattice import memo_client
+    from farm.alloc.game.scenarios import SCENARIOS
 
     configs = {s: SCENARIOS[s].config() for s in a.scenarios}
     client, pairs, t_warm = memo_client(configs.values(), "local", a.store)

@@ -19,8 +19,8 @@ from pathlib import Path
 # benchmarks/farm.py would shadow the farm package: drop this folder from the path.
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
-from farm.service import CaptureTimeClient, GameSettings, get_service  # noqa: E402
 from farm.runtime import ray_cluster  # noqa: E402
+from farm.service import CaptureTimeClient, GameSettings, get_service  # noqa: E402
 
 
 def main() -> None:

@@ -2,14 +2,14 @@
 side, and the live engagements' games/s at 32x32 on 1 and 2 workers.
 
 Part 1, time per step. For each of outnumbered_3x3, theatre_8x8, theatre_16x16 and theatre_32x32
-(farm.alloc.scenarios), the states of --episodes seeded episodes (seeds 1000..) played by the
+(farm.alloc.game.scenarios), the states of --episodes seeded episodes (seeds 1000..) played by the
 intercept planner, --states of them evenly spaced, then every allocator's
 predict(obs, deterministic=True) on those same observations, timed one by one, in turn:
   stay_at_base, greedy_nearest, spread_evenly, intercept, transport, mmr, receding_horizon: the registry's
       baselines and planners (default options);
   ppo (CellPolicy): the size-free learner, a PPO model built exactly as
       configs/train/size_free_transport.yaml builds it (on theatre_8x8), its weights moved to each map by
-      the registry's learned entry (make_policy("ppo", config, policy=...): cell_policy.resized),
+      the registry's learned entry (make_allocator("ppo", config, policy=...): cell_policy.resized),
       as `farm eval RUN --scenario NAME` does; --run RUN times a trained run's instead. A step's
       time depends on the architecture and the map, not on the weights. Its actions go through
       the level repair when size_free_transport.yaml (or the run) says `repair: levels`, as they do in
@@ -17,11 +17,11 @@ predict(obs, deterministic=True) on those same observations, timed one by one, i
   ppo network: the same network alone, without the repair.
 ms/step is CPU ms per predict(), mean over the states, best of --repeats passes, after one
 untimed call each; one process pinned to one core, torch and the numerical libraries at one
-thread; every lattice pair is in the client's memo before timing (farm.alloc.lattice.memo_client),
+thread; every lattice pair is in the client's memo before timing (farm.alloc.game.lattice.memo_client),
 so no planner's query is a game or a store read.
     target (issue 26): ppo's ms/step <= 1/20 of receding_horizon's on the theatres (printed)
 
-Part 2, live engagements (`farm eval --fidelity games`, farm.alloc.fidelity): --live-episodes
+Part 2, live engagements (`farm eval --fidelity games`, farm.alloc.evaluation.fidelity): --live-episodes
 episodes of theatre_32x32 (its own 16 v 5,000 by default; --live-defenders changes the
 defenders) under the intercept planner, stepped together, every engaged cell's game played
 live (each engagement its own game: about 230 a step with 32 episodes, some 1.7 s of work) as
@@ -36,7 +36,7 @@ cluster (e.g. two nodes of `ray start`).
 
 Part 3 (--subregions), sub-region planning against the whole map: on theatre_16x16 and
 theatre_32x32, --sub-episodes episodes (seeds 1000..) of receding_horizon on the whole map and
-of subregions (farm.alloc.policies.planners.subregions) with 2 and 4 bands planned by
+of subregions (farm.alloc.allocators.planners.subregions) with 2 and 4 bands planned by
 receding_horizon, in this process and on 2 Ray actors; eliminated mass, return and wall ms a
 step.
 
@@ -72,9 +72,9 @@ LIVE_TARGET = 1.8  # games/s on 2 workers over 1, at least
 def states(config, client, episodes: int, keep: int) -> list[np.ndarray]:
     """keep observations, evenly spaced, of episodes seeded 1000.. of config, intercept acting."""
     from farm.alloc import SwarmAllocationEnv
-    from farm.alloc.policies import make_policy
+    from farm.alloc.allocators import make_allocator
 
-    planner = make_policy("intercept", config, client)
+    planner = make_allocator("intercept", config, client)
     env = SwarmAllocationEnv(config, client=client)
     out = []
     for seed in range(1000, 1000 + episodes):
@@ -92,7 +92,7 @@ def size_free_policy(client, run: str | None):
     """The size-free learner's policy: a trained run's, or an untrained one built as
     size_free_transport.yaml builds it."""
     if run is not None:
-        from farm.alloc.policies.learned import load_model
+        from farm.alloc.allocators.learned import load_model
 
         return load_model(run, "ppo").policy
     from farm.alloc.training.config import load_train_config
@@ -122,9 +122,9 @@ def timed(policies: dict, observations: list, repeats: int) -> dict:
 def step_times(a) -> None:
     import torch
 
-    from farm.alloc.lattice import memo_client
-    from farm.alloc.policies import make_policy
-    from farm.alloc.scenarios import SCENARIOS
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.game.lattice import memo_client
+    from farm.alloc.game.scenarios import SCENARIOS
     from farm.alloc.training.config import load_train_config
 
     torch.set_num_threads(1)
@@ -139,9 +139,9 @@ def step_times(a) -> None:
     table = {}
     for name, config in configs.items():
         observations = states(config, client, a.episodes, a.states)
-        policies = {p: make_policy(p, config, client) for p in REFERENCES}
-        policies["ppo"] = make_policy("ppo", config, client, policy=trained, run=a.run, repair=repair)
-        policies["ppo network"] = make_policy("ppo", config, client, policy=trained, repair="none")
+        policies = {p: make_allocator(p, config, client) for p in REFERENCES}
+        policies["ppo"] = make_allocator("ppo", config, client, policy=trained, run=a.run, repair=repair)
+        policies["ppo network"] = make_allocator("ppo", config, client, policy=trained, repair="none")
         misses = client.stats()["misses"]
         table[name] = timed(policies, observations, a.repeats)
         assert client.stats()["misses"] == misses, "a service query missed the memo while timing"
@@ -160,16 +160,16 @@ def step_times(a) -> None:
 
 
 def live(a) -> None:
-    from farm.alloc.fidelity import TASK_SECONDS, evaluate_fidelity
-    from farm.alloc.lattice import memo_client
-    from farm.alloc.policies import make_policy
-    from farm.alloc.scenarios import SCENARIOS
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.evaluation.fidelity import TASK_SECONDS, evaluate_fidelity
+    from farm.alloc.game.lattice import memo_client
+    from farm.alloc.game.scenarios import SCENARIOS
     from farm.runtime import ray_cluster
 
     defenders = {} if a.live_defenders is None else {"n_defenders": a.live_defenders}
     config = SCENARIOS["theatre_32x32"].config(**defenders)
     client, _, _ = memo_client([config], "local", a.store)
-    policies = {"intercept": make_policy("intercept", config, client)}
+    policies = {"intercept": make_allocator("intercept", config, client)}
     runs = [(f"local Ray, {w} CPU(s)", dict(num_cpus=w)) for w in (1, 2)]
     if a.address:
         runs.append((f"cluster {a.address}", dict(address=a.address)))
@@ -211,10 +211,10 @@ class Timed:
 
 
 def subregions(a) -> None:
-    from farm.alloc.lattice import memo_client
-    from farm.alloc.policies import make_policy
-    from farm.alloc.rollout import evaluate_policies
-    from farm.alloc.scenarios import SCENARIOS
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.evaluation.rollout import evaluate_policies
+    from farm.alloc.game.lattice import memo_client
+    from farm.alloc.game.scenarios import SCENARIOS
     from farm.runtime import ray_cluster
     from farm.service import CaptureTimeClient
 
@@ -233,7 +233,7 @@ def subregions(a) -> None:
                 # the actors open the store themselves: they get a client of the store, not the memo
                 own = (CaptureTimeClient(config.game_settings(), local_store=a.store) if options.get("workers")
                        else client)
-                policy = Timed(make_policy(policy_name, config, own, **options))
+                policy = Timed(make_allocator(policy_name, config, own, **options))
                 table = evaluate_policies(config, {label: policy}, client, a.sub_episodes, 1000)[0]
                 if hasattr(policy.policy, "close"):  # subregions: its actors
                     policy.policy.close()

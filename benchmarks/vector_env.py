@@ -1,11 +1,11 @@
 """Batched allocation env against one env per episode, side by side, one process, one core.
 
-1. env steps/s, random actions, B = 16 episodes: farm.alloc.vector_env.SwarmAllocationVectorEnv
+1. env steps/s, random actions, B = 16 episodes: farm.alloc.envs.vector.SwarmAllocationVectorEnv
    against gymnasium's SyncVectorEnv of 16 SwarmAllocationEnv (both SAME_STEP autoreset), the
    same config and in-process client over a warmed store (every lookup a memo hit); a 3x3 and a
    5x5 config.                                                          target >= 5x at 16 envs
 2. PPO training steps/s (stable-baselines3 PPO, MlpPolicy, n_steps 64 per env, 16 envs, the
-   3x3 config): farm.alloc.sb3_vec.make_vec_env (the batched env adapted, in a VecMonitor)
+   3x3 config): farm.alloc.envs.sb3_vec.make_vec_env (the batched env adapted, in a VecMonitor)
    against SB3's DummyVecEnv of 16 Monitor-wrapped single envs; learn()'s steps/s, and its time
    split into rollouts (the env's part) and updates, with SB3's (and the project's) default
    updates, batch_size 64 and n_epochs 10, with lighter ones, n_epochs 1, and with the
@@ -15,7 +15,7 @@
    intruders' routing comes from an intruder action inside the step, against today's batched
    step (SwarmAllocationVectorEnv, the drift law): the defenders' batched env with a heuristic
    intruder policy (fewest_ahead, follower: routed from the defenders after their move), and the
-   intruders' batched env (farm.alloc.intruder_env.SwarmIntruderVectorEnv, follower) against a
+   intruders' batched env (farm.alloc.envs.intruders.SwarmIntruderVectorEnv, follower) against a
    cheap frozen allocator (stay_at_base) and against intercept. Cost ratio = CPU time of the
    two-sided step / the drift step's.                               target <= 1.5x
 Rates are of this process's CPU time (time.process_time: other load on the machine does not
@@ -101,10 +101,10 @@ def main() -> None:
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from farm.alloc import AllocConfig, SwarmAllocationEnv
-    from farm.alloc.intruder_env import SwarmIntruderVectorEnv
-    from farm.alloc.lattice import lattice_groups, warm_lattices
-    from farm.alloc.sb3_vec import make_vec_env
-    from farm.alloc.vector_env import SwarmAllocationVectorEnv
+    from farm.alloc.envs.intruders import SwarmIntruderVectorEnv
+    from farm.alloc.envs.sb3_vec import make_vec_env
+    from farm.alloc.envs.vector import SwarmAllocationVectorEnv
+    from farm.alloc.game.lattice import lattice_groups, warm_lattices
     from farm.service import CaptureTimeClient
 
     torch.set_num_threads(1)

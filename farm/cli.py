@@ -15,12 +15,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from workers import GAME_FIELDS, SwarmFarmError, sample_initial_positions, simulate_case
-from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
-
 from farm.core.checks import is_finite_number, whole
 from farm.core.config import case_from
 from farm.core.errors import CliError
+from workers import GAME_FIELDS, SwarmFarmError, sample_initial_positions, simulate_case
+from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
 
 # Flags of the game's settings: one per workers.Case field, default None (Case's default).
 GAME_FLAG_HELP = {
@@ -285,9 +284,7 @@ def _animate_game(args, case, res) -> None:
 
 def cmd_pe_table(args) -> int:
     """`farm pe-table`: the paper's Tables 1 and 2 (Monte Carlo), with figures."""
-    from farm.games.pe_table import format_tables, speeds_text, write_pe_tables
-
-    from farm.games.pe_table import pe_size
+    from farm.games.pe_table import format_tables, pe_size, speeds_text, write_pe_tables
     from farm.games.sizes import check_size
 
     if args.games < 2:
@@ -442,7 +439,7 @@ def _references(text: str) -> list[str]:
 
 def cmd_eval(args) -> int:
     """`farm eval RUN_DIR`: the trained policy, the baselines and the planners on the same seeded episodes."""
-    from farm.alloc.evaluation import evaluate_run, fidelity_lines
+    from farm.alloc.evaluation.evaluate import evaluate_run, fidelity_lines
 
     run_dir = Path(args.run_dir)
     references = None if args.references is None else _references(args.references)
@@ -470,11 +467,9 @@ CLAIM_RUNS = ("paper_3x3_c1_0", "paper_3x3_c1_1.5")  # `farm claims`' default --
 def cmd_claims(args) -> int:
     """`farm claims RUNS_DIR`: the paper's claims (args)-(c), measured on evaluated runs; on an
     experiment folder (its experiment.json), over its seeds."""
-    from farm.studies.claims import claims
-    from farm.studies.experiments.folder import is_experiment
     from farm.core.output import write_table
-
-    from farm.studies.claims import check_claim_runs
+    from farm.studies.claims import check_claim_runs, claims
+    from farm.studies.experiments.folder import is_experiment
 
     runs = Path(args.runs_dir)
     if not runs.is_dir():
@@ -563,7 +558,7 @@ def cmd_experiments(args) -> int:
 def _exploit_config(args):
     """The ExploitConfig of `farm exploit`: the YAML file named, else one allocator (a registry name
     or a trained run folder) on --scenario, with the flags' budget."""
-    from farm.alloc.policies import policy_names
+    from farm.alloc.allocators import allocator_names
     from farm.studies.exploit import ExploitConfig, load_exploit_config
 
     target = args.target
@@ -575,9 +570,9 @@ def _exploit_config(args):
     if args.scenario is None:
         raise CliError("--scenario: name the map to exploit the allocator on (farm exploit ALLOCATOR --scenario S)")
     run = Path(target)
-    if target not in policy_names() and not run.is_dir():
+    if target not in allocator_names() and not run.is_dir():
         raise CliError(f"target: {target!r} is no allocator of the registry, run folder or exploit YAML "
-                       f"(allocators: {', '.join(policy_names())})")
+                       f"(allocators: {', '.join(allocator_names())})")
     label = run.name if run.is_dir() else target
     learned = None
     if args.seeds != "none":

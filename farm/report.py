@@ -17,9 +17,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from workers import ENGINE_VERSION
-
 from farm.core.errors import NotAStoreError, ReportError, StoreCorruptError, SwarmFarmError
+from workers import ENGINE_VERSION
 
 __all__ = ["ReportError", "build_report", "write_report"]
 
@@ -249,8 +248,8 @@ def _training_section(root: Path) -> str | None:
 
 def _curve_html(path: Path) -> str:
     """One run's training curve (path: its evaluations.npz), with its metrics.json's numbers when present."""
-    from farm.alloc.plots import training_curve_figure
-    from farm.alloc.runs import RunFolder
+    from farm.alloc.game.plots import training_curve_figure
+    from farm.alloc.training.runs import RunFolder
     from farm.core.errors import ResultsError
 
     run = RunFolder(path.parent)

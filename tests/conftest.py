@@ -20,10 +20,9 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_threads, "1")
 
-import yaml
-
 import numpy as np
 import pytest
+import yaml
 
 SQUARE = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
 HEXAGON = np.array([[5 + 5 * np.cos(a), 5 + 5 * np.sin(a)] for a in np.arange(6) * np.pi / 3])

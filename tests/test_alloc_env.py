@@ -8,7 +8,7 @@ import pytest
 
 import farm.alloc as alloc
 from farm.alloc import AllocConfig, SwarmAllocationEnv, moves, n_actions
-from farm.alloc.policies import make_policy, policy_names
+from farm.alloc.allocators import allocator_names, make_allocator
 from farm.service import CaptureTimeClient
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)
@@ -131,10 +131,10 @@ def test_reward_by_hand(store):
     assert r == pytest.approx(expected, abs=1e-12)
 
 
-@pytest.mark.parametrize("name", sorted(policy_names("baseline")))
+@pytest.mark.parametrize("name", sorted(allocator_names("baseline")))
 def test_baselines_act_like_models(store, name):
     env = make(store)
-    policy = make_policy(name, env.config)
+    policy = make_allocator(name, env.config)
     obs, _ = env.reset(seed=1)
     action, _ = policy.predict(obs, deterministic=True)
     assert env.action_space.contains(action)

@@ -12,7 +12,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.model import LATTICE, snap, snap_many
+from farm.alloc.game.model import LATTICE, snap, snap_many
 from farm.alloc.training import UpdateTimer
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, c_capture=1.5)

@@ -8,7 +8,6 @@ from types import SimpleNamespace
 
 import pandas as pd
 import pytest
-
 from conftest import farm_main
 
 REPO = Path(__file__).resolve().parents[1]

@@ -6,8 +6,8 @@ import pytest
 from pydantic import ValidationError
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.policies.baselines import StayAtBase
-from farm.alloc.rollout import run_episode, step_means
+from farm.alloc.allocators.baselines import StayAtBase
+from farm.alloc.evaluation.rollout import run_episode, step_means
 from farm.service import CaptureTimeClient
 from workers import Case, InitialLaw
 

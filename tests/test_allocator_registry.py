@@ -1,4 +1,4 @@
-"""The allocator registry (farm.alloc.policies) is the one list every evaluation takes: an
+"""The allocator registry (farm.alloc.allocators) is the one list every evaluation takes: an
 allocator defined and registered here, in a test file, is evaluated by `farm eval`'s loop,
 by the suite (on Ray workers) and by an experiment's trials (Tune actors), with no other edit.
 
@@ -16,11 +16,17 @@ import pandas as pd
 import pytest
 import yaml
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.policies import (PolicySpec, make_policy, policy_entry, policy_names, register_policy,
-                                 unregister_policy)
-from farm.alloc.env import moves
-from farm.alloc.rollout import evaluate_policies
+from farm.alloc.allocators import (
+    Spec,
+    allocator_entry,
+    allocator_names,
+    make_allocator,
+    register_allocator,
+    unregister_allocator,
+)
+from farm.alloc.envs.defenders import moves
+from farm.alloc.evaluation.rollout import evaluate_policies
+from farm.alloc.game.config import AllocConfig
 from farm.core.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,30 +49,30 @@ class NorthWind:
 @pytest.fixture
 def north_wind():
     """NorthWind registered as a planner (it has an option), for one test."""
-    register_policy(NAME, NorthWind, kind="planner")
+    register_allocator(NAME, NorthWind, kind="planner")
     try:
         yield
     finally:
-        unregister_policy(NAME)
+        unregister_allocator(NAME)
 
 
 def test_registration_lists_it_once_after_the_built_ins_and_makes_it(north_wind):
-    names = policy_names(("baseline", "planner"))
+    names = allocator_names(("baseline", "planner"))
     assert names[:6] == ["stay_at_base", "greedy_nearest", "spread_evenly", "intercept", "mmr", "receding_horizon"]
     assert names[-1] == NAME and names.count(NAME) == 1
-    assert policy_entry(NAME).options() == ["strength"]
+    assert allocator_entry(NAME).options() == ["strength"]
     config = AllocConfig(grid_size=3, n_defenders=10, n_intruders=5, games=3)
-    assert isinstance(make_policy(NAME, config, None, strength=0.5), NorthWind)
+    assert isinstance(make_allocator(NAME, config, None, strength=0.5), NorthWind)
     with pytest.raises(ValueError, match="registered already"):
-        register_policy(NAME, NorthWind, kind="planner")
+        register_allocator(NAME, NorthWind, kind="planner")
     with pytest.raises(ValueError, match="kind: must be one of"):
-        register_policy("other", NorthWind, kind="oracle")
+        register_allocator("other", NorthWind, kind="oracle")
 
 
 def test_an_unknown_allocator_is_one_line_naming_the_choices():
     with pytest.raises(ConfigError, match=r"policy: unknown allocator 'nobody' \(choose from stay_at_base, "):
-        make_policy("nobody", AllocConfig())
-    assert NAME not in policy_names()  # the fixture's registration does not outlive its test
+        make_allocator("nobody", AllocConfig())
+    assert NAME not in allocator_names()  # the fixture's registration does not outlive its test
 
 
 def _tiny_run(tmp_path: Path) -> Path:
@@ -83,8 +89,8 @@ def _tiny_run(tmp_path: Path) -> Path:
 
 @pytest.mark.slow
 def test_farm_eval_evaluates_a_registered_allocator(north_wind, tmp_path):
-    from farm.alloc.evaluation import evaluate_run
-    from farm.alloc.runs import RunFolder
+    from farm.alloc.evaluation.evaluate import evaluate_run
+    from farm.alloc.training.runs import RunFolder
     from farm.service.client import CaptureTimeClient
 
     run = _tiny_run(tmp_path)
@@ -163,6 +169,6 @@ def test_an_experiment_evaluates_a_registered_allocator_in_its_trials(north_wind
 def test_a_spec_carries_its_entry_to_another_process(north_wind):
     import pickle
 
-    spec = PolicySpec(policy_entry(NAME), {"strength": 0.25})
+    spec = Spec(allocator_entry(NAME), {"strength": 0.25})
     again = pickle.loads(pickle.dumps(spec))
     assert again.name == NAME and again.make(AllocConfig(), None).strength == 0.25

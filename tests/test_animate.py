@@ -8,10 +8,11 @@ import math
 import gymnasium
 import numpy as np
 import pytest
+from conftest import farm_main as farm
+from conftest import train_tiny_run
 from gymnasium.wrappers import RecordVideo
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
-from conftest import farm_main as farm, train_tiny_run
 from farm.core.game_animation import game_frame_count, game_frame_steps, read_frame_count
 from workers import Case, run_games
 
@@ -82,8 +83,8 @@ def run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_farm_eval_animates_an_episode_and_the_report_inlines_it(run):
-    from farm.alloc.episode_animation import episode_frame_count
-    from farm.alloc.rollout import Episode
+    from farm.alloc.evaluation.animation import episode_frame_count
+    from farm.alloc.evaluation.rollout import Episode
 
     status, out, err = farm("eval", run, "--episodes", 2, "--references", "none", "--animate")
     assert status == 0, err
@@ -106,8 +107,8 @@ def test_farm_eval_animates_an_episode_and_the_report_inlines_it(run):
 
 
 def test_the_inset_is_the_first_engagement_played_as_a_fresh_game():
-    from farm.alloc.episode_animation import episode_frame_steps, inset_game
-    from farm.alloc.rollout import Episode
+    from farm.alloc.evaluation.animation import episode_frame_steps, inset_game
+    from farm.alloc.evaluation.rollout import Episode
     from farm.service import GameSettings
 
     empty = np.zeros(0, dtype=np.int64)

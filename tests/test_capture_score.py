@@ -10,13 +10,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from workers import CaptureStats, game_statistics, run_games
-
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.model import EngagementModel
+from farm.alloc.game.model import EngagementModel
 from farm.service import CaptureTimeClient
 from farm.service.lookup import Lookup
 from farm.service.store import StatsStore
+from workers import CaptureStats, game_statistics, run_games
 
 TAU = 10.0
 

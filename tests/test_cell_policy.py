@@ -1,7 +1,7 @@
-"""CellPolicy (farm.alloc.training.cell_policy): PPO's actor-critic shared by every cell.
+"""CellPolicy (farm.alloc.networks.cell_policy): PPO's actor-critic shared by every cell.
 
 - Each action entry is the score its cell gives that move: the gather from (move, cell)
-  scores puts every (d_row, d_col) of every cell where farm.alloc.dynamics.moves has it.
+  scores puts every (d_row, d_col) of every cell where farm.alloc.game.dynamics.moves has it.
 - Its weights do not depend on the map's size (but PPO's log_std, one per action entry).
 - It trains, saves and loads as PPO's own policies do, it is fitted by the pretraining, and a
   bad policy_kwargs is one line naming the field.
@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import torch
 import yaml
-
-from farm.alloc.dynamics import moves, n_actions
-from farm.alloc.training import TrainConfig, train
-from farm.alloc.training.cell_policy import CellNet
 from test_learners import Stop, StopAt, assert_refused_in_one_line, assert_same
+
+from farm.alloc.game.dynamics import moves, n_actions
+from farm.alloc.networks.cell_policy import CellNet
+from farm.alloc.training import TrainConfig, train
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, team_sizes="lattice")
@@ -56,7 +56,7 @@ def config(store, **changes) -> TrainConfig:
 
 
 def test_it_trains_resumes_and_loads_as_ppos_policies_do(tmp_path):
-    from farm.alloc.policies.learned import load_model
+    from farm.alloc.allocators.learned import load_model
 
     cfg = config(tmp_path / "s.sqlite", n_envs=2,
                  pretrain={"expert": "intercept", "iterations": 2, "episodes": 4, "epochs": 5})

@@ -9,10 +9,9 @@ import shutil
 from pathlib import Path
 
 import pytest
+from test_train_resume import assert_same_model
 
 from farm.alloc.training import TrainConfig
-
-from test_train_resume import assert_same_model
 
 LAST, BEFORE = 192, 128
 
@@ -46,8 +45,8 @@ def flip_a_byte(path: Path) -> None:
 @pytest.mark.parametrize("which", [1, 2])  # the replay buffer, the RunState
 def test_a_flipped_byte_in_a_checkpoint_is_found_and_the_run_goes_on_from_the_one_before(reference, tmp_path,
                                                                                         capsys, which):
-    from farm.alloc.runs import checkpoint_files
     from farm.alloc.training import train
+    from farm.alloc.training.runs import checkpoint_files
 
     run_dir, config = reference
     run = copy_of(run_dir, tmp_path)
@@ -64,8 +63,8 @@ def test_a_flipped_byte_in_a_checkpoint_is_found_and_the_run_goes_on_from_the_on
 
 def test_a_runstate_without_a_seal_is_read_as_before(reference, tmp_path):
     """The last checkpoint's RunState rewritten as a plain pickle: resumed from it, as exact."""
-    from farm.alloc.runs import STATE_MAGIC, checkpoint_files
     from farm.alloc.training import train
+    from farm.alloc.training.runs import STATE_MAGIC, checkpoint_files
     from farm.core.sealed import unseal
 
     run_dir, config = reference

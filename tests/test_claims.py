@@ -243,8 +243,8 @@ def test_cli_claims_on_an_experiment_folder(tmp_path):
 
 
 def test_a_damaged_manifest_is_one_line(tmp_path):
-    from farm.studies.claims import claims_over_seeds
     from farm.core.errors import ResultsError
+    from farm.studies.claims import claims_over_seeds
 
     (tmp_path / "experiment.json").write_text("{not json")
     with pytest.raises(ResultsError, match="experiment.json: unreadable experiment manifest") as e:

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import farm_main
 
 FARM = [sys.executable, "-m", "farm.cli"]

@@ -107,9 +107,8 @@ def _config_models() -> list[type]:
     """Every config model of the project, found independently of the hook's list: each public
     subclass of farm.core.config.Strict, and the game settings' dataclasses."""
     import farm
-    from workers import Case, InitialLaw
-
     from farm.core.config import Strict
+    from workers import Case, InitialLaw
 
     for module in pkgutil.walk_packages(farm.__path__, "farm."):
         importlib.import_module(module.name)

@@ -5,12 +5,12 @@ import math
 
 import numpy as np
 import pytest
-
 from conftest import HEXAGON, TRIANGLE, points_in
+from shapely_reference import reference_game, reference_velocities
+
 from workers import InputError, simulate_games
 from workers.engine import step_velocities
 from workers.geometry import voronoi_cells
-from shapely_reference import reference_game, reference_velocities
 
 PURSUERS = ["area_min", "pure_pursuit"]
 EVADERS = ["constant_area", "centroid", "target", "area_max"]

@@ -1,4 +1,4 @@
-"""One rule for what set_state takes (farm.alloc.env.check_state), in the single env and the
+"""One rule for what set_state takes (farm.alloc.envs.defenders.check_state), in the single env and the
 batched one alike (and the intruders' envs built on them): densities that are not finite numbers
 >= 0, counters that are not numbers, or a state of another shape are one line naming set_state,
 the env unchanged, and the batched env's next step never sees them. In process, no Ray."""
@@ -20,9 +20,9 @@ def store(tmp_path_factory):
 
 
 def make(kind: str, store: str):
-    from farm.alloc.env import SwarmAllocationEnv
-    from farm.alloc.intruder_env import SwarmIntruderEnv, SwarmIntruderVectorEnv
-    from farm.alloc.vector_env import SwarmAllocationVectorEnv
+    from farm.alloc.envs.defenders import SwarmAllocationEnv
+    from farm.alloc.envs.intruders import SwarmIntruderEnv, SwarmIntruderVectorEnv
+    from farm.alloc.envs.vector import SwarmAllocationVectorEnv
 
     return {"single": lambda: SwarmAllocationEnv(CFG, store=store),
             "batched": lambda: SwarmAllocationVectorEnv(CFG, 2, store=store),
@@ -66,7 +66,7 @@ def test_densities_that_are_not_finite_and_non_negative_are_refused_by_every_env
 
 def test_the_batched_env_never_steps_from_a_state_the_single_env_refuses(store):
     """The batched env refuses the state; its next step's observations and rewards stay finite."""
-    from farm.alloc.vector_env import SwarmAllocationVectorEnv
+    from farm.alloc.envs.vector import SwarmAllocationVectorEnv
 
     env = SwarmAllocationVectorEnv(CFG, 2, store=store)
     try:
@@ -119,8 +119,8 @@ def test_a_state_that_is_not_a_dict_is_one_line(store, kind):
 def test_a_damaged_draw_of_a_mixture_is_one_line_the_env_unchanged(store, batched, draw):
     """Intruders drawn per episode from a mixture of two: a draw of a member that is not one, or of
     a generator state that is not one, is refused before anything of the state is taken."""
-    from farm.alloc.env import SwarmAllocationEnv
-    from farm.alloc.vector_env import SwarmAllocationVectorEnv
+    from farm.alloc.envs.defenders import SwarmAllocationEnv
+    from farm.alloc.envs.vector import SwarmAllocationVectorEnv
 
     cfg = CFG.model_copy(update={"intruders": "mixture",
                                  "intruder_options": {"members": ["fewest_ahead", "split_away"]}})

@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 import pytest
+from shapely_reference import reference_game
 
 from workers import InputError, simulate_games
-from shapely_reference import reference_game
 
 DT, RC = 0.01, 0.25
 EXIT = (0.0, 5.0)

@@ -9,8 +9,12 @@ import numpy as np
 import pytest
 from gymnasium.utils import seeding
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.dynamics import Layout, episode_end, observe, start_densities, step
+from farm.alloc.allocators import Spec, allocator_entry, make_allocator
+from farm.alloc.evaluation.rollout import play
+from farm.alloc.game.config import AllocConfig
+from farm.alloc.game.dynamics import Layout, episode_end, observe, start_densities, step
+from farm.alloc.game.lattice import memo_client
+from farm.alloc.game.model import EngagementModel
 from farm.alloc.intruders import (
     intruder_names,
     register_intruders,
@@ -22,10 +26,6 @@ from farm.alloc.intruders.search import (
     exact_response,
     tree_bound,
 )
-from farm.alloc.lattice import memo_client
-from farm.alloc.model import EngagementModel
-from farm.alloc.policies import PolicySpec, make_policy, policy_entry
-from farm.alloc.rollout import play
 from farm.core.errors import ConfigError
 from farm.studies.exploit import COLUMNS, TIMINGS, exact_responses, response_table
 
@@ -114,7 +114,7 @@ CASES = [(SMALL, "intercept", "eliminated", 1), (SMALL, "spread_evenly", "return
 
 @pytest.mark.parametrize("config, name, objective, shares", CASES)
 def test_the_search_is_a_plain_recursive_enumeration_to_the_bit(client, config, name, objective, shares):
-    policy = make_policy(name, config, client)
+    policy = make_allocator(name, config, client)
     model = EngagementModel(config, client, False)
     for seed in (3, 11):
         got = exact_response(config, policy, client, seed, objective=objective, shares=shares)
@@ -146,7 +146,7 @@ def scripted():
 @pytest.mark.parametrize("name", ["intercept", "receding_horizon", "stay_at_base"])
 @pytest.mark.parametrize("shares", [1, 2])
 def test_replaying_the_routings_through_play_gives_the_summary_to_the_bit(client, scripted, name, shares):
-    policy = make_policy(name, SMALL, client)
+    policy = make_allocator(name, SMALL, client)
     for seed in (0, 7):
         got = exact_response(SMALL, policy, client, seed, shares=shares)
         replay = SMALL.model_copy(update={"intruders": scripted, "information": "follower",
@@ -185,11 +185,11 @@ def test_the_ray_fan_out_refuses_a_large_map_before_ray_starts(tmp_path):
     # this test runs without Ray: $RAY_ADDRESS names a closed port, which a start would fail on
     big = AllocConfig(grid_size=5, **SETTINGS)
     with pytest.raises(ConfigError) as e:
-        exact_responses(big, PolicySpec(policy_entry("intercept")), 2, 0, store=tmp_path / "s.sqlite",
+        exact_responses(big, Spec(allocator_entry("intercept")), 2, 0, store=tmp_path / "s.sqlite",
                         show_progress=False)
     assert e.value.field == "max_nodes"
     with pytest.raises(ConfigError) as e:
-        exact_responses(SMALL, PolicySpec(policy_entry("intercept")), 0, 0, store=tmp_path / "s.sqlite")
+        exact_responses(SMALL, Spec(allocator_entry("intercept")), 0, 0, store=tmp_path / "s.sqlite")
     assert e.value.field == "episodes"
 
 
@@ -199,7 +199,7 @@ def test_the_search_is_never_worse_than_a_heuristic_of_the_registry(client):
     pure = {"drift", "fewest_ahead", "least_defended"}  # at vertical_drift 0, drift goes straight
     assert {"drift", "fewest_ahead", "least_defended", "split_away"} <= set(intruder_names(("law", "heuristic")))
     for name in ("intercept", "spread_evenly", "mmr"):
-        policy = make_policy(name, SMALL, client)
+        policy = make_allocator(name, SMALL, client)
         for seed in range(4):
             best = exact_response(SMALL, policy, client, seed)
             halves = exact_response(SMALL, policy, client, seed, shares=2)
@@ -216,7 +216,7 @@ def test_the_search_is_never_worse_than_a_heuristic_of_the_registry(client):
 @pytest.mark.ray
 @pytest.mark.slow
 def test_on_ray_the_table_is_the_plain_enumeration_and_the_same_whatever_the_workers(ray_local, store, client):
-    spec = PolicySpec(policy_entry("intercept"))
+    spec = Spec(allocator_entry("intercept"))
     here = response_table(SMALL, spec, client, 5, 20)
     tables = [exact_responses(SMALL, spec, 5, 20, workers=w, per_task=p, store=store, show_progress=False)
               for w, p in ((1, 1), (2, 1), (2, 3))]
@@ -226,7 +226,7 @@ def test_on_ray_the_table_is_the_plain_enumeration_and_the_same_whatever_the_wor
         assert table[same].equals(here[same])
         assert list(table["episode"]) == list(range(5)) and list(table["seed"]) == list(range(20, 25))
     assert [t.attrs["info"]["workers"] for t in tables] == [1, 2, 2]
-    policy, model = make_policy("intercept", SMALL, client), EngagementModel(SMALL, client, False)
+    policy, model = make_allocator("intercept", SMALL, client), EngagementModel(SMALL, client, False)
     for k, seed in enumerate((20, 21)):
         _, routings = plain_best(SMALL, policy, model, *start(SMALL, seed), 0, "eliminated", 1)
         want = forward(SMALL, policy, model, seed, routings)
@@ -235,7 +235,7 @@ def test_on_ray_the_table_is_the_plain_enumeration_and_the_same_whatever_the_wor
 
 @pytest.mark.ray
 def test_on_ray_split_routings_and_the_return_objective(ray_local, store, client):
-    spec = PolicySpec(policy_entry("spread_evenly"))
+    spec = Spec(allocator_entry("spread_evenly"))
     options = {"objective": "return", "shares": 2}
     here = response_table(TWO, spec, client, 3, 5, **options)
     there = exact_responses(TWO, spec, 3, 5, workers=2, store=store, show_progress=False, **options)

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parent.parent
 def fake_run(path: Path, steps: list[int], replay_buffer: bool = True) -> Path:
     """A run folder whose files are named as a training run's (contents: their names), with
     whole checkpoints at `steps`."""
-    from farm.alloc.runs import checkpoint_files
+    from farm.alloc.training.runs import checkpoint_files
 
     (path / "best").mkdir(parents=True)
     for name in ("config.yaml", "evaluations.npz", "best/best_model.zip"):
@@ -239,8 +239,8 @@ def test_an_older_folders_pickled_names_load_inside_old_names_only():
 
 
 def test_a_run_folder_of_another_config_in_temporary_space_is_dropped_and_a_local_experiments_kept(s3, tmp_path):
-    from farm.alloc.runs import RunFolder
     from farm.alloc.training.config import load_train_config
+    from farm.alloc.training.runs import RunFolder
     from farm.studies.experiments.storage import drop_stale_run
 
     config = load_train_config(ROOT / "configs" / "train" / "tiny.yaml")

@@ -111,7 +111,7 @@ def test_the_display_shows_a_pretraining_trial_by_its_share_of_episodes_then_by_
 
 
 def test_a_scenario_is_a_base_and_the_grid_overrides_its_env(tmp_path):
-    from farm.alloc.scenarios import SCENARIOS
+    from farm.alloc.game.scenarios import SCENARIOS
     from farm.studies.experiments import load_experiment_config, plan
 
     path = tmp_path / "s.yaml"
@@ -128,7 +128,7 @@ def test_a_scenario_is_a_base_and_the_grid_overrides_its_env(tmp_path):
 
 
 def test_a_grid_over_scenarios_needs_no_base():
-    from farm.alloc.scenarios import SCENARIOS, THEATRES
+    from farm.alloc.game.scenarios import SCENARIOS, THEATRES
     from farm.studies.experiments import load_experiment_config, plan
 
     config = load_experiment_config(ROOT / "configs" / "experiments" / "paper.yaml")
@@ -343,14 +343,14 @@ def held_at_checkpoint(run: Path, step: int, alive=lambda: True) -> int:
 
 
 def latest_checkpoint_steps(run: Path) -> int | None:
-    from farm.alloc.runs import latest_checkpoint
+    from farm.alloc.training.runs import latest_checkpoint
 
     last = latest_checkpoint(run)
     return None if last is None else last[1]
 
 
 def checkpointed(run: Path, at_least: int) -> bool:
-    from farm.alloc.runs import latest_checkpoint
+    from farm.alloc.training.runs import latest_checkpoint
 
     last = latest_checkpoint(run)
     return last is not None and last[1] >= at_least

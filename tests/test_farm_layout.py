@@ -54,8 +54,8 @@ def test_the_copy_keeps_every_contract(tree):
 
 @pytest.mark.parametrize("where, text, broken, expected", [
     # an upward import at module level, and one in a function (it runs later; it is the same dependency)
-    ("farm/core/stats.py", "\nfrom farm.alloc.env import SwarmAllocationEnv\n", "farm imports only downward",
-     "farm.core.stats -> farm.alloc.env"),
+    ("farm/core/stats.py", "\nfrom farm.alloc.envs.defenders import SwarmAllocationEnv\n", "farm imports only downward",
+     "farm.core.stats -> farm.alloc.envs.defenders"),
     ("farm/games/shards.py", "\n\ndef _later():\n    from farm.studies import claims\n    return claims\n",
      "farm imports only downward", "farm.games.shards -> farm.studies.claims"),
     # a module outside every layer

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-
 from conftest import HEXAGON, SQUARE, TRIANGLE, points_in
+from shapely_reference import reference_cells
+
 from workers import make_arena, voronoi_cells
 from workers.geometry import NEIGHBOUR_EDGE_MIN
-from shapely_reference import reference_cells
 
 
 def all_cells(points, arena):

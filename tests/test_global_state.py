@@ -19,8 +19,8 @@ os.umask(0o027)
 before = {"umask": os.umask(0o027), "backend": matplotlib.rcParams["backend"], "threads": torch.get_num_threads(),
           "numba_cache": numba.config.CACHE_DIR}
 import workers, farm, farm.cli, farm.core.config, farm.core.output, farm.core.plots, farm.report, farm.runtime
-import farm.games.sweep, farm.service, farm.service.table, farm.alloc, farm.alloc.training, farm.alloc.rollout
-import farm.alloc.plots
+import farm.games.sweep, farm.service, farm.service.table, farm.alloc, farm.alloc.training
+import farm.alloc.evaluation.rollout, farm.alloc.game.plots
 after = {"umask": os.umask(0o027), "backend": matplotlib.rcParams["backend"], "threads": torch.get_num_threads(),
          "numba_cache": numba.config.CACHE_DIR}
 print(json.dumps({"before": before, "after": after, "pyplot": "matplotlib.pyplot" in sys.modules}))
@@ -57,7 +57,7 @@ def test_env_without_a_client_uses_the_users_cache_store(tmp_path, monkeypatch, 
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("SWARM_FARM_STORE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    with caplog.at_level(logging.INFO, logger="farm.alloc.env"):
+    with caplog.at_level(logging.INFO, logger="farm.alloc.envs.defenders"):
         env = SwarmAllocationEnv(small)
     expected = tmp_path / "cache" / "swarm-farm" / "capture_times.sqlite"
     assert env.client.backend.store.path == expected and expected.exists()

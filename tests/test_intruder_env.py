@@ -1,5 +1,5 @@
 """The intruders' side (docs/model.md section 8): the defenders' env with an intruder policy through
-gymnasium's ids; the intruders' env against a frozen allocator (farm.alloc.intruder_env), its step
+gymnasium's ids; the intruders' env against a frozen allocator (farm.alloc.envs.intruders), its step
 the dynamics' pieces composed, single and batched to the bit, follower against simultaneous,
 gymnasium's checker, exact save and restore; training the intruders (`side: intruders`) and its
 exact resume; a learned intruder that routes around a static base; bad settings in one line.
@@ -23,7 +23,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import farm.alloc
 from farm.alloc import SCENARIOS, AllocConfig, SwarmAllocationEnv
-from farm.alloc.dynamics import (
+from farm.alloc.allocators import make_allocator
+from farm.alloc.envs.intruders import SwarmIntruderEnv, SwarmIntruderVectorEnv
+from farm.alloc.envs.vector import SwarmAllocationVectorEnv
+from farm.alloc.game.dynamics import (
     Layout,
     move_defenders,
     move_probabilities,
@@ -33,11 +36,8 @@ from farm.alloc.dynamics import (
     routing_of,
     start_densities,
 )
-from farm.alloc.intruder_env import SwarmIntruderEnv, SwarmIntruderVectorEnv
-from farm.alloc.lattice import lattice_pairs
-from farm.alloc.model import EngagementModel
-from farm.alloc.policies import make_policy
-from farm.alloc.vector_env import SwarmAllocationVectorEnv
+from farm.alloc.game.lattice import lattice_pairs
+from farm.alloc.game.model import EngagementModel
 from farm.core.errors import ActionError, ConfigError
 from farm.service import CaptureTimeClient
 
@@ -142,7 +142,7 @@ def by_hand(cfg, client, opponent, seed, intruder_actions):
     """The intruders' env's episode composed from the dynamics' pieces: [(obs, reward, info
     values)] of its reset and steps; intruder_actions: (T, R)."""
     layout, model = Layout(cfg.grid_size), EngagementModel(cfg, client)
-    allocator = make_policy(opponent, cfg, client)
+    allocator = make_allocator(opponent, cfg, client)
 
     def allocator_moves(D, I):
         a = np.asarray(allocator.predict(observe(D, I)[0], deterministic=True)[0], dtype=np.float64)
@@ -193,7 +193,7 @@ def test_follower_sees_the_defenders_after_the_allocators_move_and_simultaneous_
     intruders see differs, the defenders after the allocator's move or before it."""
     envs = {info: SwarmIntruderEnv(AllocConfig(**C3, information=info), opponent="intercept", client=client)
             for info in ("follower", "simultaneous")}
-    allocator = make_policy("intercept", envs["follower"].config, client)
+    allocator = make_allocator("intercept", envs["follower"].config, client)
     layout, cells = Layout(3), 9
     rng, different = np.random.default_rng(9), 0
     for seed in range(4):
@@ -223,7 +223,7 @@ def test_the_episode_is_the_defenders_envs_and_zero_sum_its_reward_negated(clien
     cfg = AllocConfig(**C3, action_map="shifted")
     ours = SwarmIntruderEnv(cfg, opponent="greedy_nearest", reward="zero_sum", client=client)
     theirs = SwarmAllocationEnv(cfg, client=client)
-    allocator = make_policy("greedy_nearest", cfg, client)
+    allocator = make_allocator("greedy_nearest", cfg, client)
     straight = np.where(ours.layout.route_row == 0, 1.0, -1.0).astype(np.float32)
     for seed in (1000, 1001, 1002):
         ours.reset(seed=seed)
@@ -449,7 +449,7 @@ def test_a_learned_intruder_routes_around_a_static_base(tmp_path):
     """outnumbered_3x3 against stay_at_base (its 4 defenders never leave the base, row 1 of column
     0): the drift law's row-1 mass runs into them; intruders trained for a few thousand PPO steps
     turn away from that row and are all but never engaged (episodes seeded 1000.., the suite's)."""
-    from farm.alloc.rollout import play
+    from farm.alloc.evaluation.rollout import play
     from farm.alloc.training import TrainConfig, train
 
     store = tmp_path / "store.sqlite"
@@ -464,7 +464,7 @@ def test_a_learned_intruder_routes_around_a_static_base(tmp_path):
     train(config, tmp_path / "run", show_progress=False)
     env = config.env
     client = CaptureTimeClient(env.game_settings(), local_store=store)
-    base = make_policy("stay_at_base", env, client)
+    base = make_allocator("stay_at_base", env, client)
     learned = env.model_copy(update={"intruders": "learned", "intruder_options": {"run": str(tmp_path / "run")}})
     eliminated = {name: np.mean([e.summary["eliminated"] for e in play(c, base, client, 20, 1000)])
                   for name, c in (("drift", env), ("learned", learned))}
@@ -475,7 +475,7 @@ def test_a_learned_intruder_routes_around_a_static_base(tmp_path):
 def test_pure_actions_route_each_cells_whole_mass_along_its_chosen_route(client):
     """actions: pure: one route a cell (MultiDiscrete), the step the dynamics pieces composed with
     pure_routing; the batched env's episodes the single env's; bad choices refused in one line."""
-    from farm.alloc.dynamics import Layout, check_pure_routes, pure_routing, resolve
+    from farm.alloc.game.dynamics import Layout, check_pure_routes, pure_routing, resolve
 
     cfg = AllocConfig(**C3)
     layout = Layout(3)

@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.dynamics import Layout, route_probabilities, routes, routing_of, step
+from farm.alloc.game.config import AllocConfig
+from farm.alloc.game.dynamics import Layout, route_probabilities, routes, routing_of, step
+from farm.alloc.game.model import advance_intruders_many, route_intruders_many
 from farm.alloc.intruders import intruder_names, make_intruders
-from farm.alloc.model import advance_intruders_many, route_intruders_many
 from farm.core.config import first_line
 
 SIDES = (2, 3, 5, 8)
@@ -45,7 +45,7 @@ def test_the_drift_policy_moves_the_intruders_as_the_drift_law_to_the_bit(rng, n
 
 
 def test_a_step_with_the_drift_policy_is_the_default_step_to_the_bit(rng):
-    from farm.alloc.model import EngagementModel
+    from farm.alloc.game.model import EngagementModel
 
     class Answers:  # a client: removes a third of every engaged cell, scores one half
         repeatable = True

@@ -17,18 +17,17 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from conftest import farm_main
 from stable_baselines3.common.callbacks import BaseCallback
 
 from farm.alloc import AllocConfig
-from farm.alloc.policies import make_policy
+from farm.alloc.allocators import make_allocator
 from farm.alloc.training import TrainConfig, train
 from farm.alloc.training.dagger import loop as pretrain_module
 from farm.alloc.training.dagger.iterations import read_iteration
 from farm.alloc.training.dagger.labels import play_labelled
 from farm.alloc.training.dagger.loop import fit_actor, latest_iteration
 from farm.service import CaptureTimeClient
-
-from conftest import farm_main
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, team_sizes="lattice")
@@ -71,7 +70,7 @@ class Learner:
 
 def test_labels_are_the_experts_actions_on_every_visited_state(client):
     env_config = AllocConfig(**SMALL)
-    expert = make_policy("intercept", env_config, client)
+    expert = make_allocator("intercept", env_config, client)
     learner = Learner(49)
     data = play_labelled(env_config, expert, learner, 0.5, [5, 6, 7], [1, 2], client, gamma=0.9)
     again = np.stack([expert.predict(o, deterministic=True)[0] for o in data["obs"]]).astype(np.float32)
@@ -93,7 +92,7 @@ def test_labels_are_the_experts_actions_on_every_visited_state(client):
 
 def test_the_share_decides_who_drives(client):
     env_config = AllocConfig(**SMALL)
-    expert, learner = make_policy("intercept", env_config, client), Learner(49)
+    expert, learner = make_allocator("intercept", env_config, client), Learner(49)
     alone = play_labelled(env_config, expert, learner, 1.0, [5, 6], [0], client, gamma=0.9)
     np.testing.assert_array_equal(alone["actions"], alone["labels"])
     never = play_labelled(env_config, expert, learner, 0.0, [5, 6], [0], client, gamma=0.9)
@@ -104,12 +103,12 @@ def test_the_share_decides_who_drives(client):
 
 @pytest.mark.parametrize("algo", ["td3", "sac", "ppo"])
 def test_the_fit_brings_the_actor_to_the_labels(store, client, algo):
-    from farm.alloc.training.train import training_envs, make_model
+    from farm.alloc.training.train import make_model, training_envs
 
     cfg = config(store, algo)
     env, _, _ = training_envs(cfg, client)
     model = make_model(cfg, env, Path("/nonexistent"))
-    data = play_labelled(cfg.env, make_policy("intercept", cfg.env, client), None, 1.0, list(range(20)), [0],
+    data = play_labelled(cfg.env, make_allocator("intercept", cfg.env, client), None, 1.0, list(range(20)), [0],
                          client, gamma=0.9)
     obs = torch.as_tensor(data["obs"])
     with torch.no_grad():
@@ -129,7 +128,7 @@ def test_the_fit_brings_the_actor_to_the_labels(store, client, algo):
 def test_each_algorithm_trains_a_model_of_its_own_kind(store, tmp_path, algo):
     import stable_baselines3
 
-    from farm.alloc.evaluation import evaluate_run
+    from farm.alloc.evaluation.evaluate import evaluate_run
 
     metrics = train(config(store, algo), tmp_path / "run", show_progress=False)
     assert metrics["algo"] == algo and metrics["timesteps"] >= 300
@@ -280,12 +279,12 @@ def test_the_flows_loss_reads_actions_as_the_env_does(action_map, tmp_path):
 
 def test_the_flows_fit_moves_the_defenders_as_the_expert_does(store, client):
     from farm.alloc.training.dagger.loop import MoveMap
-    from farm.alloc.training.train import training_envs, make_model
+    from farm.alloc.training.train import make_model, training_envs
 
     cfg = config(store, "ppo")
     env, _, _ = training_envs(cfg, client)
     model = make_model(cfg, env, Path("/nonexistent"))
-    data = play_labelled(cfg.env, make_policy("intercept", cfg.env, client), None, 1.0, list(range(20)), [0],
+    data = play_labelled(cfg.env, make_allocator("intercept", cfg.env, client), None, 1.0, list(range(20)), [0],
                          client, gamma=0.9)
     moves = MoveMap(cfg.env)
 

@@ -6,21 +6,21 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from farm.alloc.scenarios import SCENARIOS
+from farm.alloc.game.scenarios import SCENARIOS
 
 pytestmark = pytest.mark.ray
 
 
 @pytest.mark.slow
 def test_a_theatre_episode_plays_the_same_games_on_ray_as_in_process(ray_local, tmp_path):
-    from farm.alloc.fidelity import evaluate_fidelity
-    from farm.alloc.policies import make_policy
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.evaluation.fidelity import evaluate_fidelity
     from farm.service import CaptureTimeClient
     from workers import run_games
 
     config = SCENARIOS["theatre_16x16"].config(games=2)
     client = CaptureTimeClient(config.game_settings(), local_store=tmp_path / "s.sqlite")
-    policies = {name: make_policy(name, config, client) for name in ("intercept", "receding_horizon")}
+    policies = {name: make_allocator(name, config, client) for name in ("intercept", "receding_horizon")}
     ray_table, ray_games, live = evaluate_fidelity(config, policies, client, 1, 1000)
     here_table, here_games, here = evaluate_fidelity(config, policies, client, 1, 1000, in_process=True)
     pd.testing.assert_frame_equal(ray_table, here_table)
@@ -37,7 +37,7 @@ def test_subregions_on_ray_actors_plan_what_they_plan_in_process(ray_local, tmp_
     """subregions' bands planned on 2 Ray actors (each opening the local store) give the same
     move probabilities as the bands planned one after another here."""
     from farm.alloc import AllocConfig
-    from farm.alloc.policies import make_policy
+    from farm.alloc.allocators import make_allocator
     from farm.service import CaptureTimeClient
 
     config = AllocConfig(grid_size=6, n_defenders=24, n_intruders=40, games=2, team_sizes="lattice")
@@ -45,8 +45,8 @@ def test_subregions_on_ray_actors_plan_what_they_plan_in_process(ray_local, tmp_
     rng = np.random.default_rng(3)
     D = rng.dirichlet(np.ones(36))
     I = np.where(rng.random(36) < 0.5, rng.random(36) * 0.05, 0.0)
-    here = make_policy("subregions", config, client, regions=3).probabilities(D, I)
-    planner = make_policy("subregions", config, client, regions=3, workers=2)
+    here = make_allocator("subregions", config, client, regions=3).probabilities(D, I)
+    planner = make_allocator("subregions", config, client, regions=3, workers=2)
     try:
         np.testing.assert_allclose(planner.probabilities(D, I), here, atol=1e-12)
     finally:

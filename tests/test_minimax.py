@@ -1,4 +1,4 @@
-"""The `minimax` planner (farm.alloc.policies.planners.minimax, docs/model.md section 7) against brute force.
+"""The `minimax` planner (farm.alloc.allocators.planners.minimax, docs/model.md section 7) against brute force.
 
 Hand-made capture curves (test_planners.curve_client) on small grids, so that every defender
 level and every pure routing of the intruders can be enumerated.
@@ -13,10 +13,10 @@ from scipy.optimize import linprog
 from test_planners import cfg_of, curve_client, env_at, obs_of, realised
 
 from farm.alloc import AllocConfig
-from farm.alloc.dynamics import Layout, step
-from farm.alloc.model import EngagementModel, route_intruders_many, team_sizes
-from farm.alloc.policies import make_policy
-from farm.alloc.policies.planners import Minimax, levels
+from farm.alloc.allocators import make_allocator
+from farm.alloc.allocators.planners import Minimax, levels
+from farm.alloc.game.dynamics import Layout, step
+from farm.alloc.game.model import EngagementModel, route_intruders_many, team_sizes
 from farm.core.errors import ConfigError
 
 
@@ -234,11 +234,11 @@ def test_deterministic():
     client = curve_client(cfg, falling)
     env = env_at(cfg, client, np.eye(9)[3], np.zeros(9))
     obs, _ = env.reset(seed=3)
-    first = make_policy("minimax", cfg, client)
+    first = make_allocator("minimax", cfg, client)
     for _ in range(4):
         a1, _ = first.predict(obs)
         a2, _ = first.predict(obs)
-        a3, _ = make_policy("minimax", cfg, client).predict(obs)
+        a3, _ = make_allocator("minimax", cfg, client).predict(obs)
         assert np.array_equal(a1, a2) and np.array_equal(a1, a3)
         obs, _, term, trunc, _ = env.step(a1)
         if term or trunc:
@@ -267,11 +267,11 @@ def test_deterministic():
 def test_bad_options_are_one_line(options, field):
     cfg = cfg_of()
     with pytest.raises(ConfigError) as e:
-        make_policy("minimax", cfg, curve_client(cfg), **options)
+        make_allocator("minimax", cfg, curve_client(cfg), **options)
     message = str(e.value)
     assert "\n" not in message and message.startswith("minimax") and field in message
 
 
 def test_needs_a_client():
     with pytest.raises(ConfigError, match="^minimax: needs a capture-time client"):
-        make_policy("minimax", cfg_of(), None)
+        make_allocator("minimax", cfg_of(), None)

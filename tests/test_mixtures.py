@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from gymnasium.utils import seeding
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.env import SwarmAllocationEnv
-from farm.alloc.policies import make_policy
-from farm.alloc.rollout import play
-from farm.alloc.vector_env import SwarmAllocationVectorEnv
+from farm.alloc.allocators import make_allocator
+from farm.alloc.envs.defenders import SwarmAllocationEnv
+from farm.alloc.envs.vector import SwarmAllocationVectorEnv
+from farm.alloc.evaluation.rollout import play
+from farm.alloc.game.config import AllocConfig
 from farm.core.errors import ConfigError
 
 SEED, EPISODES = 1000, 8
@@ -52,21 +52,21 @@ def test_an_allocator_mixture_drawn_per_episode_plays_its_members_episodes():
     cfg, client = config(), Answers()
     members = ["stay_at_base", "spread_evenly", "intercept"]
     weights = [0.2, 0.3, 0.5]
-    mixed = play(cfg, make_policy("mixture", cfg, client, members=members, weights=weights), client, EPISODES, SEED)
-    alone = {m: play(cfg, make_policy(m, cfg, client), client, EPISODES, SEED) for m in members}
+    mixed = play(cfg, make_allocator("mixture", cfg, client, members=members, weights=weights), client, EPISODES, SEED)
+    alone = {m: play(cfg, make_allocator(m, cfg, client), client, EPISODES, SEED) for m in members}
     picks = drawn(weights)
     assert len(set(picks)) > 1
     assert summaries(mixed) == [alone[members[j]][k].summary for k, j in enumerate(picks)]
     # batching does not matter: the second half played alone draws the same members
-    half = play(cfg, make_policy("mixture", cfg, client, members=members, weights=weights), client, 4, SEED + 4)
+    half = play(cfg, make_allocator("mixture", cfg, client, members=members, weights=weights), client, 4, SEED + 4)
     assert summaries(half) == summaries(mixed)[4:]
 
 
 def test_a_mixture_of_one_weight_is_that_member_to_the_bit():
     cfg, client = config(), Answers()
-    mixed = play(cfg, make_policy("mixture", cfg, client, members=["intercept", "spread_evenly"], weights=[1, 0],
+    mixed = play(cfg, make_allocator("mixture", cfg, client, members=["intercept", "spread_evenly"], weights=[1, 0],
                                   draw="step"), client, EPISODES, SEED)
-    assert summaries(mixed) == summaries(play(cfg, make_policy("intercept", cfg, client), client, EPISODES, SEED))
+    assert summaries(mixed) == summaries(play(cfg, make_allocator("intercept", cfg, client), client, EPISODES, SEED))
 
 
 def test_an_intruder_mixture_in_the_env_the_batched_env_and_play():
@@ -74,7 +74,7 @@ def test_an_intruder_mixture_in_the_env_the_batched_env_and_play():
     weights = [0.4, 0.4, 0.2]
     cfg = config(intruders="mixture", intruder_options={"members": members, "weights": weights})
     client = Answers()
-    policy = make_policy("spread_evenly", cfg, client)
+    policy = make_allocator("spread_evenly", cfg, client)
     mixed = play(cfg, policy, client, EPISODES, SEED)
     picks = drawn(weights)
     for k, j in enumerate(picks):
@@ -99,7 +99,7 @@ def test_an_intruder_mixture_in_the_env_the_batched_env_and_play():
 def test_an_env_with_an_intruder_mixture_resumes_its_draw():
     cfg = config(intruders="mixture", intruder_options={"members": ["fewest_ahead", "split_away"], "draw": "step"})
     client = Answers()
-    policy = make_policy("intercept", cfg, client)
+    policy = make_allocator("intercept", cfg, client)
     a, b = SwarmAllocationEnv(cfg, client=client), SwarmAllocationEnv(cfg, client=client)
     obs, _ = a.reset(seed=3)
     obs, *_ = a.step(policy.predict(obs)[0])
@@ -123,7 +123,7 @@ def test_an_env_with_an_intruder_mixture_resumes_its_draw():
 ])
 def test_a_bad_mixture_is_one_line_naming_its_field(options, words):
     with pytest.raises(ConfigError) as e:
-        make_policy("mixture", config(), Answers(), **options)
+        make_allocator("mixture", config(), Answers(), **options)
     assert words in str(e.value) and "\n" not in str(e.value)
 
 
@@ -135,8 +135,8 @@ def test_a_bad_intruder_mixture_names_intruder_options():
 
 def test_the_intruders_env_draws_its_mixture_opponent_per_episode():
     """Against a mixture drawn per episode, the follower's first observation is the drawn member's move."""
-    from farm.alloc.dynamics import Layout, defenders_move, observe
-    from farm.alloc.intruder_env import SwarmIntruderEnv, SwarmIntruderVectorEnv
+    from farm.alloc.envs.intruders import SwarmIntruderEnv, SwarmIntruderVectorEnv
+    from farm.alloc.game.dynamics import Layout, defenders_move, observe
 
     cfg, client = config(), Answers()
     members, weights = ["stay_at_base", "spread_evenly", "intercept"], [0.3, 0.3, 0.4]
@@ -150,7 +150,7 @@ def test_the_intruders_env_draws_its_mixture_opponent_per_episode():
         start = seeding.np_random(SEED + k)[0].dirichlet(np.ones(3))
         D, I = np.zeros(9), np.zeros(9)
         D[layout.base], I[layout.right] = 1.0, start
-        action = make_policy(members[j], cfg, client).predict(observe(D[None], I[None])[0])[0]
+        action = make_allocator(members[j], cfg, client).predict(observe(D[None], I[None])[0])[0]
         moved = defenders_move(layout, cfg, D[None], np.asarray(action, dtype=np.float64)[None])[0]
         assert np.array_equal(obs, observe(moved[None], I[None])[0]) and np.array_equal(batch[k], obs)
     state = env.get_state()
@@ -165,18 +165,18 @@ def test_the_intruders_env_draws_its_mixture_opponent_per_episode():
 def test_a_mixture_of_mean_moves_plays_the_members_averaged_move_probabilities():
     """draw: mean moves each cell's defenders by the weighted mean of the members' move
     probabilities (to the action map's floor), deterministically; the intruders' by the mean routing."""
-    from farm.alloc.dynamics import Layout, move_probabilities, observe
+    from farm.alloc.game.dynamics import Layout, move_probabilities, observe
 
     cfg, client = config(action_map="shifted"), Answers()
     members, weights = ["intercept", "spread_evenly"], [0.25, 0.75]
-    mean = make_policy("mixture", cfg, client, members=members, weights=weights, draw="mean")
+    mean = make_allocator("mixture", cfg, client, members=members, weights=weights, draw="mean")
     layout = Layout(3)
     rng = np.random.default_rng(0)
     for _ in range(5):
         D, I = rng.random(9), rng.random(9) * (rng.random(9) < 0.5)
         D /= D.sum()
         obs = observe(D[None], I[None])[0]
-        want = sum(w * move_probabilities(layout, cfg, np.asarray(make_policy(m, cfg, client).predict(obs)[0],
+        want = sum(w * move_probabilities(layout, cfg, np.asarray(make_allocator(m, cfg, client).predict(obs)[0],
                                                                   dtype=np.float64)[None])[0]
                    for m, w in zip(members, weights))
         got = move_probabilities(layout, cfg, np.asarray(mean.predict(obs)[0], dtype=np.float64)[None])[0]

@@ -5,8 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from workers import (CaptureStats, Case, InitialLaw, InputError, game_statistics, run_case,
-                     sample_initial_positions)
+from workers import CaptureStats, Case, InitialLaw, InputError, game_statistics, run_case, sample_initial_positions
 
 
 def test_paper_law_boxes(rng):

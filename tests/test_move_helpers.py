@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from farm.alloc import SCENARIOS
-from farm.alloc.intruder_env import SwarmIntruderVectorEnv
+from farm.alloc.envs.intruders import SwarmIntruderVectorEnv
 from farm.core.config import first_line
 from farm.core.errors import ConfigError
 

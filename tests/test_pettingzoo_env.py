@@ -1,4 +1,4 @@
-"""The two-learner envs (farm.alloc.pettingzoo_env) as PettingZoo's users expect them: PettingZoo's
+"""The two-learner envs (farm.alloc.envs.pettingzoo_env) as PettingZoo's users expect them: PettingZoo's
 own API and seed tests, zero-sum rewards, what the follower intruders see, the single env's
 episode to the bit when the intruders route by the drift law, and bad actions refused. No Ray:
 a stand-in client, or an in-process one over a store warmed here."""
@@ -17,8 +17,7 @@ from gymnasium.error import ResetNeeded
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, seed_test
 
 from farm.alloc import SCENARIOS, AllocConfig, SwarmAllocationEnv
-from farm.alloc.dynamics import Layout, observe
-from farm.alloc.pettingzoo_env import (
+from farm.alloc.envs.pettingzoo_env import (
     AGENTS,
     SwarmAllocationAECEnv,
     SwarmAllocationParallelEnv,
@@ -26,6 +25,7 @@ from farm.alloc.pettingzoo_env import (
     parallel_env,
     raw_env,
 )
+from farm.alloc.game.dynamics import Layout, observe
 from farm.core.errors import ActionError, ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -154,7 +154,7 @@ def test_the_follower_intruders_observe_the_defenders_after_their_move(rng):
 @pytest.fixture(scope="module")
 def store(tmp_path_factory):
     """A store warmed here for outnumbered_3x3's lattice of team sizes (the envs' clients open it)."""
-    from farm.alloc.lattice import memo_client
+    from farm.alloc.game.lattice import memo_client
 
     path = tmp_path_factory.mktemp("pettingzoo") / "alloc.sqlite"
     client, pairs, _ = memo_client([SCENARIOS["outnumbered_3x3"].config()], "local", path)
@@ -331,7 +331,7 @@ def test_constructors_and_their_refusals():
 
 
 def imports_pettingzoo_at_module_level(path: Path) -> bool:
-    """Whether the module at path imports pettingzoo or farm.alloc.pettingzoo_env outside every function."""
+    """Whether the module at path imports pettingzoo or farm.alloc.envs.pettingzoo_env outside every function."""
 
     def named(node) -> list[str]:
         if isinstance(node, ast.Import):
@@ -343,7 +343,8 @@ def imports_pettingzoo_at_module_level(path: Path) -> bool:
             if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
                 continue
             if isinstance(child, (ast.Import, ast.ImportFrom)) and any(
-                    n.split(".")[0] == "pettingzoo" or n.startswith("farm.alloc.pettingzoo_env") for n in named(child)):
+                    n.split(".")[0] == "pettingzoo" or n.startswith("farm.alloc.envs.pettingzoo_env")
+                    for n in named(child)):
                 return True
             if visit(child):
                 return True
@@ -356,13 +357,14 @@ def test_nothing_else_in_farm_imports_pettingzoo_at_import_time(tmp_path):
     checked = sorted(p for p in (ROOT / "farm").rglob("*.py") if p.name != "pettingzoo_env.py")
     assert [str(p.relative_to(ROOT)) for p in checked if imports_pettingzoo_at_module_level(p)] == []
     planted = tmp_path / "planted.py"  # the check finds one
-    planted.write_text("def f():\n    import pettingzoo\n\n\nif True:\n    from farm.alloc import pettingzoo_env\n")
+    planted.write_text("def f():\n    import pettingzoo\n\n\nif True:\n    from farm.alloc.envs import pettingzoo_env\n")
     assert imports_pettingzoo_at_module_level(planted)
     # Without pettingzoo, farm imports and pettingzoo_env says in one line what to install.
     script = ("import sys; sys.modules['pettingzoo'] = None\n"
-              "import farm, farm.alloc, farm.alloc.env, farm.alloc.vector_env\n"
-              "try:\n    import farm.alloc.pettingzoo_env\nexcept ModuleNotFoundError as e:\n    print(e)\n")
+              "import farm, farm.alloc, farm.alloc.envs.defenders, farm.alloc.envs.vector\n"
+              "try:\n    import farm.alloc.envs.pettingzoo_env\nexcept ModuleNotFoundError as e:\n    print(e)\n")
     out = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, cwd=ROOT,
                          timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert out.returncode == 0, out.stderr
-    assert out.stdout.splitlines() == ["farm.alloc.pettingzoo_env needs pettingzoo: pip install 'swarm-farm[marl]'"]
+    assert out.stdout.splitlines() == [
+        "farm.alloc.envs.pettingzoo_env needs pettingzoo: pip install 'swarm-farm[marl]'"]

@@ -1,4 +1,4 @@
-"""The planners (farm.alloc.policies.planners, docs/model.md section 7) on hand-made states whose best move is known.
+"""The planners (farm.alloc.allocators.planners, docs/model.md section 7) on hand-made states whose best move is known.
 
 Most cases use a client over a hand-made capture curve (Curve: every game's statistics
 chosen by a function of its team sizes), so that the expected moves can be worked out by
@@ -15,18 +15,23 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from workers import CaptureStats, game_statistics
-
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.policies.baselines import GreedyNearestIntruder
-from farm.alloc.model import advance_intruders, team_sizes
-from farm.alloc.policies import make_policy, policy_entry, policy_names
-from farm.alloc.policies.planners import (Intercept, MaxMarginalReturn, RecedingHorizon, Transport,
-                                          action_from_probabilities, levels)
-from farm.alloc.policies.planners.transport import apportion
+from farm.alloc.allocators import allocator_entry, allocator_names, make_allocator
+from farm.alloc.allocators.baselines import GreedyNearestIntruder
+from farm.alloc.allocators.planners import (
+    Intercept,
+    MaxMarginalReturn,
+    RecedingHorizon,
+    Transport,
+    action_from_probabilities,
+    levels,
+)
+from farm.alloc.allocators.planners.transport import apportion
+from farm.alloc.game.model import advance_intruders, team_sizes
 from farm.core.errors import ConfigError, InputError
 from farm.service import CaptureTimeClient
 from farm.service.lookup import Lookup
+from workers import CaptureStats, game_statistics
 
 GAMES = 64  # the curve's games per case: shares are multiples of 1 / (64 n_e)
 
@@ -105,7 +110,7 @@ def as_observed(D, I):
     return D.astype(np.float32).astype(np.float64), I.astype(np.float32).astype(np.float64)
 
 
-ALL = policy_names("planner", references=True)  # subregions on a small map is receding_horizon: its own tests below
+ALL = allocator_names("planner", references=True)  # subregions on a small map is receding_horizon: its own tests below
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +172,7 @@ def test_a_single_reachable_intruder_cell_gets_the_mass(name):
     cfg = cfg_of()
     client = curve_client(cfg)
     D, I = density(3, c4=1.0), density(3, c2=0.4)
-    planner = make_policy(name, cfg, client)
+    planner = make_allocator(name, cfg, client)
     env = env_at(cfg, client, D, I)
     action, _ = planner.predict(obs_of(D, I))
     D1 = realised(env, action)
@@ -188,7 +193,7 @@ def test_no_swap(name, where):
     d = cells(3, where)[0]
     D, I = density(3), density(3)
     D[d], I[d + 1] = 1.0, 0.5
-    action, _ = make_policy(name, cfg, client).predict(obs_of(D, I))
+    action, _ = make_allocator(name, cfg, client).predict(obs_of(D, I))
     env = env_at(cfg, client, D, I)
     assert realised(env, action)[d] > 0.95
     _, _, _, _, info = env.step(action)
@@ -462,7 +467,7 @@ def test_moves_are_feasible(name, n, seed, action_map, drift):
                       vertical_drift=drift)
     client = curve_client(cfg)
     D, I = random_state(rng, n)
-    planner = make_policy(name, cfg, client)
+    planner = make_allocator(name, cfg, client)
     p = planner.probabilities(D, I)
     assert np.all(p >= 0) and np.allclose(np.add.reduceat(p, planner.start), 1.0)
     action, _ = planner.predict(obs_of(D, I))
@@ -482,11 +487,11 @@ def test_deterministic(name, real_client):
     cfg = cfg_of(c_capture=1.5)
     env = SwarmAllocationEnv(cfg, client=real_client)
     obs, _ = env.reset(seed=3)
-    first = make_policy(name, cfg, real_client)
+    first = make_allocator(name, cfg, real_client)
     for _ in range(3):
         a1, _ = first.predict(obs)
         a2, _ = first.predict(obs)
-        a3, _ = make_policy(name, cfg, real_client).predict(obs)
+        a3, _ = make_allocator(name, cfg, real_client).predict(obs)
         assert np.array_equal(a1, a2) and np.array_equal(a1, a3)
         obs, _, term, trunc, _ = env.step(a1)
         if term or trunc:
@@ -499,7 +504,7 @@ def test_planners_beat_the_swap_on_real_games(real_client):
     cfg = cfg_of(c_capture=1.5)
     env = SwarmAllocationEnv(cfg, client=real_client)
     for name in ALL:
-        planner = make_policy(name, cfg, real_client)
+        planner = make_allocator(name, cfg, real_client)
         obs, _ = env.reset(seed=5)
         while True:
             obs, _, term, trunc, info = env.step(planner.predict(obs)[0])
@@ -539,24 +544,24 @@ def test_planners_beat_the_swap_on_real_games(real_client):
 def test_bad_options_are_one_line(name, options, field):
     cfg = cfg_of()
     with pytest.raises(ConfigError) as e:
-        make_policy(name, cfg, curve_client(cfg), **options)
+        make_allocator(name, cfg, curve_client(cfg), **options)
     message = str(e.value)
     assert "\n" not in message and message.startswith(name) and field in message
 
 
-@pytest.mark.parametrize("name", policy_names("planner"))
+@pytest.mark.parametrize("name", allocator_names("planner"))
 def test_the_suite_check_refuses_unknown_options(name):
     """farm.studies.suite binds planner_options to the class's signature: an unknown one fails there."""
     with pytest.raises(TypeError, match="bogus"):
-        inspect.signature(policy_entry(name).make).bind(None, None, bogus=1)
-    inspect.signature(policy_entry(name).make).bind(None, None)
+        inspect.signature(allocator_entry(name).make).bind(None, None, bogus=1)
+    inspect.signature(allocator_entry(name).make).bind(None, None)
 
 
 def test_clients_and_observations_refused():
     cfg = cfg_of()
     for name in ("mmr", "receding_horizon"):
         with pytest.raises(ConfigError, match=f"^{name}: needs a capture-time client"):
-            make_policy(name, cfg, None)
+            make_allocator(name, cfg, None)
     Intercept(cfg, None)  # needs none
     with pytest.raises(InputError, match=r"obs: expected shape \(18,\)"):
         Intercept(cfg).predict(np.zeros(17, dtype=np.float32))
@@ -579,7 +584,7 @@ def _bands_by_hand(cfg, client, D, I, bands, inner="receding_horizon", shares=No
     p = 0.0
     for band, share in zip(bands, shares):
         if share > 0:
-            planner = make_policy(inner, cfg, client, **options)
+            planner = make_allocator(inner, cfg, client, **options)
             p = p + share * planner.probabilities(D * share, np.where(np.isin(rows, band), I, 0.0))
     return p
 
@@ -597,7 +602,7 @@ def test_subregions_join_the_bands_plans_by_their_shares(inner, seed):
     cfg = AllocConfig(grid_size=6, n_defenders=100, n_intruders=50, team_sizes="lattice", vertical_drift=0.25)
     client = curve_client(cfg)
     D, I = random_state(rng, 6)
-    planner = make_policy("subregions", cfg, client, regions=3, planner=inner)
+    planner = make_allocator("subregions", cfg, client, regions=3, planner=inner)
     bands = [[0, 1], [2, 3], [4, 5]]
     rows = np.arange(36) // 6
     mass = np.array([I[np.isin(rows, band)].sum() for band in bands])
@@ -615,11 +620,11 @@ def test_subregions_of_one_band_or_one_band_with_intruders_is_the_inner_planner(
     client = curve_client(cfg)
     rng = np.random.default_rng(7)
     D, I = random_state(rng, 6)
-    whole = make_policy("receding_horizon", cfg, client)
-    np.testing.assert_array_equal(make_policy("subregions", cfg, client, regions=1).probabilities(D, I),
+    whole = make_allocator("receding_horizon", cfg, client)
+    np.testing.assert_array_equal(make_allocator("subregions", cfg, client, regions=1).probabilities(D, I),
                                   whole.probabilities(D, I))
     I_top = np.where(np.arange(36) < 12, I, 0.0)  # rows 0 and 1 only: band 0 of 3
-    planner = make_policy("subregions", cfg, client, regions=3)
+    planner = make_allocator("subregions", cfg, client, regions=3)
     np.testing.assert_array_equal(planner.probabilities(D, I_top), whole.probabilities(D, I_top))
     assert planner.last["shares"] == [1.0, 0.0, 0.0]
-    assert make_policy("subregions", AllocConfig(grid_size=16), client).regions == 2  # bands of at most 8 rows
+    assert make_allocator("subregions", AllocConfig(grid_size=16), client).regions == 2  # bands of at most 8 rows

@@ -12,9 +12,19 @@ import workers
 from workers import Case, InputError, simulate_games
 from workers.compiled import kernel_cache_dir
 from workers.engine import _controls, _kernels, _play, _step_velocities
-from workers.policies.registry import (EVADER_POLICIES, EVADERS, PURSUER_POLICIES, PURSUERS, dispatch_source,
-                                       evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity,
-                                       register_policy, unregister_policy)
+from workers.policies.registry import (
+    EVADER_POLICIES,
+    EVADERS,
+    PURSUER_POLICIES,
+    PURSUERS,
+    dispatch_source,
+    evader_velocity,
+    get_evader_policy,
+    get_pursuer_policy,
+    pursuer_velocity,
+    register_policy,
+    unregister_policy,
+)
 
 TEAMS = [("pursuer", PURSUERS, PURSUER_POLICIES, pursuer_velocity),
          ("evader", EVADERS, EVADER_POLICIES, evader_velocity)]

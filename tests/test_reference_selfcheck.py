@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pytest
 import shapely
-
 from shapely_reference import reference_cells, reference_game, reference_velocities
 
 SQUARE = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])

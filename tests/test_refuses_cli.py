@@ -12,10 +12,9 @@ from types import SimpleNamespace
 import pandas as pd
 import pytest
 import yaml
+from conftest import farm_main
 
 from farm.games.sizes import JobSize, check_size
-
-from conftest import farm_main
 
 REPO = Path(__file__).resolve().parents[1]
 

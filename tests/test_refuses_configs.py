@@ -24,9 +24,9 @@ from pydantic import ValidationError
 from farm.alloc import AllocConfig
 from farm.alloc.training import EvalParams, ServiceParams, TD3Params, TrainConfig, load_train_config
 from farm.core.config import GAME_FIELDS, SETTING_FIELDS, ConfigError, case_from, first_line
-from farm.service.table import TableConfig, load_table_config
 from farm.games.sweep import load_sweep_config
-from farm.games.sweep.config import SweepConfig, VARIABLE_FIELDS
+from farm.games.sweep.config import VARIABLE_FIELDS, SweepConfig
+from farm.service.table import TableConfig, load_table_config
 from workers import SwarmFarmError
 
 

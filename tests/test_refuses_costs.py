@@ -16,11 +16,10 @@ planner would ask is stood in for).
 
 import numpy as np
 import pytest
+from conftest import farm_main, train_tiny_run
 
 from farm.alloc import AllocConfig
 from farm.core.errors import ConfigError
-
-from conftest import farm_main, train_tiny_run
 
 LONG_GAME = ("--t-max", "600", "--evader-speed", "3", "--n-pursuers", "1")  # an evader no pursuer catches
 
@@ -57,9 +56,8 @@ def test_farm_game_refuses_more_frames_than_fit_before_the_game_is_shown(tmp_pat
 
 
 def test_game_frames_refuses_before_any_frame(no_frames):
-    from workers import Case, simulate_case
-
     from farm.core.game_animation import game_frames
+    from workers import Case, simulate_case
 
     case = Case(1, 1, evader_speed=3.0, t_max=600.0)
     p, e = np.array([[[1.0, 1.0]]]), np.array([[[9.0, 9.0]]])
@@ -83,7 +81,7 @@ def test_the_batched_env_refuses_more_episodes_than_memory_holds(tmp_path):
 
 
 def test_the_intruders_batched_env_refuses_more_episodes_than_memory_holds(tmp_path):
-    from farm.alloc.intruder_env import SwarmIntruderVectorEnv
+    from farm.alloc.envs.intruders import SwarmIntruderVectorEnv
 
     with pytest.raises(ConfigError, match=r"^num_envs: 1,000,000,000 episodes of a 3 x 3 grid need about"):
         SwarmIntruderVectorEnv(AllocConfig(grid_size=3, n_defenders=10, n_intruders=5), num_envs=10**9,
@@ -108,26 +106,26 @@ def ray_of(monkeypatch):
 
 
 def test_subregions_refuses_band_actors_a_ray_can_never_start(ray_of):
-    from farm.alloc.policies import make_policy
+    from farm.alloc.allocators import make_allocator
 
     ray_of(2.0)
     cfg = AllocConfig(grid_size=4, n_defenders=10, n_intruders=50)
     with pytest.raises(ConfigError) as e:
-        make_policy("subregions", cfg, None, regions=4, planner="intercept", workers=64)
+        make_allocator("subregions", cfg, None, regions=4, planner="intercept", workers=64)
     assert str(e.value) == ("subregions: workers: 64 starts 4 band actors of one CPU each, which can never all run: "
                             "the Ray this process is connected to has 2 CPUs; set workers <= 2")
     ray_of(2.0, held=1.0)  # inside a task that holds one of them
     with pytest.raises(ConfigError, match="has 2 CPUs and this task holds 1 of them; set workers <= 1"):
-        make_policy("subregions", cfg, None, regions=4, planner="intercept", workers=2)
+        make_allocator("subregions", cfg, None, regions=4, planner="intercept", workers=2)
     ray_of(2.0)
-    make_policy("subregions", cfg, None, regions=2, planner="intercept", workers=64)  # one actor a band: 2 fit
+    make_allocator("subregions", cfg, None, regions=2, planner="intercept", workers=64)  # one actor a band: 2 fit
 
 
 def test_transport_with_a_large_power_sends_every_unit_to_the_heaviest_row():
     """Two intruder rows of masses 3:1 on 16 x 16: power 1 splits the 8 defenders 6:2; power 1000
     gives them all to the heavier row (its weight relative to the heaviest row's is 1), where
     the masses raised to 1000 underflow to 0/0."""
-    from farm.alloc.policies.planners import Intercept, Transport
+    from farm.alloc.allocators.planners import Intercept, Transport
 
     n = 16
     cfg = AllocConfig(grid_size=n, n_defenders=8, n_intruders=1600, max_steps=n, team_sizes="lattice")
@@ -149,13 +147,13 @@ def test_transport_with_a_large_power_sends_every_unit_to_the_heaviest_row():
     ("mmr", {"chunk": 12.5}, "mmr: chunk 12.5 is more than the 10 defenders there are"),
 ])
 def test_a_setting_that_leaves_a_planner_nothing_to_plan_is_refused(tmp_path, name, options, message):
-    from farm.alloc.policies import make_policy
+    from farm.alloc.allocators import make_allocator
     from farm.service import CaptureTimeClient
 
     cfg = AllocConfig(grid_size=3, n_defenders=10, n_intruders=5)
     client = CaptureTimeClient(cfg.game_settings(), local_store=tmp_path / "s.sqlite")
     with pytest.raises(ConfigError) as e:
-        make_policy(name, cfg, client, **options)
+        make_allocator(name, cfg, client, **options)
     assert str(e.value).startswith(message) and "it would act as intercept" in str(e.value)
 
 
@@ -182,7 +180,7 @@ def test_a_pretraining_whose_labels_do_not_fit_is_refused_before_any_episode(tmp
 
 
 def test_farm_eval_refuses_more_episodes_than_its_tables_fit_before_any_episode(tmp_path, monkeypatch):
-    import farm.alloc.evaluation as evaluation
+    import farm.alloc.evaluation.evaluate as evaluation
 
     def refuse(*args, **kwargs):
         raise Labelled()  # an episode was about to be played

@@ -17,11 +17,10 @@ import copy
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import farm_main, train_tiny_run
 
 from farm.alloc import AllocConfig
 from farm.core.errors import ConfigError
-
-from conftest import farm_main, train_tiny_run
 
 ENV = "env: {grid_size: 3, n_defenders: 10, n_intruders: 5, games: 3}\n"
 TD3 = "td3: {n_timesteps: 200, learning_starts: 50}\n"
@@ -102,9 +101,9 @@ def run(tmp_path_factory):
 def test_farm_eval_never_writes_over_an_evaluation_holding_more_policies(run):
     """The run's evaluation of every reference (a table standing in for it), then one of
     intercept alone: refused before any episode, the table as it was."""
-    from farm.alloc.policies import policy_names
+    from farm.alloc.allocators import allocator_names
 
-    table = pd.DataFrame({"policy": ["td3", *policy_names(("baseline", "planner"), references=True)],
+    table = pd.DataFrame({"policy": ["td3", *allocator_names(("baseline", "planner"), references=True)],
                           "return_mean": 0.0})
     table.to_csv(run / "eval_table.csv", index=False)
     before = (run / "eval_table.csv").read_bytes()
@@ -138,9 +137,9 @@ def test_an_empty_value_of_a_flag_is_refused_never_read_as_left_out(tmp_path, mo
 # ----- set_state of a damaged generator state -------------------------------------------------------
 
 def envs(tmp_path):
-    from farm.alloc.env import SwarmAllocationEnv
-    from farm.alloc.intruder_env import SwarmIntruderEnv, SwarmIntruderVectorEnv
-    from farm.alloc.vector_env import SwarmAllocationVectorEnv
+    from farm.alloc.envs.defenders import SwarmAllocationEnv
+    from farm.alloc.envs.intruders import SwarmIntruderEnv, SwarmIntruderVectorEnv
+    from farm.alloc.envs.vector import SwarmAllocationVectorEnv
 
     cfg = AllocConfig(grid_size=3, n_defenders=10, n_intruders=5, games=3)
     store = str(tmp_path / "s.sqlite")

@@ -8,10 +8,11 @@ import json
 import gymnasium
 import numpy as np
 import pytest
+from conftest import farm_main as farm_cli
+from conftest import train_tiny_run
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from conftest import farm_main as farm_cli, train_tiny_run
 from farm.core.errors import ConfigError
 from farm.service import CaptureTimeClient, GameSettings
 from workers import Case, InputError, run_games

@@ -15,8 +15,8 @@ import time
 from contextlib import contextmanager
 
 import pytest
-from hypothesis import HealthCheck, given, settings
 from conftest import immutable
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from farm.core.errors import ConfigError, StoreCorruptError
@@ -381,8 +381,9 @@ def test_get_service_refuses_in_the_driver_before_any_actor(ray_local, tmp_path)
 def test_an_actor_dying_of_a_project_error_raises_its_line(ray_local, tmp_path, monkeypatch):
     """Where the driver cannot check the store (it runs on another node), the actor's death
     raises the project error it died of, not Ray's wrapper."""
-    import farm.service.actor as actor
     import ray
+
+    import farm.service.actor as actor
 
     monkeypatch.setattr(actor, "_driver_sees_the_store", lambda: False)
     bad = damaged_file(tmp_path / "bad.sqlite")

@@ -31,7 +31,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from farm.alloc import AllocConfig, SwarmAllocationEnv
-from farm.alloc.policies.learned import load_model
+from farm.alloc.allocators.learned import load_model
 from farm.alloc.training import DivergenceGuard, TrainConfig, train
 from farm.core.errors import ActionError, ModelError, TrainingDiverged
 from workers import InputError

@@ -20,8 +20,20 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from workers import (CoarseStepWarning, Case, GameResults, InitialLaw, InputError, SwarmFarmError, make_arena,
-                     run_case, run_games, sample_initial_positions, simulate_case, simulate_games)
+from workers import (
+    Case,
+    CoarseStepWarning,
+    GameResults,
+    InitialLaw,
+    InputError,
+    SwarmFarmError,
+    make_arena,
+    run_case,
+    run_games,
+    sample_initial_positions,
+    simulate_case,
+    simulate_games,
+)
 from workers.errors import exact, shown
 
 P1 = np.array([[[4.0, 5.0]]])  # one pursuer, one game
@@ -221,7 +233,7 @@ def test_a_coarse_step_warns_once_naming_the_ratio():
 def test_the_paper_and_allocation_settings_do_not_warn():
     """The paper's defaults (dt 0.01, r_c 0.25, speeds 1), the allocation env's v2 games and a
     step of exactly one capture radius give no CoarseStepWarning."""
-    from farm.alloc.config import AllocConfig
+    from farm.alloc.game.config import AllocConfig
 
     for case in (Case(2, 1, t_max=0.05), replace(AllocConfig().game(), t_max=0.05), Case(2, 1, dt=0.25, t_max=0.5)):
         caught, _ = _warnings_of(lambda case=case: run_games(case, 0, 0, 1))

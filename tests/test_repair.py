@@ -1,4 +1,4 @@
-"""The level repair of learned allocators (farm.alloc.policies.repair): hand-made states whose
+"""The level repair of learned allocators (farm.alloc.allocators.repair): hand-made states whose
 repaired games are worked out by hand, the invariants on random actions (every cell keeps its
 mass, no target's game shrinks, no count rises by more than the tolerance), receding_horizon's
 actions left as they are, and the settings that choose it."""
@@ -7,22 +7,21 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from conftest import farm_main
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from farm.alloc import AllocConfig
-from farm.alloc.dynamics import Layout, move_probabilities
-from farm.alloc.model import advance_intruders, team_sizes
-from farm.alloc.policies import make_policy
-from farm.alloc.policies.planners import action_from_probabilities
-from farm.alloc.policies.repair import REL, TOL, LevelRepair, Repaired, RepairedActions
-from farm.alloc.scenarios import SCENARIOS
-from farm.alloc.training import TrainConfig
-from farm.core.errors import ConfigError
-
-from conftest import farm_main
 from test_learners import assert_refused_in_one_line, client, config, store  # noqa: F401 (fixtures)
 from test_planners import curve_client
+
+from farm.alloc import AllocConfig
+from farm.alloc.allocators import make_allocator
+from farm.alloc.allocators.planners import action_from_probabilities
+from farm.alloc.allocators.repair import REL, TOL, LevelRepair, Repaired, RepairedActions
+from farm.alloc.game.dynamics import Layout, move_probabilities
+from farm.alloc.game.model import advance_intruders, team_sizes
+from farm.alloc.game.scenarios import SCENARIOS
+from farm.alloc.training import TrainConfig
+from farm.core.errors import ConfigError
 
 PAPER = AllocConfig(grid_size=3, n_defenders=100, n_intruders=50, c_capture=1.5, team_sizes="lattice")
 FEW = AllocConfig(grid_size=3, n_defenders=4, n_intruders=100, c_capture=1.5, team_sizes="lattice")
@@ -191,7 +190,7 @@ def test_the_repair_equals_its_plain_loop_over_every_target():
 
 def test_receding_horizons_actions_play_the_same_games_repaired():
     curves = curve_client(PAPER)
-    planner = make_policy("receding_horizon", PAPER, curves)
+    planner = make_allocator("receding_horizon", PAPER, curves)
     repair = LevelRepair(PAPER)
     rng = np.random.default_rng(5)
     for _ in range(6):
@@ -217,11 +216,11 @@ def test_a_runs_repair_setting_makes_its_allocator_repaired(tmp_path):
     obs = base_state(PAPER, [0.35, 0.2, 0.45])
     network = Fixed(action_sending(PAPER, obs, {1: 0.273, 7: 0.6, 3: 0.127}))
     (tmp_path / "config.yaml").write_text(yaml.safe_dump({"name": "x", "algo": "ppo", "repair": "levels"}))
-    allocator = make_policy("ppo", PAPER, None, policy=network, run=str(tmp_path))
+    allocator = make_allocator("ppo", PAPER, None, policy=network, run=str(tmp_path))
     assert isinstance(allocator, Repaired) and realised(PAPER, obs, allocator.predict(obs)[0])[2][1] == 32
-    assert make_policy("ppo", PAPER, None, policy=network, run=str(tmp_path), repair="none") is network
+    assert make_allocator("ppo", PAPER, None, policy=network, run=str(tmp_path), repair="none") is network
     (tmp_path / "config.yaml").write_text(yaml.safe_dump({"name": "x", "algo": "ppo"}))  # a run from before it
-    assert make_policy("ppo", PAPER, None, policy=network, run=str(tmp_path)) is network
+    assert make_allocator("ppo", PAPER, None, policy=network, run=str(tmp_path)) is network
 
 
 def test_the_evaluation_env_of_a_repaired_run_plays_the_repaired_action():
@@ -243,7 +242,7 @@ def test_the_evaluation_env_of_a_repaired_run_plays_the_repaired_action():
 
 def test_bad_repair_settings_are_one_line(tmp_path):
     with pytest.raises(ConfigError, match=r"^repair: must be one of none, levels, got 'round'$"):
-        make_policy("ppo", PAPER, None, policy=Fixed(None), repair="round")
+        make_allocator("ppo", PAPER, None, policy=Fixed(None), repair="round")
     with pytest.raises(Exception, match="repair"):
         TrainConfig(name="x", algo="ppo", repair="round")
     assert_refused_in_one_line(tmp_path, {"name": "x", "algo": "ppo", "repair": "round"}, "repair")
@@ -262,10 +261,10 @@ def test_a_repaired_run_evaluates_repaired_and_acts_repaired(store, client, tmp_
     assert isinstance(eval_monitor.env, RepairedActions)
     train(config(store, "ppo", n_envs=4, repair="levels", ppo={"n_timesteps": 128, "n_steps": 32, "batch_size": 32,
                                                                "n_epochs": 1}), tmp_path / "run", show_progress=False)
-    assert isinstance(make_policy("ppo", cfg.env, None, run=str(tmp_path / "run")), Repaired)
+    assert isinstance(make_allocator("ppo", cfg.env, None, run=str(tmp_path / "run")), Repaired)
     # farm eval acts as the run says, or as --repair says: the network alone is its own episodes
-    from farm.alloc.evaluation import evaluate_run
-    from farm.alloc.rollout import play
+    from farm.alloc.evaluation.evaluate import evaluate_run
+    from farm.alloc.evaluation.rollout import play
 
     def learned_return(table):
         return float(table.loc[table["policy"] == "ppo", "return_mean"].iloc[0])
@@ -281,7 +280,7 @@ def test_a_repaired_run_evaluates_repaired_and_acts_repaired(store, client, tmp_
     assert kept_return == pytest.approx(learned_return(as_run.table))
     assert (alone.folder / "eval_table.csv").is_file()
     for repair, result in (("levels", repaired_eval), ("none", alone)):
-        policy = make_policy("ppo", cfg.env, None, run=str(tmp_path / "run"), repair=repair)
+        policy = make_allocator("ppo", cfg.env, None, run=str(tmp_path / "run"), repair=repair)
         episodes = play(cfg.env, policy, client, 2, 1000)
         assert learned_return(result.table) == pytest.approx(np.mean([e.summary["return"] for e in episodes]),
                                                              abs=1e-12)

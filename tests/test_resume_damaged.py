@@ -1,4 +1,4 @@
-"""`--resume` from a damaged checkpoint (farm.alloc.training.train, farm.alloc.runs:
+"""`--resume` from a damaged checkpoint (farm.alloc.training.train, farm.alloc.training.runs:
 whole_checkpoints, move_damaged): a newest checkpoint whose model zip is cut short or has a bad
 CRC, whose replay buffer is garbage or whose RunState is cut short is moved to
 checkpoints/damaged/, said in one line, and the run goes on from the checkpoint before it,
@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import farm_main, train_tiny_run
 from test_train_resume import TIMINGS, assert_same_model
 
@@ -87,7 +86,7 @@ def assert_same_run(a: Path, b: Path, *also_left_out: str) -> None:
 @pytest.mark.parametrize("damage", DAMAGES)
 def test_a_damaged_last_checkpoint_is_moved_aside_and_the_run_goes_on_from_the_one_before(reference, tmp_path,
                                                                                           damage):
-    from farm.alloc.runs import checkpoint_files
+    from farm.alloc.training.runs import checkpoint_files
 
     which, how, error = DAMAGES[damage]
     run = copy_of(reference, tmp_path)
@@ -108,7 +107,7 @@ def test_a_damaged_last_checkpoint_is_moved_aside_and_the_run_goes_on_from_the_o
 
 
 def test_every_checkpoint_damaged_is_one_line_through_the_cli(reference, tmp_path):
-    from farm.alloc.runs import checkpoint_files
+    from farm.alloc.training.runs import checkpoint_files
 
     run = copy_of(reference, tmp_path)
     for steps in (40, BEFORE, LAST):
@@ -148,7 +147,7 @@ def test_a_damaged_pretraining_iteration_goes_on_from_the_one_before(reference, 
 
 
 def test_whole_checkpoints_are_newest_first_and_latest_checkpoint_is_the_first(tmp_path):
-    from farm.alloc.runs import checkpoint_files, latest_checkpoint, move_damaged, whole_checkpoints
+    from farm.alloc.training.runs import checkpoint_files, latest_checkpoint, move_damaged, whole_checkpoints
 
     assert whole_checkpoints(tmp_path) == [] and latest_checkpoint(tmp_path) is None
     for steps, files in ((100, 3), (300, 3), (200, 3), (400, 2)):  # 400: stopped before its state was written

@@ -19,9 +19,9 @@ import yaml
 from conftest import cmdline, holder, kill_session, ray_workers, signal_all, wait_for
 from pydantic import ValidationError
 
+from farm.alloc.allocators import make_allocator
+from farm.alloc.evaluation.rollout import play
 from farm.alloc.intruders.search import exact_response
-from farm.alloc.policies import make_policy
-from farm.alloc.rollout import play
 from farm.core.config import first_line
 from farm.core.matrix_game import solve
 from farm.service.client import CaptureTimeClient
@@ -112,7 +112,7 @@ def test_the_library_oracles_loop_and_its_resumed_rerun(ray_local, tmp_path):
             if w > 0:
                 key = json.dumps(a.key(), sort_keys=True)
                 if key not in searched:
-                    policy = make_policy(a.name, env, client, **a.options)
+                    policy = make_allocator(a.name, env, client, **a.options)
                     searched[key] = np.array([exact_response(env, policy, client, p.seed + k).summary["eliminated"]
                                                   for k in range(p.episodes)])
                     for b in it.intruders:  # episode by episode, no intruder policy below the search
@@ -195,7 +195,7 @@ def test_the_search_oracles_loop_answers_each_mixture_with_intruders_modelling_i
         searcher = env.model_copy(update={"intruders": "search", "intruder_options": response.options})
         worth = 0.0
         for a, w in support:
-            here = play(searcher, make_policy(a.name, env, client, **a.options), client, p.episodes, p.seed)
+            here = play(searcher, make_allocator(a.name, env, client, **a.options), client, p.episodes, p.seed)
             stored = store.get(payoff_key(env, a, response, p.episodes, p.seed))["eliminated"]
             np.testing.assert_array_equal(stored, [e.summary["eliminated"] for e in here])
             worth += w * np.mean(stored)
@@ -227,7 +227,7 @@ def test_a_response_the_population_holds_already_whatever_its_label_joins_it_onc
 
 
 def test_the_exact_valuation_is_only_on_maps_whose_search_tree_fits_and_of_deterministic_allocators():
-    from farm.alloc.scenarios import SCENARIOS
+    from farm.alloc.game.scenarios import SCENARIOS
     from farm.studies.robust.members import member_of
 
     assert searchable(SCENARIOS["outnumbered_3x3"].config(), 20, 2000)

@@ -8,8 +8,11 @@ in a store under tmp_path."""
 import numpy as np
 import pytest
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.dynamics import (
+from farm.alloc.allocators import make_allocator, register_allocator, unregister_allocator
+from farm.alloc.envs.defenders import SwarmAllocationEnv
+from farm.alloc.evaluation.rollout import play
+from farm.alloc.game.config import AllocConfig
+from farm.alloc.game.dynamics import (
     Layout,
     check_actions,
     episode_end,
@@ -19,13 +22,10 @@ from farm.alloc.dynamics import (
     resolve,
     start_densities,
 )
-from farm.alloc.env import SwarmAllocationEnv
+from farm.alloc.game.lattice import memo_client
+from farm.alloc.game.model import EngagementModel
 from farm.alloc.intruders import make_intruders
 from farm.alloc.intruders.search import cell_options, episode_start, exact_response
-from farm.alloc.lattice import memo_client
-from farm.alloc.model import EngagementModel
-from farm.alloc.policies import make_policy, register_policy, unregister_policy
-from farm.alloc.rollout import play
 from farm.core.config import first_line
 from farm.core.errors import ConfigError
 
@@ -48,7 +48,7 @@ class FirstThen:
     moves as `first` at an episode's first step, so the intruders cannot tell the two apart there."""
 
     def __init__(self, config, client, first="intercept", then="spread_evenly"):
-        self.first, self.then = make_policy(first, config, client), make_policy(then, config, client)
+        self.first, self.then = make_allocator(first, config, client), make_allocator(then, config, client)
         D0, _ = start_densities(Layout(config.grid_size), np.ones((1, config.grid_size)) / config.grid_size)
         self.start = D0[0].astype(np.float32)
 
@@ -59,9 +59,9 @@ class FirstThen:
 
 @pytest.fixture(scope="module", autouse=True)
 def first_then():
-    register_policy("first_then", FirstThen, kind="baseline", reference=False)
+    register_allocator("first_then", FirstThen, kind="baseline", reference=False)
     yield
-    unregister_policy("first_then")
+    unregister_allocator("first_then")
 
 
 def searching(models, weights=None, objective="eliminated"):
@@ -72,7 +72,7 @@ def searching(models, weights=None, objective="eliminated"):
 
 def played(config, allocator, client, measure="eliminated"):
     """(EPISODES,) float64: the allocator's measure in config's episodes SEED, SEED + 1, ..."""
-    policy = make_policy(allocator["policy"], config, client, **allocator.get("options", {}))
+    policy = make_allocator(allocator["policy"], config, client, **allocator.get("options", {}))
     return np.array([e.summary[measure] for e in play(config, policy, client, EPISODES, SEED)])
 
 
@@ -128,7 +128,7 @@ def test_modelling_one_allocator_they_play_the_exact_searchs_routings(client, ob
     for allocator in ("intercept", "spread_evenly"):
         config = searching([{"policy": allocator}], objective=objective)
         got = played(config, {"policy": allocator}, client, objective)
-        policy = make_policy(allocator, SMALL, client)
+        policy = make_allocator(allocator, SMALL, client)
         want = [exact_response(SMALL, policy, client, SEED + k, objective=objective).summary[objective]
                 for k in range(EPISODES)]
         np.testing.assert_array_equal(got, want)
@@ -140,7 +140,7 @@ def test_against_a_mixture_they_are_worth_a_plain_enumerations_value(client, the
     weights = np.array([0.3, 0.7])
     config = searching(members, weights.tolist())
     got = np.array([played(config, m, client) for m in members])  # (members, episodes)
-    policies = [make_policy(m["policy"], SMALL, client) for m in members]
+    policies = [make_allocator(m["policy"], SMALL, client) for m in members]
     for k in range(EPISODES):
         D, I = episode_start(SMALL, SEED + k)
         by_hand = value_by_hand(SMALL, client, list(zip(policies, weights)), D, I, 0)
@@ -168,7 +168,7 @@ def test_in_a_mixture_of_intruders_in_the_env_and_resumed_they_play_the_same(cli
         "members": [{"intruders": "search", "options": {"allocators": members, "weights": [0.1, 0.9]}}],
         "draw": "episode"}})
     np.testing.assert_array_equal(played(mixed, {"policy": "intercept"}, client), want)
-    policy = make_policy("intercept", SMALL, client)
+    policy = make_allocator("intercept", SMALL, client)
     for k in range(2):
         env = SwarmAllocationEnv(config, client=client)
         obs, _ = env.reset(seed=SEED + k)

@@ -4,7 +4,7 @@
   other maps with the same weights; `farm eval RUN --scenario NAME` evaluates it there.
 - The moves off the map are masked: no score of one reaches the action.
 - A policy whose size is its map's (an MLP) is refused on another map in one line.
-- The live engagements' coarse tasks (farm.alloc.fidelity.pack_games).
+- The live engagements' coarse tasks (farm.alloc.evaluation.fidelity.pack_games).
 """
 
 import contextlib
@@ -16,13 +16,12 @@ import pandas as pd
 import pytest
 import torch
 import yaml
-
-from farm.alloc.dynamics import moves, n_actions
-from farm.alloc.fidelity import pack_games
-from farm.alloc.scenarios import SCENARIOS
-from farm.alloc.training import load_train_config, train
-
 from conftest import farm_main
+
+from farm.alloc.evaluation.fidelity import pack_games
+from farm.alloc.game.dynamics import moves, n_actions
+from farm.alloc.game.scenarios import SCENARIOS
+from farm.alloc.training import load_train_config, train
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -46,9 +45,9 @@ def run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_a_model_trained_on_one_map_acts_on_others_with_the_same_weights(run):
-    from farm.alloc.policies import make_policy
-    from farm.alloc.policies.learned import load_model
-    from farm.alloc.training.cell_policy import resized
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.allocators.learned import load_model
+    from farm.alloc.networks.cell_policy import resized
 
     trained = load_model(run, "ppo").policy
     assert trained.grid == 8 and trained.teams == (6, 400)
@@ -57,7 +56,7 @@ def test_a_model_trained_on_one_map_acts_on_others_with_the_same_weights(run):
     rng = np.random.default_rng(0)
     for name in ("theatre_16x16", "theatre_32x32", "paper_3x3_c1_0"):
         config = SCENARIOS[name].config()
-        policy = make_policy("ppo", config, None, run=run)  # the registry's learned allocator, on that map
+        policy = make_allocator("ppo", config, None, run=run)  # the registry's learned allocator, on that map
         n = config.grid_size
         assert policy.grid == n and policy.teams == (config.n_defenders, config.n_intruders)
         same = {k: v for k, v in trained.state_dict().items() if k != "log_std"}
@@ -74,8 +73,8 @@ def test_a_model_trained_on_one_map_acts_on_others_with_the_same_weights(run):
 
 @pytest.mark.slow
 def test_the_moves_off_the_map_are_never_in_the_action(run):
-    from farm.alloc.policies.learned import load_model
-    from farm.alloc.training.cell_policy import resized
+    from farm.alloc.allocators.learned import load_model
+    from farm.alloc.networks.cell_policy import resized
 
     policy = resized(load_model(run, "ppo").policy, SCENARIOS["theatre_16x16"].config())
     net, n = policy.mlp_extractor, 16
@@ -138,9 +137,10 @@ def test_games_are_packed_into_tasks_of_about_the_target(costs, target):
 
 @pytest.mark.slow
 def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_path, monkeypatch):
+    from test_learners import Stop, assert_same
+
     from farm.alloc.training.dagger import loop as pretrain_module
     from farm.alloc.training.dagger.iterations import read_iteration
-    from test_learners import Stop, assert_same
 
     raw = yaml.safe_load((REPO / "configs" / "train" / "tiny_size_free.yaml").read_text())
     raw["service"]["store"] = str(tmp_path / "s.sqlite")
@@ -185,7 +185,7 @@ def test_a_curriculum_needs_a_policy_that_fits_any_map(tmp_path):
 
 
 def test_a_small_step_is_split_over_the_cpus_and_a_large_one_in_half_second_tasks():
-    from farm.alloc.fidelity import MIN_TASK_SECONDS, TASK_SECONDS, TASKS_PER_CPU, task_seconds
+    from farm.alloc.evaluation.fidelity import MIN_TASK_SECONDS, TASK_SECONDS, TASKS_PER_CPU, task_seconds
 
     assert task_seconds(100.0, 2) == TASK_SECONDS
     assert task_seconds(0.8, 2) == pytest.approx(0.8 / (TASKS_PER_CPU * 2))  # TASKS_PER_CPU tasks a CPU
@@ -195,8 +195,8 @@ def test_a_small_step_is_split_over_the_cpus_and_a_large_one_in_half_second_task
 def test_under_the_games_fidelity_every_engagement_is_a_game_of_its_own(tmp_path):
     """A step with more engagements than the model deduplicates from (70 of one team-size pair)
     plays 70 games, the case's next fresh ones in order, not one game for all 70."""
-    from farm.alloc.fidelity import FreshGames
-    from farm.alloc.model import EngagementModel
+    from farm.alloc.evaluation.fidelity import FreshGames
+    from farm.alloc.game.model import EngagementModel
     from farm.service import CaptureTimeClient
     from workers import run_games
 
@@ -217,13 +217,13 @@ def test_the_games_fidelity_shows_its_steps_and_games_per_second(tmp_path, capsy
     """evaluate_fidelity's bar counts the policies' steps (max_steps each, the steps of episodes
     that ended early included at a policy's end) and shows the games played and their games/s,
     the same count as the returned live summary's."""
-    from farm.alloc.fidelity import evaluate_fidelity
-    from farm.alloc.policies import make_policy
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.evaluation.fidelity import evaluate_fidelity
     from farm.service import CaptureTimeClient
 
     config = SCENARIOS["outnumbered_3x3"].config(games=2, max_steps=4)
     client = CaptureTimeClient(config.game_settings(), local_store=tmp_path / "s.sqlite")
-    policies = {p: make_policy(p, config, client) for p in ("intercept", "spread_evenly")}
+    policies = {p: make_allocator(p, config, client) for p in ("intercept", "spread_evenly")}
     _, differences, live = evaluate_fidelity(config, policies, client, 2, 1000, in_process=True)
     last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
     assert last.startswith("live engagements: 100%") and "8/8" in last, last
@@ -240,7 +240,7 @@ def test_lateral_summaries_tell_left_from_right_in_a_row_beyond_the_convolutions
     reach are beyond the edges' reach (the convolutions are translation-equivariant there):
     without `lateral` they reach its features only through the row's maximum, the same
     features to the bit; with it through the left and right maxima too, and differently."""
-    from farm.alloc.training.cell_policy import CellNet
+    from farm.alloc.networks.cell_policy import CellNet
 
     n = 24
 
@@ -259,7 +259,7 @@ def test_lateral_summaries_tell_left_from_right_in_a_row_beyond_the_convolutions
 def test_a_lateral_policy_keeps_its_weights_and_option_on_another_map():
     import gymnasium as gym
 
-    from farm.alloc.training.cell_policy import CellPolicy, resized
+    from farm.alloc.networks.cell_policy import CellPolicy, resized
 
     n = 4
     policy = CellPolicy(gym.spaces.Box(0.0, 1.0, (2 * n * n,), np.float32),
@@ -278,7 +278,7 @@ def test_balance_shares_equal_a_cell_by_cell_count_of_the_rows_above_and_below()
     """`balance`'s inputs against the plain definition, cell by cell: the defenders' share in
     the rows above the cell's and below it, and the intruders' share of the intruder mass left
     on the map there; the same on every cell of a row; 0 where nothing is left."""
-    from farm.alloc.training.cell_policy import balance_shares
+    from farm.alloc.networks.cell_policy import balance_shares
 
     rng = np.random.default_rng(5)
     n, B = 7, 3
@@ -302,7 +302,7 @@ def test_a_balance_policy_keeps_its_option_and_weights_on_another_map():
     the policy acts on the other map."""
     import gymnasium as gym
 
-    from farm.alloc.training.cell_policy import CellPolicy, resized
+    from farm.alloc.networks.cell_policy import CellPolicy, resized
 
     policy = CellPolicy(gym.spaces.Box(0.0, 1.0, (2 * 4 * 4,), np.float32),
                         gym.spaces.Box(-1.0, 1.0, (n_actions(4),), np.float32), lambda _: 1e-3, channels=8, layers=2,

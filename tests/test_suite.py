@@ -14,17 +14,16 @@ import gymnasium
 import numpy as np
 import pandas as pd
 import pytest
-from pydantic import ValidationError
 import yaml
+from pydantic import ValidationError
+from test_refuses_cli import farm, one_line_error  # the command line's one-line refusals, checked alike
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
-from farm.alloc.scenarios import PAPER_SCENARIOS, SCENARIOS, THEATRES
-from farm.alloc.policies import policy_names
-from farm.studies.suite import (MEASURES, SuiteConfig, available_policies, evaluate_matchup, load_suite_config,
-                              run_suite)
+from farm.alloc.allocators import allocator_names
+from farm.alloc.game.scenarios import PAPER_SCENARIOS, SCENARIOS, THEATRES
 from farm.alloc.training import TrainConfig, load_train_config
 from farm.core.config import ConfigError
-from test_refuses_cli import farm, one_line_error  # the command line's one-line refusals, checked alike
+from farm.studies.suite import MEASURES, SuiteConfig, available_policies, evaluate_matchup, load_suite_config, run_suite
 
 ROOT = Path(__file__).resolve().parent.parent
 DEMO_GAMES = 8  # games per case in the tests' demo suite (the demo's own: the service's 64)
@@ -125,8 +124,8 @@ def test_planner_options_are_checked_by_name_and_by_value_before_ray(tmp_path):
 def test_the_shipped_suites_name_every_scenario_and_default_to_every_policy():
     suite = load_suite_config(ROOT / "configs" / "suite.yaml")
     assert suite.scenario_names() == list(SCENARIOS) and suite.policies is None
-    references = policy_names(("baseline", "planner"), references=True)
-    assert suite.policy_names() == references
+    references = allocator_names(("baseline", "planner"), references=True)
+    assert suite.allocator_names() == references
     assert set(references) < set(available_policies())  # subregions: listed, not by default
     assert suite.runs == {name: "results/runs/size_free_transport" if name in THEATRES else f"results/runs/suite_{name}"
                           for name in SCENARIOS} and suite.skip_missing_runs
@@ -208,7 +207,7 @@ def demo(ray_local, tmp_path_factory):
 def test_the_demo_suite_writes_the_leaderboard_episodes_plot_and_config(demo):
     out, store, r = demo
     assert store.exists()  # the cold store the CLI filled
-    policies = policy_names(("baseline", "planner"), references=True)
+    policies = allocator_names(("baseline", "planner"), references=True)
     scenarios = ["paper_3x3_c1_1.5", "outnumbered_3x3"]
     board = pd.read_csv(out / "leaderboard.csv")
     assert list(board.columns) == BOARD_COLUMNS
@@ -271,7 +270,7 @@ def test_a_rerun_gives_the_same_numbers(demo, tmp_path, monkeypatch):
         update={"store": str(store), "scenarios": ["outnumbered_3x3"], "env": {"games": DEMO_GAMES}})
     monkeypatch.setattr("farm.studies.suite.run.TASK_COST", 1)
     _, info = run_suite(config, tmp_path / "again", episodes=2, show_progress=False)
-    assert info["tasks"] == 2 * info["cells"] == 2 * len(config.policy_names())
+    assert info["tasks"] == 2 * info["cells"] == 2 * len(config.allocator_names())
 
     def rows(folder, name, timed):
         df = pd.read_csv(folder / name)
@@ -293,7 +292,7 @@ def _untrained_run(run_dir: Path, scenario: str) -> Path:
     """A run folder holding an untrained TD3 model of a scenario's env (its config.yaml names the scenario)."""
     from stable_baselines3 import TD3
 
-    from farm.alloc.env import SwarmAllocationEnv
+    from farm.alloc.envs.defenders import SwarmAllocationEnv
 
     config = TrainConfig(name="untrained", scenario=scenario)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -350,13 +349,13 @@ def test_a_cold_store_without_warming_cannot_deadlock_on_two_cpus(ray_local, dem
 
 
 def test_evaluate_matchup_in_process_times_predict_and_records_the_start(tmp_path):
-    from farm.alloc.policies import PolicySpec, policy_entry
+    from farm.alloc.allocators import Spec, allocator_entry
     from farm.service.client import CaptureTimeClient
 
     config = SCENARIOS["paper_3x3_c1_0"].config(games=2)
     client = CaptureTimeClient(config.game_settings(), local_store=tmp_path / "s.sqlite")
     try:
-        rows = evaluate_matchup(config, PolicySpec(policy_entry("stay_at_base")), client, 2, 5)
+        rows = evaluate_matchup(config, Spec(allocator_entry("stay_at_base")), client, 2, 5)
     finally:
         client.close()
     assert [r["seed"] for r in rows] == [5, 6]
@@ -366,8 +365,8 @@ def test_evaluate_matchup_in_process_times_predict_and_records_the_start(tmp_pat
 
 
 def test_the_report_takes_a_bare_leaderboard_and_refuses_a_damaged_one(tmp_path):
-    from farm.report import build_report
     from farm.core.errors import ReportError
+    from farm.report import build_report
 
     board = pd.DataFrame([{"scenario": "s", "policy": "p", "episodes": 1,
                            **{f"{m}_{k}": (0.5 if k == "mean" else np.nan) for m in MEASURES for k in ("mean", "ci95")},

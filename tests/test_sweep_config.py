@@ -140,7 +140,7 @@ def test_nan_target_is_rejected_before_anything_runs(tmp_path):
 
 
 def test_point_numbers_do_not_depend_on_their_place(tmp_path):
-    from farm.games.sweep import run_sweep, SweepRun
+    from farm.games.sweep import SweepRun, run_sweep
 
     common = "name: t\ngames_per_point: 3\nbase: {n_evaders: 1, t_max: 10}\n"
     a = load_sweep_config(write(tmp_path, common + "vary: {grid: {n_pursuers: [2, 3]}}\n"))
@@ -185,7 +185,8 @@ def test_exit_point_and_speeds_can_be_set_and_varied(tmp_path):
 def test_default_shard_size_follows_the_engines_cost_model():
     """About half a second of work per shard by the engine's cost model: more games of
     cheap cases, fewer of dear ones (more agents, cells, slower pursuers, longer t_max)."""
-    from farm.games.shards import SHARD_SECONDS, games_per_shard as default_shard_games
+    from farm.games.shards import SHARD_SECONDS
+    from farm.games.shards import games_per_shard as default_shard_games
     from workers import Case
     from workers.engine import estimated_game_seconds
 

@@ -8,14 +8,13 @@ import threading
 import time
 import urllib.request
 
+import numpy as np
 import pandas as pd
 import pytest
 from conftest import cmdline, descendants, write_sweep
 
-import numpy as np
-
-from farm.runtime.metrics import EXPORTED
 from farm.games.sweep import SweepRun, load_sweep_config, run_sweep
+from farm.runtime.metrics import EXPORTED
 
 pytestmark = pytest.mark.ray
 
@@ -129,9 +128,9 @@ def test_one_seeding_every_path_plays_the_same_games(ray_local, tmp_path):
     in process): the same capture and escape times, bit for bit."""
     import ray
 
-    from farm.alloc.fidelity import FreshGames
-    from farm.service import CaptureTimeClient, GameSettings, get_service
+    from farm.alloc.evaluation.fidelity import FreshGames
     from farm.games.tasks import _remote_shard
+    from farm.service import CaptureTimeClient, GameSettings, get_service
     from workers import CaptureStats, run_case, run_games
 
     settings = GameSettings.of(games=8, seed=5, t_max=20.0, tau=8.0, pursuer_policy="pure_pursuit",

@@ -104,8 +104,8 @@ def assert_same_run(a: Path, b: Path) -> None:
 def test_a_run_stopped_after_a_checkpoint_and_resumed_equals_an_uninterrupted_one(reference, tmp_path):
     """Stopped at step 260: after the checkpoint of step 210 (past learning_starts, so the
     update's random draws matter) and the evaluation of step 250, which the resumed run redoes."""
-    from farm.alloc.runs import checkpoint_files, latest_checkpoint
     from farm.alloc.training import train
+    from farm.alloc.training.runs import checkpoint_files, latest_checkpoint
 
     uninterrupted, config = reference
     run = tmp_path / "run"
@@ -116,7 +116,7 @@ def test_a_run_stopped_after_a_checkpoint_and_resumed_equals_an_uninterrupted_on
     metrics = train(config, run, resume=True, show_progress=False)
     assert metrics["resumed_from"] == 210 and metrics["timesteps"] == STEPS
     assert_same_run(uninterrupted, run)
-    from farm.alloc.runs import STATE_MAGIC
+    from farm.alloc.training.runs import STATE_MAGIC
     from farm.core.sealed import unseal
 
     earlier = pickle.loads(unseal(checkpoint_files(run, 210)[2].read_bytes(), STATE_MAGIC)[1])  # the timings go on
@@ -140,7 +140,7 @@ def test_a_shorter_run_resumed_to_the_full_length_equals_an_uninterrupted_one(re
 
 def test_latest_checkpoint_is_the_last_whole_one(tmp_path):
     """A checkpoint counts once its RunState file (written last) is there."""
-    from farm.alloc.runs import checkpoint_files, latest_checkpoint
+    from farm.alloc.training.runs import checkpoint_files, latest_checkpoint
 
     assert latest_checkpoint(tmp_path) is None
     for steps, files in ((100, 3), (200, 3), (300, 2)):  # 300: stopped before its state was written
@@ -156,7 +156,7 @@ def test_latest_checkpoint_is_the_last_whole_one(tmp_path):
 def test_the_env_goes_on_from_its_state(reference):
     """get_state mid-episode, set_state in another env: the same steps and the same next
     episode's start; a state of another grid is refused in one line."""
-    from farm.alloc.env import SwarmAllocationEnv
+    from farm.alloc.envs.defenders import SwarmAllocationEnv
 
     _, config = reference  # its store holds the lattice's cases
     rng = np.random.default_rng(3)

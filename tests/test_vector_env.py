@@ -1,5 +1,5 @@
-"""The batched allocation env (farm.alloc.vector_env) and its stable-baselines3 adapter
-(farm.alloc.sb3_vec): bit for bit the single env's episodes, one lookup a step, gymnasium's
+"""The batched allocation env (farm.alloc.envs.vector) and its stable-baselines3 adapter
+(farm.alloc.envs.sb3_vec): bit for bit the single env's episodes, one lookup a step, gymnasium's
 SAME_STEP autoreset, exact save and restore, SB3's conventions. No Ray: an in-process client."""
 
 import pickle
@@ -12,10 +12,10 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 import farm.alloc  # noqa: F401  (registers the ids)
 from farm.alloc import SCENARIOS, AllocConfig, SwarmAllocationEnv
-from farm.alloc.lattice import lattice_pairs
-from farm.alloc.model import row_sums, segment_sums
-from farm.alloc.sb3_vec import SB3VecEnv, make_vec_env
-from farm.alloc.vector_env import INFO_KEYS, SwarmAllocationVectorEnv
+from farm.alloc.envs.sb3_vec import SB3VecEnv, make_vec_env
+from farm.alloc.envs.vector import INFO_KEYS, SwarmAllocationVectorEnv
+from farm.alloc.game.lattice import lattice_pairs
+from farm.alloc.game.model import row_sums, segment_sums
 from farm.core.errors import ActionError, ConfigError
 from farm.service import CaptureTimeClient
 

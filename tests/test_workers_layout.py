@@ -4,7 +4,6 @@
 import ast
 from pathlib import Path
 
-
 import workers
 from workers.compiled import _kernel_sources
 

@@ -38,9 +38,7 @@ INCLUDED = {
 def config_pages():
     """The config reference's pages: (page name, title, what it is, root models, example file).
     Nested models are documented on the first page that reaches them."""
-    from workers import Case, InitialLaw
-
-    from farm.alloc.config import AllocConfig
+    from farm.alloc.game.config import AllocConfig
     from farm.alloc.training.config import TrainConfig
     from farm.games.sweep.config import SweepConfig
     from farm.service.table import TableConfig
@@ -48,6 +46,7 @@ def config_pages():
     from farm.studies.exploit.config import ExploitConfig
     from farm.studies.robust.config import RobustConfig
     from farm.studies.suite.config import SuiteConfig
+    from workers import Case, InitialLaw
 
     return [
         ("game", "Game settings", "A pursuit-evasion game's parameters (`workers.Case`): the settings a sweep's "

@@ -18,9 +18,9 @@ from workers.errors import CoarseStepWarning, InputError, SwarmFarmError
 from workers.version import ENGINE_VERSION
 
 with kernel_cache():  # every compiled kernel is defined in these modules
+    from workers.engine import GameResults, simulate_games
     from workers.geometry import Cells, voronoi_cells
     from workers.policies import EVADER_POLICIES, PURSUER_POLICIES
-    from workers.engine import GameResults, simulate_games
 
 from workers.case import GAME_FIELDS, PAPER_LAW, Case, InitialLaw, case_defaults  # noqa: E402
 from workers.montecarlo import SEEDING, run_case, run_games, sample_initial_positions, simulate_case  # noqa: E402

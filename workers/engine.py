@@ -28,10 +28,25 @@ from numba import njit
 
 from workers.arena import Arena, make_arena
 from workers.case import case_defaults, check_exit_point
-from workers.errors import (CoarseStepWarning, InputError, all_numbers, exact, is_whole, not_a_number_hint, point,
-                            positive)
-from workers.geometry import (NEIGHBOUR_EDGE_MIN, Cells, area_centroid, build_cell, build_grid, cell_capacity,
-                              voronoi_cells)
+from workers.errors import (
+    CoarseStepWarning,
+    InputError,
+    all_numbers,
+    exact,
+    is_whole,
+    not_a_number_hint,
+    point,
+    positive,
+)
+from workers.geometry import (
+    NEIGHBOUR_EDGE_MIN,
+    Cells,
+    area_centroid,
+    build_cell,
+    build_grid,
+    cell_capacity,
+    voronoi_cells,
+)
 from workers.policies import Policy, Step, evader_velocity, get_evader_policy, get_pursuer_policy, pursuer_velocity
 from workers.policies.registry import dispatch, is_builtin
 from workers.version import ENGINE_VERSION

@@ -10,9 +10,8 @@ the one-line error naming the field, `<field>: must be ..., got <value>`.
 
 from __future__ import annotations
 
-from workers.errors import is_finite_number, is_number, is_positive, is_whole
-
 from farm.core.errors import ConfigError, SwarmFarmError
+from workers.errors import is_finite_number, is_number, is_positive, is_whole
 
 __all__ = ["is_number", "is_whole", "is_finite_number", "is_positive", "whole", "flag"]
 

@@ -18,12 +18,18 @@ from typing import Any
 
 import numpy as np
 import yaml
-from pydantic import (BaseModel, ConfigDict, TypeAdapter, ValidationError, ValidationInfo, field_validator,
-                      model_validator)
-
-from workers import GAME_FIELDS, Case, InputError
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    TypeAdapter,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from farm.core.errors import ConfigError
+from workers import GAME_FIELDS, Case, InputError
 
 __all__ = ["Strict", "StrictFile", "refuse_unknown_keys", "ConfigError", "case_from", "check_game_names", "first_line",
            "load_yaml_model", "read_yaml", "MAX_CONFIG_BYTES", "MAX_CONFIG_DEPTH", "MAX_CONFIG_VALUES",

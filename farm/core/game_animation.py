@@ -19,10 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from workers import GameResults
-
 from farm.core.checks import whole
 from farm.core.errors import ConfigError
+from workers import GameResults
 
 __all__ = ["ANIMATION_SUFFIXES", "MAX_AUTO_FRAMES", "MAX_ANIMATION_BYTES", "GAME_FIGSIZE", "GAME_DPI",
            "check_animation_path", "check_frames", "auto_stride", "game_frame_steps", "game_frame_count",

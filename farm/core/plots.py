@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
-from matplotlib.patches import Circle, Polygon as PolygonPatch
+from matplotlib.patches import Circle
+from matplotlib.patches import Polygon as PolygonPatch
 
 from workers import GameResults
 

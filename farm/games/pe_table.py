@@ -11,9 +11,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from workers import Case, run_case, run_games
-
 from farm.core.output import write_table
+from workers import Case, run_case, run_games
 
 # (table, n_pursuers, pursuer policy, evader policy, the paper's mean capture time in s)
 PAPER_CASES = [

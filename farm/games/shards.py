@@ -14,10 +14,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from workers import Case, CaptureStats, results_statistics, run_games
-from workers.engine import estimated_game_seconds
-
 from farm.core.output import write_table
+from workers import CaptureStats, Case, results_statistics, run_games
+from workers.engine import estimated_game_seconds
 
 __all__ = ["SHARD_SECONDS", "MAX_SHARD_GAMES", "SWEEP_ID_KEY", "ROWS_SHA256_KEY", "rows_sha256", "shard_problem",
            "games_per_shard", "shard_ranges", "play_shard", "play_outcomes",

@@ -14,10 +14,9 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
+from farm.core.errors import ConfigError
 from workers import Case
 from workers.engine import estimated_game_seconds
-
-from farm.core.errors import ConfigError
 
 __all__ = ["ANNOUNCE_CPU_SECONDS", "LIMIT_CPU_SECONDS", "ITEM_BYTES", "GAME_ROW_BYTES", "JobSize", "game_seconds",
            "check_size", "duration", "memory_limit"]

@@ -12,10 +12,9 @@ import time
 
 import ray
 
-from workers import Case
-
-from farm.runtime import metrics
 from farm.games.shards import play_outcomes, play_shard
+from farm.runtime import metrics
+from workers import Case
 
 __all__ = ["MAX_RETRIES", "_remote_shard", "_remote_games"]
 

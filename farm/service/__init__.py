@@ -6,8 +6,8 @@ process or as a named Ray actor (farm/service/actor.py) over a persistent SQLite
 """
 
 from farm.core.errors import StoreCorruptError
-from farm.service.keys import GameSettings, StatsKey
 from farm.service.client import CaptureTimeClient, open_client
+from farm.service.keys import GameSettings, StatsKey
 from farm.service.store import StatsStore
 
 __all__ = ["CaptureTimeClient", "open_client", "GameSettings", "StatsKey", "StatsStore", "StoreCorruptError",

@@ -9,11 +9,10 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from workers import CaptureStats, InputError
-
 from farm.core.errors import ConfigError
 from farm.service.keys import GameSettings, StatsKey, lattice_anchors
 from farm.service.lookup import LocalBackend, StatsBackend, estimate
+from workers import CaptureStats, InputError
 
 __all__ = ["CaptureTimeClient", "RayBackend", "open_client"]
 

@@ -13,17 +13,15 @@ import json
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
-
-from workers import Case, InputError
-
 from farm.core.checks import whole
 from farm.core.config import SETTING_FIELDS
+from workers import Case, InputError
 
 __all__ = ["GameSettings", "StatsKey", "SERVICE_FIELDS", "LATTICE", "lattice_anchors"]
 
 SERVICE_FIELDS = ("games", "seed")  # a key's settings beyond its game's
 # The lattice of team sizes, about a factor 1.5 apart: the allocation env's `team_sizes:
-# lattice` snaps to it (farm.alloc.model), and `estimates: lattice` interpolates between it.
+# lattice` snaps to it (farm.alloc.game.model), and `estimates: lattice` interpolates between it.
 LATTICE = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 
 

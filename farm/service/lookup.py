@@ -28,11 +28,10 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import pandas as pd
 
-from workers import CaptureStats
-
+from farm.games.shards import games_per_shard, play_shard, shard_ranges
 from farm.service.keys import StatsKey
 from farm.service.store import StatsStore
-from farm.games.shards import games_per_shard, play_shard, shard_ranges
+from workers import CaptureStats
 
 __all__ = ["StatsBackend", "Lookup", "LocalBackend", "ServiceLookup", "compute_in_process", "compute_on_ray",
            "stats_from_games", "NeighbourIndex", "estimate", "ESTIMATE_NEIGHBOURS"]
@@ -89,8 +88,8 @@ def compute_on_ray(keys: list[StatsKey], *, max_in_flight: int,
     shard is in. Needs a running Ray."""
     import ray
 
-    from farm.runtime import bounded
     from farm.games.tasks import _remote_shard
+    from farm.runtime import bounded
 
     jobs = [(k, a, b) for k, key in enumerate(keys) for a, b in _ranges(key)]
     left = Counter(k for k, _, _ in jobs)
@@ -166,7 +165,7 @@ class Lookup:
     A computed value is stored and remembered. Concurrent asks for one missing key compute it
     once (single flight). An estimated key is computed in the background where the backend has
     one (the actor), else on its next exact ask. Without a store (the games-fidelity
-    evaluation, farm.alloc.rollout) nothing is remembered or estimated. compute_on_ray keeps a
+    evaluation, farm.alloc.evaluation.rollout) nothing is remembered or estimated. compute_on_ray keeps a
     bounded number of tasks in flight (farm.runtime.bounded); open_client() (client.py) decides
     "Ray or local" once and owns the cluster and the service while the client is in use.
 

@@ -25,10 +25,9 @@ import threading
 import time
 from pathlib import Path
 
-from workers import CaptureStats, InputError
-
 from farm.core.errors import ConfigError, NotAStoreError, StoreCorruptError
 from farm.service.keys import StatsKey
+from workers import CaptureStats, InputError
 
 log = logging.getLogger(__name__)
 

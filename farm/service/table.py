@@ -108,10 +108,9 @@ def fill_table(config: TableConfig, *, store=None, address=None, workers=None, s
     """Have the service compute every cell of every table (misses on the farm, in parallel);
     returns counts: cases, computed (the rest came from the store) and seconds."""
     from farm.core.progress import GameProgress
+    from farm.games.shards import warn_coarse_steps
     from farm.runtime import check_workers
     from farm.service.client import open_client
-
-    from farm.games.shards import warn_coarse_steps
 
     check_workers(workers)
     settings = config.settings_list()

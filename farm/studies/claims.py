@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from farm.alloc.runs import RunFolder
-from farm.core.stats import format_ci, mean_ci95
+from farm.alloc.training.runs import RunFolder
 from farm.core.errors import ResultsError
+from farm.core.stats import format_ci, mean_ci95
 
 __all__ = ["plateau_minutes", "measure_a", "measure_b", "claims", "check_claim_runs", "PAIR_C_CAPTURE", "SeedClaims",
            "claims_over_seeds", "find_pairs",

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from workers.arena import make_arena
-from workers.engine import GameResults, checked_games
 from numpy_engine.geometry import PAD
 from numpy_engine.policies import StepContext, get_evader_policy, get_pursuer_policy
 from numpy_engine.policies.context import pursuer_evader_distance
+from workers.arena import make_arena
+from workers.engine import GameResults, checked_games
 
 __all__ = ["ENGINE_VERSION", "simulate_games", "V_MAX"]  # its results are workers.GameResults
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from farm.alloc.dynamics import Layout
+from farm.alloc.game.dynamics import Layout
 
 __all__ = ["IntruderPolicy", "ahead_of", "choose"]
 
@@ -14,7 +14,7 @@ _TIE_ORDER = np.array([1, 0, 2])  # positions of d_row 0, -1, +1 in (-1, 0, +1)
 
 class IntruderPolicy:
     """The shared part of the intruder policies: config (the map's AllocConfig), its layout
-    (farm.alloc.dynamics.Layout), n the grid side, and rows, cols: (N^2,) int64 each cell's
+    (farm.alloc.game.dynamics.Layout), n the grid side, and rows, cols: (N^2,) int64 each cell's
     row and column. A policy answers routing(D, I) (the registry's module doc)."""
 
     def __init__(self, config):

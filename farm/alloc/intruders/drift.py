@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from farm.alloc.game.model import drift_routing
 from farm.alloc.intruders.base import IntruderPolicy
-from farm.alloc.model import drift_routing
 
 __all__ = ["Drift"]
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from farm.alloc.dynamics import observe, pure_routing, route_probabilities, routing_of
+from farm.alloc.game.dynamics import observe, pure_routing, route_probabilities, routing_of
 from farm.alloc.intruders.base import IntruderPolicy
 from farm.core.errors import ConfigError
 
@@ -25,12 +25,12 @@ class LearnedIntruders(IntruderPolicy):
         super().__init__(config)
         import yaml
 
-        from farm.alloc.trained import load_model
+        from farm.alloc.networks.trained import load_model
 
         if run is None:
             raise ConfigError("intruder_options: learned intruders need the run folder (run: PATH)",
                               field="intruder_options")
-        path = Path(run) / "config.yaml"  # a run folder's config (farm.alloc.runs, which imports the rollout)
+        path = Path(run) / "config.yaml"  # a run folder's config (farm.alloc.training.runs, which imports the rollout)
         values = yaml.safe_load(path.read_text()) if path.is_file() else None
         if not isinstance(values, dict) or values.get("side") != "intruders":
             raise ConfigError(f"intruder_options: {run} holds no intruders' training run (farm train with "

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from farm.alloc.game.registry import INTRUDERS
 from farm.alloc.intruders.base import IntruderPolicy
 from farm.alloc.intruders.play import draw_state, for_episode
-from farm.alloc.intruders.registry import make_intruders
 from farm.core.checks import is_whole
 from farm.core.mixture import mixture_members
 
@@ -22,14 +22,14 @@ class IntruderMixture(IntruderPolicy):
     generator of a caller that runs no episodes (routing() then draws per row and call); client:
     the capture-time client, given to the members that take one. An
     episode's draw is made by whoever runs the episode, from the episode's generator
-    (for_episode: the envs, farm.alloc.rollout.play).
+    (for_episode: the envs, farm.alloc.evaluation.rollout.play).
     """
 
     def __init__(self, config, members=None, weights=None, draw: str = "episode", seed: int = 0, client=None):
         super().__init__(config)
         parsed, self.weights = mixture_members("intruder_options", members, weights, draw, "intruders")
         self.names = [name for name, _ in parsed]
-        self.players = [make_intruders(name, config, client, **options) for name, options in parsed]
+        self.players = [INTRUDERS.make(name, config, client, **options) for name, options in parsed]
         self.draw = draw
         self._rng = np.random.default_rng(seed)
 

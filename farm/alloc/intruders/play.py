@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from farm.alloc.intruders.registry import make_intruders
+from farm.alloc.game.registry import INTRUDERS
 
 __all__ = ["configured_intruders", "intruder_move", "for_episode", "draw_state", "EpisodeIntruders"]
 
@@ -13,11 +13,11 @@ def configured_intruders(config, client=None):
     which dynamics.step applies itself (the default path, unchanged)."""
     if config.intruders == "drift":
         return None
-    return make_intruders(config.intruders, config, client, **config.intruder_options)
+    return INTRUDERS.make(config.intruders, config, client, **config.intruder_options)
 
 
 def intruder_move(policy, information: str, D, I):
-    """The `intruders` argument of farm.alloc.dynamics.step for a step from D, I ((B, N^2) float64):
+    """The `intruders` argument of farm.alloc.game.dynamics.step for a step from D, I ((B, N^2) float64):
     None for the drift law (policy None); under `follower` the policy's routing of the defenders
     after their move; under `simultaneous` its routing of D, I, chosen before the defenders move."""
     if policy is None:

@@ -4,7 +4,7 @@ exact_response searches one episode (its docstring has the algorithm, the tie ru
 guard on its size); ExactResponse holds what it finds; cell_options lays out a cell's routings on
 a share grid (1: the pure routings, each cell's whole mass along one route); tree_bound and
 check_search are the refusal it makes before searching; Routings lays out a state's routings;
-ScriptedIntruders replays a found routing sequence through farm.alloc.rollout.play. The
+ScriptedIntruders replays a found routing sequence through farm.alloc.evaluation.rollout.play. The
 information structure is the follower's of docs/model.md section 6.
 """
 
@@ -15,8 +15,8 @@ from fractions import Fraction
 
 import numpy as np
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.dynamics import (
+from farm.alloc.game.config import AllocConfig
+from farm.alloc.game.dynamics import (
     Layout,
     check_actions,
     episode_end,
@@ -26,8 +26,8 @@ from farm.alloc.dynamics import (
     resolve,
     start_densities,
 )
+from farm.alloc.game.model import EngagementModel
 from farm.alloc.intruders.base import IntruderPolicy
-from farm.alloc.model import EngagementModel
 from farm.core.errors import ConfigError
 
 __all__ = [
@@ -63,7 +63,7 @@ def cell_options(feasible: tuple[bool, bool, bool], shares: int = 1) -> np.ndarr
 
 def episode_start(config: AllocConfig, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(D, I): (N^2,) float64 each, the densities episode `seed` starts from, drawn as
-    farm.alloc.rollout.play draws them (the intruders' row shares a flat Dirichlet draw of the
+    farm.alloc.evaluation.rollout.play draws them (the intruders' row shares a flat Dirichlet draw of the
     generator gymnasium seeds with seed)."""
     from gymnasium.utils import seeding
 
@@ -140,10 +140,10 @@ class ExactResponse:
     """The intruders' best response in one episode and what it gives.
 
     seed: the episode's seed; summary: {"return", "eliminated", "breached", "length"} as
-    farm.alloc.rollout.Episode.summary gives them for the episode played with these routings
+    farm.alloc.evaluation.rollout.Episode.summary gives them for the episode played with these routings
     (floats, length an int); value: float, the objective's minimum as searched (summed from the
     episode's end); routings: per step, (up, down): (N^2,) float64 each, the shares of each
-    cell's mass sent up-left and down-left (farm.alloc.model.route_intruders_many); routed: per
+    cell's mass sent up-left and down-left (farm.alloc.game.model.route_intruders_many); routed: per
     step, (k,) int64 the cells that took part (held mass outside column 0), in cell order;
     nodes: the states expanded (each asked the allocator at most once and resolved all its
     routings in one batch); resolved: the (state, routing) pairs resolved; shares: the share
@@ -272,9 +272,9 @@ def exact_response(config: AllocConfig, policy, client, seed: int, *, objective:
     by client (a CaptureTimeClient of config.game_settings()); config's own intruders and
     information are not used.
 
-    Each step, the allocator acts on the observation as farm.alloc.rollout.play asks it (the
-    float32 observation of farm.alloc.dynamics.observe), the intruders see the defenders after
-    their move D' with their own I and choose a routing, and farm.alloc.dynamics.resolve moves
+    Each step, the allocator acts on the observation as farm.alloc.evaluation.rollout.play asks it (the
+    float32 observation of farm.alloc.game.dynamics.observe), the intruders see the defenders after
+    their move D' with their own I and choose a routing, and farm.alloc.game.dynamics.resolve moves
     them, engages and rewards: the follower of docs/model.md section 6, which against a
     deterministic allocator is also the best response under `simultaneous` (the intruders can
     predict its move). The routings: every cell holding intruder mass (> 0) outside column 0
@@ -328,7 +328,7 @@ class ScriptedIntruders(IntruderPolicy):
     """Intruders that replay a routing sequence in one episode: routings, per step, (up, down):
     (N^2,) float64 each (ExactResponse.routings); its k-th call of routing() answers step k's, as
     (1, N^2) arrays. For checks: a config whose `intruders` names it replays the search through
-    farm.alloc.rollout.play (one episode a config; register it first, it is not in the registry)."""
+    farm.alloc.evaluation.rollout.play (one episode a config; register it first, it is not in the registry)."""
 
     def __init__(self, config, routings=()):
         super().__init__(config)

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from farm.alloc.dynamics import check_actions, episode_end, move_defenders, move_probabilities, observe, resolve
-from farm.alloc.model import EngagementModel
+from farm.alloc.game.dynamics import check_actions, episode_end, move_defenders, move_probabilities, observe, resolve
+from farm.alloc.game.model import EngagementModel
 from farm.alloc.intruders.base import IntruderPolicy
 from farm.alloc.intruders.search import OBJECTIVES, Routings, draws_moves
 from farm.core.errors import ConfigError
@@ -47,7 +47,7 @@ class SearchingIntruders(IntruderPolicy):
 
     def __init__(self, config, allocators=None, weights=None, objective: str = "eliminated", client=None):
         super().__init__(config)
-        from farm.alloc.policies import make_policy
+        from farm.alloc.game.registry import ALLOCATORS
 
         if objective not in OBJECTIVES:
             raise ConfigError(f"intruder_options.objective: one of {', '.join(OBJECTIVES)}, got {objective!r}",
@@ -56,7 +56,7 @@ class SearchingIntruders(IntruderPolicy):
             raise ConfigError("intruder_options: search intruders plan on a capture-time client; make them with "
                               "one (make_intruders(..., client=...))", field="intruder_options")
         parsed, self.weights = mixture_members("intruder_options", allocators, weights, "episode", "policy")
-        self.members = [make_policy(name, config, client, **options) for name, options in parsed]
+        self.members = [ALLOCATORS.make(name, config, client, **options) for name, options in parsed]
         for (name, _), member in zip(parsed, self.members):
             if draws_moves(member):
                 raise ConfigError(f"intruder_options.allocators: {name} draws its moves; the search models "

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from farm.alloc.runs import STATE_MAGIC, checkpoint_files
+from farm.alloc.training.runs import STATE_MAGIC, checkpoint_files
 from farm.core.errors import TrainingDiverged
 
 __all__ = ["UpdateTimer", "DivergenceGuard", "StepProgress", "AfterUpdates", "Checkpointer"]

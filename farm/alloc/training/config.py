@@ -10,9 +10,9 @@ from typing import Any, ClassVar, Literal
 
 from pydantic import Field, field_validator, model_serializer, model_validator
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.intruder_env import DEFAULT_OPPONENT, REWARDS
-from farm.alloc.scenarios import SCENARIOS
+from farm.alloc.envs.intruders import DEFAULT_OPPONENT, REWARDS
+from farm.alloc.game.config import AllocConfig
+from farm.alloc.game.scenarios import SCENARIOS
 from farm.core.checks import flag, is_finite_number, is_whole, whole
 from farm.core.config import ConfigError, Strict, load_yaml_model
 from farm.core.tracking import TrackingParams
@@ -34,7 +34,7 @@ POLICY_KWARGS = {
     "ppo": ("net_arch", "share_features_extractor", "normalize_images", "optimizer_kwargs", "activation_fn",
             "log_std_init", "ortho_init", "full_std", "use_expln", "squash_output"),
 }
-# CellPolicy's (farm.alloc.training.cell_policy, PPO only): its sizes and ActorCriticPolicy's plain values
+# CellPolicy's (farm.alloc.networks.cell_policy, PPO only): its sizes and ActorCriticPolicy's plain values
 CELL_POLICY_KWARGS = ("channels", "layers", "positions", "lateral", "balance", "log_std_init", "ortho_init",
                       "optimizer_kwargs")
 ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu")  # torch.nn's ReLU, Tanh, ELU, LeakyReLU, GELU
@@ -159,7 +159,7 @@ class PPOParams(_Params):
     ALGO: ClassVar[str] = "ppo"
 
     n_timesteps: int = Field(100_000, ge=1)
-    policy: Literal["MlpPolicy", "CellPolicy"] = "MlpPolicy"  # CellPolicy: farm.alloc.training.cell_policy
+    policy: Literal["MlpPolicy", "CellPolicy"] = "MlpPolicy"  # CellPolicy: farm.alloc.networks.cell_policy
     learning_rate: float = Field(3e-4, gt=0)  # Adam's learning rate
     n_steps: int = Field(256, ge=1)  # per env: a rollout is n_steps x n_envs steps
     batch_size: int = Field(64, ge=2)  # minibatch size
@@ -198,7 +198,7 @@ class MapParams(Strict):
     """One map of a pretraining curriculum (pretrain.maps): a suite scenario, its env settings
     replaced by `env`'s (AllocConfig fields), as a training config's `scenario` and `env`."""
 
-    scenario: str  # a suite scenario's name (farm.alloc.scenarios.SCENARIOS)
+    scenario: str  # a suite scenario's name (farm.alloc.game.scenarios.SCENARIOS)
     env: dict[str, Any] = {}  # AllocConfig settings replacing the scenario's
 
     @field_validator("scenario")
@@ -228,7 +228,7 @@ class PretrainParams(Strict):
     actor is fitted to an expert's actions on the states visited by a mixture of the expert and
     the learner, then RL fine-tunes from there.
 
-    expert: an allocator of the registry (farm.alloc.policies: any planner or baseline) and
+    expert: an allocator of the registry (farm.alloc.allocators: any planner or baseline) and
     expert_options its options; iterations: DAgger iterations; episodes: episodes played per
     iteration; expert_share: the share of steps the expert drives in each iteration (one number
     per iteration, or one number p for the schedule 1, p, p^2, ...: the first iteration is the
@@ -239,7 +239,7 @@ class PretrainParams(Strict):
     with the run's own (a curriculum of maps, for a policy whose weights fit any map:
     ppo.policy CellPolicy)."""
 
-    expert: str = "receding_horizon"  # the expert: a registered baseline, planner or mixture (farm.alloc.policies)
+    expert: str = "receding_horizon"  # the expert: a registered baseline, planner or mixture (farm.alloc.allocators)
     expert_options: dict[str, Any] = {}  # the expert's options
     iterations: int = Field(4, ge=1, le=1000)  # DAgger iterations
     episodes: int = Field(16, ge=1)  # episodes played per iteration (on each map)
@@ -259,9 +259,9 @@ class PretrainParams(Strict):
     @field_validator("expert")
     @classmethod
     def _known_expert(cls, v):
-        from farm.alloc.policies import policy_names
+        from farm.alloc.allocators import allocator_names
 
-        choices = policy_names(("baseline", "planner", "mixture"))
+        choices = allocator_names(("baseline", "planner", "mixture"))
         if v not in choices:
             raise ValueError(f"unknown expert {v!r} (choose from the baselines, the planners and mixture: "
                              f"{', '.join(choices)})")
@@ -289,11 +289,11 @@ class PretrainParams(Strict):
 
 
 class OpponentParams(Strict):
-    """The game a `side: intruders` run trains the intruders in (farm.alloc.intruder_env): the frozen
-    allocator they play against, an allocator of the registry (farm.alloc.policies: a baseline, a
+    """The game a `side: intruders` run trains the intruders in (farm.alloc.envs.intruders): the frozen
+    allocator they play against, an allocator of the registry (farm.alloc.allocators: a baseline, a
     planner, or a learned one, e.g. `name: ppo` with `options: {run: FOLDER}`), and their reward."""
 
-    name: str = DEFAULT_OPPONENT  # the frozen allocator (farm.alloc.policies' registry)
+    name: str = DEFAULT_OPPONENT  # the frozen allocator (farm.alloc.allocators' registry)
     options: dict[str, Any] = {}  # its options (a learned allocator's run folder: run)
     # the intruders' action: shares (each cell's shares of its routes) or pure (one route a cell)
     actions: Literal["shares", "pure"] = "shares"
@@ -302,10 +302,10 @@ class OpponentParams(Strict):
     @field_validator("name")
     @classmethod
     def _known_allocator(cls, v):
-        from farm.alloc.policies import policy_names
+        from farm.alloc.allocators import allocator_names
 
-        if v not in policy_names():
-            raise ValueError(f"unknown allocator {v!r} (choose from {', '.join(policy_names())})")
+        if v not in allocator_names():
+            raise ValueError(f"unknown allocator {v!r} (choose from {', '.join(allocator_names())})")
         return v
 
 
@@ -347,12 +347,12 @@ class TrainConfig(Strict):
     n_envs: int = Field(1, ge=1, le=1024)  # episodes stepped at once (> 1: the batched vector env)
     pretrain: PretrainParams | None = None  # planner-guided pretraining before RL; None: none
     keep: Literal["final", "best"] = "final"  # model.zip: the final model, or the best of the periodic evaluations
-    # the side trained: the defenders (an allocator), or the intruders (their routing, farm.alloc.intruder_env)
+    # the side trained: the defenders (an allocator), or the intruders (their routing, farm.alloc.envs.intruders)
     # against the frozen allocator of `opponent`; side and opponent are written out only when set
     side: Literal[SIDES] = "defenders"
     opponent: OpponentParams = OpponentParams()  # side intruders: the allocator they play and their reward
     # how the trained allocator acts, in the periodic evaluations and after: its network's action (none),
-    # or that action moved onto the game levels it almost plays (levels: farm.alloc.policies.repair)
+    # or that action moved onto the game levels it almost plays (levels: farm.alloc.allocators.repair)
     repair: Literal["none", "levels"] = "none"
     eval: EvalParams = EvalParams()  # the periodic evaluation during training
     checkpoint_freq: int = Field(5000, ge=1)  # env steps between checkpoints (what --resume goes on from)
@@ -482,8 +482,8 @@ def check_allocators(config: TrainConfig) -> None:
     """ConfigError (one line naming pretrain.expert_options or opponent.options) when the
     pretraining's expert refuses its options on a map the run plays (config.envs()), or the
     intruders' opponent on the run's map: each is built by its own checks, as the run will
-    build it (farm.alloc.policies.registry.check_options), before anything is written."""
-    from farm.alloc.policies.registry import check_options
+    build it (farm.alloc.allocators.check_options), before anything is written."""
+    from farm.alloc.allocators import check_options
 
     if config.pretrain is not None:
         for env in config.envs():
@@ -499,7 +499,7 @@ def pretrain_bytes(config: TrainConfig) -> int:
     """What a pretraining's labels hold in memory at most, in bytes: every iteration's episodes of
     every map at max_steps states each (an observation and the next, a label and an action,
     float32; a reward and a return, float64; two flags), LABEL_COPIES times; 0 without `pretrain:`."""
-    from farm.alloc.env import n_actions
+    from farm.alloc.game.dynamics import n_actions
 
     p = config.pretrain
     if p is None:

@@ -10,7 +10,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.vec_env import VecMonitor
 
-from farm.alloc.env import SwarmAllocationEnv
+from farm.alloc.envs.defenders import SwarmAllocationEnv
 from farm.alloc.training.callbacks import UpdateTimer
 
 __all__ = ["RunState"]

@@ -20,14 +20,14 @@ from pathlib import Path
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from farm.alloc.runs import CONFIG, EVALUATIONS, METRICS, MODEL
+from farm.alloc.training.runs import CONFIG, EVALUATIONS, METRICS, MODEL
 from farm.core.tracking import CHECK_HTTP, Guard, TrackingWarning, flat_params, mlflow_http, open_experiment, refused
 
 __all__ = ["MlflowRun", "EvalLogger", "RUN_FILE", "EVAL_METRICS"]
 
 RUN_FILE = "mlflow_run.json"  # in the run folder: the MLflow run a resumed run goes on logging into
 EVAL_METRICS = ("eval/mean_return", "eval/std_return", "eval/mean_ep_length")
-# The run folder's files logged as artifacts when they exist (farm.alloc.runs' module doc).
+# The run folder's files logged as artifacts when they exist (farm.alloc.training.runs' module doc).
 ARTIFACTS = (MODEL, METRICS, CONFIG, EVALUATIONS, "training_curve.png", "eval_table.csv", "eval_episodes.csv",
              "eval_steps.csv", "eval_table_games.csv", "fidelity_differences.csv")
 _BATCH = 100  # MLflow's most params in one log_batch

@@ -1,6 +1,6 @@
 """`farm train CONFIG`: an allocator trained with stable-baselines3 (TD3, PPO or SAC, the
 config's `algo`, after planner-guided pretraining when it has `pretrain:`) on the allocation env,
-rewards from the capture-time service, into a run folder (farm.alloc.runs). The design (the
+rewards from the capture-time service, into a run folder (farm.alloc.training.runs). The design (the
 config, checkpoints and exact resume, divergence) is docs/training.md."""
 
 from __future__ import annotations
@@ -20,15 +20,22 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from farm.alloc.env import SwarmAllocationEnv
-from farm.alloc.lattice import lattice_groups, warm_lattices
-from farm.alloc.policies.learned import algorithm_class
-from farm.alloc.policies.repair import RepairedActions
-from farm.alloc.runs import (DAMAGED, STATE_MAGIC, RunFolder, RunMetrics, checkpoint_files, move_damaged,
-                             whole_checkpoints)
+from farm.alloc.allocators.repair import RepairedActions
+from farm.alloc.envs.defenders import SwarmAllocationEnv
+from farm.alloc.game.lattice import lattice_groups, warm_lattices
+from farm.alloc.networks.trained import algorithm_class
 from farm.alloc.training.callbacks import Checkpointer, DivergenceGuard, StepProgress, UpdateTimer
 from farm.alloc.training.config import TrainConfig, store_of
 from farm.alloc.training.dagger.loop import pretrain
+from farm.alloc.training.runs import (
+    DAMAGED,
+    STATE_MAGIC,
+    RunFolder,
+    RunMetrics,
+    checkpoint_files,
+    move_damaged,
+    whole_checkpoints,
+)
 from farm.alloc.training.state import RunState
 from farm.core.config import ConfigError
 from farm.core.errors import ActionError, SwarmFarmError, TrainingDiverged
@@ -53,7 +60,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     returns the metrics written to metrics.json.
 
     opponent_procs: on the intruders' side with n_envs > 1, the processes that answer the
-    frozen allocator's moves (farm.alloc.intruder_env.Opponent: the same run whatever the
+    frozen allocator's moves (farm.alloc.envs.intruders.Opponent: the same run whatever the
     number; more than 1 needs the service on Ray).
 
     callbacks: more SB3 callbacks, called after the run's own (so in on_step after the
@@ -62,7 +69,7 @@ def train(config: TrainConfig, run_dir, *, resume: bool = False, show_progress: 
     on_pretrain(episodes, total, saved): the pretraining's progress (pretrain's on_progress)."""
     import torch
 
-    from farm.alloc.move_helpers import check_procs
+    from farm.alloc.envs.move_helpers import check_procs
     from farm.alloc.training.config import check_allocators, check_pretrain_memory
 
     check_procs(opponent_procs)
@@ -129,7 +136,7 @@ def make_model(config: TrainConfig, env, run_dir: Path):
     p = config.learner
     policy, kwargs = p.policy, policy_kwargs(p.policy_kwargs)
     if policy == "CellPolicy":
-        from farm.alloc.training.cell_policy import CellPolicy as policy
+        from farm.alloc.networks.cell_policy import CellPolicy as policy
 
         kwargs["teams"] = (config.env.n_defenders, config.env.n_intruders)  # the env's, not a setting
     common = dict(policy=policy, env=env, learning_rate=p.learning_rate, gamma=p.gamma,
@@ -152,7 +159,7 @@ def single_env(config: TrainConfig, client):
     """One env of the side config trains: the allocation env (side defenders), or the intruders'
     env against config.opponent's frozen allocator (side intruders), answered by client."""
     if config.side == "intruders":
-        from farm.alloc.intruder_env import SwarmIntruderEnv
+        from farm.alloc.envs.intruders import SwarmIntruderEnv
 
         o = config.opponent
         return SwarmIntruderEnv(config.env, opponent=o.name, opponent_options=o.options, reward=o.reward,
@@ -169,10 +176,10 @@ def training_envs(config: TrainConfig, client, opponent_procs: int = 1):
         train_env = single_env(config, client)
         monitor = Monitor(train_env)
         return DummyVecEnv([lambda: monitor]), train_env, monitor
-    from farm.alloc.sb3_vec import make_vec_env, monitored
+    from farm.alloc.envs.sb3_vec import make_vec_env, monitored
 
     if config.side == "intruders":
-        from farm.alloc.intruder_env import SwarmIntruderVectorEnv
+        from farm.alloc.envs.intruders import SwarmIntruderVectorEnv
 
         o = config.opponent
         monitor = monitored(SwarmIntruderVectorEnv(config.env, num_envs=config.n_envs, opponent=o.name,
@@ -341,7 +348,7 @@ def _finish(training: _Training, config: TrainConfig, run_dir: Path) -> dict:
     })
     run.write_metrics(metrics)
     if evals is not None:
-        from farm.alloc.plots import plot_training_curve
+        from farm.alloc.game.plots import plot_training_curve
 
         plot_training_curve(steps, results, run.file("training_curve.png"), config.name)
     return metrics.model_dump()

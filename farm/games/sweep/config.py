@@ -14,11 +14,10 @@ from typing import Any
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from workers import ENGINE_VERSION, GAME_FIELDS, SEEDING, Case, InputError
-
 from farm.core.config import NUMERIC_FIELDS, ConfigError, Strict, case_from, check_game_names, load_yaml_model
 from farm.games.shards import MAX_SHARD_GAMES, games_per_shard, shard_ranges
 from farm.games.sizes import ITEM_BYTES, JobSize, game_seconds
+from workers import ENGINE_VERSION, GAME_FIELDS, SEEDING, Case, InputError
 
 __all__ = ["SweepConfig", "Point", "load_sweep_config", "VARIABLE_FIELDS", "FULL_CHECK_POINTS"]
 

@@ -28,13 +28,12 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from workers import ENGINE_VERSION, SEEDING, Case, CaptureStats, game_statistics
-
-from farm.runtime import metrics
 from farm.core.errors import ConfigError, SweepError
 from farm.core.output import atomic_write_bytes, check_writable_folder, write_table
 from farm.games.shards import SWEEP_ID_KEY, play_shard, shard_problem, warn_coarse_steps, write_shard
 from farm.games.sweep.config import FULL_CHECK_POINTS, Point, SweepConfig
+from farm.runtime import metrics
+from workers import ENGINE_VERSION, SEEDING, CaptureStats, Case, game_statistics
 
 
 @dataclass(frozen=True)
@@ -190,8 +189,8 @@ class SweepRun:
         import ray
         from ray.exceptions import RayError, RayTaskError
 
-        from farm.runtime import bounded
         from farm.games.tasks import MAX_RETRIES, _remote_shard
+        from farm.runtime import bounded
 
         name = self.config.name
         recorder = metrics.DriverMetrics(name)
@@ -275,7 +274,6 @@ def run_sweep(config: SweepConfig, out, *, address=None, workers: int | None = N
     rebuild: see SweepRun.prepare."""
     from farm.core.progress import GameProgress
     from farm.games.sizes import check_size
-
     from farm.runtime import check_workers
 
     check_workers(workers)

@@ -85,7 +85,7 @@ class ExperimentConfig(StrictFile):
             raise ValueError("base: give `base` (a training config), `scenario` (a suite scenario) or a grid over "
                              "`scenario`")
         if self.scenario is not None:
-            from farm.alloc.scenarios import SCENARIOS
+            from farm.alloc.game.scenarios import SCENARIOS
 
             if self.scenario not in SCENARIOS:
                 raise ValueError(f"scenario: unknown scenario {self.scenario!r} (choose from {', '.join(SCENARIOS)})")

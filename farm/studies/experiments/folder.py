@@ -1,7 +1,7 @@
 """An experiment's folder: the one reader and writer of its files.
 
     experiment.json           the manifest: the config as given, its digest, every trial's key, point and seed
-    trials/<trial>/run        the trial's training run folder (farm.alloc.runs)
+    trials/<trial>/run        the trial's training run folder (farm.alloc.training.runs)
     trials/<trial>/result.json the trial's row of trials.csv, written when it has finished
     trials.csv, summary.csv   the tables (farm.studies.experiments.tables)
     claims.csv, claims_seeds.csv, learning_curves.png

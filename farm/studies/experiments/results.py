@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from farm.alloc.runs import RunFolder
+from farm.alloc.training.runs import RunFolder
 from farm.core.stats import seed_band
 from farm.studies.experiments.folder import finished_trials, read_manifest
 

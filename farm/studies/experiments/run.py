@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.evaluation import reference_specs
-from farm.alloc.lattice import lattice_groups, warm_lattices
+from farm.alloc.evaluation.evaluate import reference_specs
+from farm.alloc.game.config import AllocConfig
+from farm.alloc.game.lattice import lattice_groups, warm_lattices
 from farm.alloc.training import TrainConfig
 from farm.core.errors import SwarmFarmError
 from farm.core.output import check_writable_folder
@@ -54,7 +54,7 @@ def run_experiment(config: ExperimentConfig, out, *, source: str = "experiments"
     ConfigError (one line) for bad input before Ray starts; ExperimentError naming the first
     trial that failed (after the tables of the others are written).
     """
-    from farm.alloc.move_helpers import check_procs
+    from farm.alloc.envs.move_helpers import check_procs
 
     check_procs(opponent_procs)
     the_plan, storage, tracker, before = _prepare(config, out, source, workers, warm)

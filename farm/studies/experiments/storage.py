@@ -373,8 +373,8 @@ def checkpoint_run(run: Path, steps: int | None, to: Path) -> None:
     the checkpoints other than the one of `steps` (its model, replay buffer and RunState; steps
     None: a pretraining iteration's checkpoint, none of them) and the pretraining iterations
     other than the newest (each holds the labels of every iteration before it)."""
-    from farm.alloc.runs import checkpoint_files
     from farm.alloc.training.dagger.loop import iteration_file, saved_iterations
+    from farm.alloc.training.runs import checkpoint_files
 
     keep = set() if steps is None else {p.name for p in checkpoint_files(run, steps)}
     newest = {iteration_file(run, i).name for i in saved_iterations(run)[:1]}
@@ -392,8 +392,8 @@ def checkpoint_run(run: Path, steps: int | None, to: Path) -> None:
 def _progress_here(run: Path, replay_buffer: bool) -> tuple[int, int] | None:
     """How far a run folder is: (1, steps) of its latest whole checkpoint, else (0, i) of its
     newest saved pretraining iteration i, else None; ordered as training goes."""
-    from farm.alloc.runs import latest_checkpoint
     from farm.alloc.training.dagger.loop import saved_iterations
+    from farm.alloc.training.runs import latest_checkpoint
 
     if not run.exists():
         return None

@@ -1,6 +1,6 @@
 """One experiment trial, Ray Tune's function trainable (run_trial): train the trial (or resume
 it), evaluate its trained allocator beside the registered baselines and planners (the one
-evaluation of farm.alloc.evaluation; a trained intruders' run: its opponent against it and
+evaluation of farm.alloc.evaluation.evaluate; a trained intruders' run: its opponent against it and
 against the drift law), write its result.json and report it. docs/experiments.md
 tells how trials resume and why a finished one never trains again."""
 
@@ -9,8 +9,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from farm.alloc.evaluation import allocators, evaluate_trained, reference_specs
-from farm.alloc.runs import RunFolder
+from farm.alloc.evaluation.evaluate import allocators, evaluate_trained, reference_specs
+from farm.alloc.training.runs import RunFolder
 from farm.studies.experiments.plan import Trial
 from farm.studies.experiments.tables import LEARNED, METRICS_COLUMNS
 
@@ -34,9 +34,9 @@ def _evaluate_intruders(config, run: RunFolder, episodes: int, seed: int):
     return_mean, eliminated_mean): the opponent's measures."""
     import pandas as pd
 
-    from farm.alloc.config import AllocConfig
-    from farm.alloc.policies import make_policy
-    from farm.alloc.rollout import play
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.evaluation.rollout import play
+    from farm.alloc.game.config import AllocConfig
     from farm.service.client import open_client
 
     learned = AllocConfig(**{**config.env.model_dump(), "intruders": "learned",
@@ -44,7 +44,7 @@ def _evaluate_intruders(config, run: RunFolder, episodes: int, seed: int):
     rows = []
     with open_client(config.env.game_settings(), mode="ray", store=config.service.store) as client:
         for name, env in ((LEARNED, learned), ("drift", config.env)):
-            opponent = make_policy(config.opponent.name, env, client, **config.opponent.options)
+            opponent = make_allocator(config.opponent.name, env, client, **config.opponent.options)
             played = play(env, opponent, client, episodes, seed)
             rows.append({"policy": name, "return_mean": sum(e.summary["return"] for e in played) / episodes,
                          "eliminated_mean": sum(e.summary["eliminated"] for e in played) / episodes})

@@ -69,7 +69,7 @@ class TuneReport(AfterUpdates):
 
     def due(self, steps: int) -> None:
         """Report `steps`, with the checkpoint of `steps` when there is one."""
-        from farm.alloc.runs import latest_checkpoint
+        from farm.alloc.training.runs import latest_checkpoint
         from farm.studies.experiments.storage import checkpoint_run
 
         metrics = {"timesteps": steps, "timesteps_total": steps, "phase": "train"}  # timesteps_total: Tune's step

@@ -99,7 +99,7 @@ class RobustConfig(StrictFile):
     @field_validator("scenario")
     @classmethod
     def _known_scenario(cls, v):
-        from farm.alloc.scenarios import SCENARIOS
+        from farm.alloc.game.scenarios import SCENARIOS
 
         if v not in SCENARIOS:
             raise ValueError(f"unknown scenario {v!r} (choose from {', '.join(SCENARIOS)})")
@@ -158,7 +158,7 @@ class RobustConfig(StrictFile):
 
     def alloc_config(self):
         """The map's AllocConfig: the scenario's settings with `env` over them."""
-        from farm.alloc.scenarios import SCENARIOS
+        from farm.alloc.game.scenarios import SCENARIOS
 
         return SCENARIOS[self.scenario].config(**self.env)
 

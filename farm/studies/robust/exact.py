@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from farm.alloc.config import AllocConfig
+from farm.alloc.game.config import AllocConfig
 from farm.core.errors import ConfigError
 from farm.studies.robust.members import Member
 from farm.studies.robust.payoffs import PayoffStore, payoff_key

@@ -143,7 +143,7 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
     played this time, the seconds). ConfigError (one line) for bad input before Ray starts."""
     import time
 
-    from farm.alloc.lattice import lattice_groups, warm_lattices
+    from farm.alloc.game.lattice import lattice_groups, warm_lattices
     from farm.runtime import check_workers, starts_local_ray, tasks_in_flight
     from farm.service.client import open_client
     from farm.service.store import default_store_path

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 
-from farm.alloc.config import AllocConfig
+from farm.alloc.game.config import AllocConfig
 from farm.core.errors import ConfigError
 
 __all__ = ["MEASURES", "Member", "member_of", "against", "mixture_options", "play_pair"]
@@ -48,8 +48,8 @@ class Member:
 def member_of(side: str, value, where: str) -> Member:
     """A member from a config's or a saved state's value: a name, or {name, options, label};
     ConfigError (one line naming where) for anything else or an unknown name."""
+    from farm.alloc.allocators import allocator_entry
     from farm.alloc.intruders import intruder_entry
-    from farm.alloc.policies import policy_entry
 
     if isinstance(value, str):
         value = {"name": value}
@@ -57,7 +57,7 @@ def member_of(side: str, value, where: str) -> Member:
             or not set(value) <= {"name", "options", "label", "side"} or not isinstance(value.get("options", {}), dict):
         raise ConfigError(f"{where}: a member is a name or {{name: NAME, options: {{...}}}}, got {value!r}",
                           field=where.split("[")[0])
-    (policy_entry if side == "allocators" else intruder_entry)(value["name"], where.split("[")[0])
+    (allocator_entry if side == "allocators" else intruder_entry)(value["name"], where.split("[")[0])
     return Member(side, value["name"], dict(value.get("options", {})), value.get("label", ""))
 
 
@@ -73,10 +73,10 @@ def mixture_options(members: list[Member], weights) -> dict:
 
 def play_pair(config: AllocConfig, allocator: Member, intruders: Member, client, episodes: int, seed: int) -> dict:
     """The allocator against the intruders on episodes seeded seed .. seed + episodes - 1:
-    {measure: list of floats, one an episode} (farm.alloc.rollout.play)."""
-    from farm.alloc.policies import make_policy
-    from farm.alloc.rollout import play
+    {measure: list of floats, one an episode} (farm.alloc.evaluation.rollout.play)."""
+    from farm.alloc.allocators import make_allocator
+    from farm.alloc.evaluation.rollout import play
 
     env = against(config, intruders)
-    played = play(env, make_policy(allocator.name, env, client, **allocator.options), client, episodes, seed)
+    played = play(env, make_allocator(allocator.name, env, client, **allocator.options), client, episodes, seed)
     return {m: [e.summary[m] for e in played] for m in MEASURES}

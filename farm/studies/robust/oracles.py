@@ -49,7 +49,7 @@ def trained_responses(config: RobustConfig, out: Path, k: int, allocators: list,
     config.responses Members (labels brK, then brK.1, brK.2, ...) whose `run` is their run folder. procs: the processes
     answering the allocators' moves in the intruders' training (run_experiment's opponent_procs:
     their planning is most of an iteration; the same responses whatever procs)."""
-    from farm.alloc.runs import RunFolder
+    from farm.alloc.training.runs import RunFolder
     from farm.studies.experiments.plan import plan
     from farm.studies.experiments.run import run_experiment
     from farm.studies.experiments.storage import ExperimentStorage
@@ -74,7 +74,7 @@ def distilled(config: RobustConfig, out: Path, allocators: list, intruders: list
     """One network distilled from the final allocators' mixture (config.distill's training, run or
     resumed in out/distilled): DAgger from the mixture's mean move (draw: mean) in the env whose
     intruders are the final intruders' mixture, then RL there; the trained allocator as a Member."""
-    from farm.alloc.runs import RunFolder
+    from farm.alloc.training.runs import RunFolder
     from farm.studies.experiments.config import ExperimentConfig
     from farm.studies.experiments.plan import plan
     from farm.studies.experiments.run import run_experiment

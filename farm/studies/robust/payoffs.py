@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from farm.alloc.config import AllocConfig
+from farm.alloc.game.config import AllocConfig
 from farm.core.output import atomic_write_bytes
 from farm.studies.robust.members import MEASURES, Member
 

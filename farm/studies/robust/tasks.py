@@ -31,14 +31,14 @@ def remote_exact(config, allocator, service, episodes: int, seed: int, objective
     episode}, as remote_pair's."""
     import torch
 
+    from farm.alloc.allocators import make_allocator
     from farm.alloc.intruders.search import exact_response
-    from farm.alloc.policies import make_policy
     from farm.service.client import CaptureTimeClient
     from farm.studies.robust.members import MEASURES
 
     torch.set_num_threads(1)
     client = CaptureTimeClient(config.game_settings(), service=service)
-    policy = make_policy(allocator.name, config, client, **allocator.options)
+    policy = make_allocator(allocator.name, config, client, **allocator.options)
     found = [exact_response(config, policy, client, seed + k, objective=objective).summary
              for k in range(episodes)]
     return {m: [s[m] for s in found] for m in MEASURES}

@@ -7,9 +7,9 @@ from typing import Any
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.policies import policy_entry, policy_names
-from farm.alloc.scenarios import SCENARIOS
+from farm.alloc.allocators import allocator_entry, allocator_names
+from farm.alloc.game.config import AllocConfig
+from farm.alloc.game.scenarios import SCENARIOS
 from farm.core.config import StrictFile, first_line, load_yaml_model
 
 __all__ = ["SuiteConfig", "load_suite_config", "available_policies"]
@@ -17,7 +17,7 @@ __all__ = ["SuiteConfig", "load_suite_config", "available_policies"]
 
 def available_policies() -> list[str]:
     """The allocators a suite may list: every registered baseline and planner, in registration order."""
-    return policy_names(("baseline", "planner"))
+    return allocator_names(("baseline", "planner"))
 
 
 def _choices(names) -> str:
@@ -68,7 +68,7 @@ class SuiteConfig(StrictFile):
             raise ValueError(f"must name at least one policy (choose from {_choices(choices)})")
         for name in v:
             if name not in choices:
-                hint = "; trained runs come from `runs`" if name in policy_names("learned") else ""
+                hint = "; trained runs come from `runs`" if name in allocator_names("learned") else ""
                 raise ValueError(f"unknown policy {name!r} (choose from {_choices(choices)}){hint}")
         _no_repeats(v)
         return v
@@ -98,13 +98,13 @@ class SuiteConfig(StrictFile):
                                  f"(choose from {_choices(scenarios)})")
             if not path.strip():
                 raise ValueError(f"runs.{name}: an empty folder name")
-        policies = self.policy_names()
-        planners = [name for name in policies if policy_entry(name).options()]
+        policies = self.allocator_names()
+        planners = [name for name in policies if allocator_entry(name).options()]
         for name, options in self.planner_options.items():
             if name not in planners:
                 raise ValueError(f"planner_options.{name}: {name!r} is not a planner of this suite "
                                  f"(choose from {_choices(planners)})")
-            allowed = policy_entry(name).options()
+            allowed = allocator_entry(name).options()
             for option in options:
                 if option not in allowed:
                     raise ValueError(f"planner_options.{name}: unknown option {option!r} "
@@ -117,11 +117,11 @@ class SuiteConfig(StrictFile):
         """The scenarios run, in order (every scenario when the config names none)."""
         return list(self.scenarios) if self.scenarios is not None else list(SCENARIOS)
 
-    def policy_names(self) -> list[str]:
+    def allocator_names(self) -> list[str]:
         """The baselines and planners run, in order (all of them when the config names none)."""
         if self.policies is not None:
             return list(self.policies)
-        return policy_names(("baseline", "planner"), references=True)
+        return allocator_names(("baseline", "planner"), references=True)
 
     def intruder_axis(self) -> list[str | None]:
         """The intruder policies of the adversary axis, [None] without one (each scenario's own)."""

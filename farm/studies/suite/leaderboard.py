@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from farm.alloc.rollout import measure_table
+from farm.alloc.evaluation.rollout import measure_table
 from farm.core.stats import format_ci
 
 __all__ = ["MEASURES", "leaderboard", "worst_cases", "plot_leaderboard", "leaderboard_view", "format_leaderboard"]
 
-MEASURES = ("return", "eliminated", "breached", "coverage")  # of farm.alloc.rollout.MEASURES: the board's columns
+MEASURES = ("return", "eliminated", "breached", "coverage")  # of farm.alloc.game.measures.MEASURES: the board's columns
 
 
 def leaderboard(per: pd.DataFrame) -> pd.DataFrame:
@@ -24,7 +24,7 @@ def leaderboard(per: pd.DataFrame) -> pd.DataFrame:
 
     per: episodes.csv's columns (scenario, [intruders,] policy, return, eliminated, breached,
     coverage, steps, predict_seconds, ...). Returns columns scenario, [intruders,] policy,
-    episodes, <m>_mean and <m>_ci95 for each m of MEASURES (farm.alloc.rollout.measure_table:
+    episodes, <m>_mean and <m>_ci95 for each m of MEASURES (farm.alloc.evaluation.rollout.measure_table:
     the 95% t interval over episodes; NaN half-width for one episode), seconds_per_step (predict
     seconds over steps); with the axis also worst_eliminated and worst_intruders, the lowest
     eliminated mass of the (scenario, policy) over the intruder policies and the one that

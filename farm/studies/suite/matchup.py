@@ -1,19 +1,19 @@
 """One (scenario, allocator) of the suite: its episodes through the one rollout loop
-(farm.alloc.rollout.play), as episodes.csv's rows."""
+(farm.alloc.evaluation.rollout.play), as episodes.csv's rows."""
 
 from __future__ import annotations
 
-from farm.alloc.config import AllocConfig
-from farm.alloc.policies import PolicySpec
-from farm.alloc.rollout import play
+from farm.alloc.allocators import Spec
+from farm.alloc.evaluation.rollout import play
+from farm.alloc.game.config import AllocConfig
 
 __all__ = ["evaluate_matchup"]
 
 
-def evaluate_matchup(config: AllocConfig, spec: PolicySpec, client, episodes: int, seed: int) -> list[dict]:
+def evaluate_matchup(config: AllocConfig, spec: Spec, client, episodes: int, seed: int) -> list[dict]:
     """The allocator of spec on episodes seeded seed .. seed + episodes - 1 of the scenario's env
     settings config, its engagements answered by client (a CaptureTimeClient); one dict per
-    episode: episode, seed, the episode's measures (farm.alloc.rollout.Episode.summary), steps
+    episode: episode, seed, the episode's measures (farm.alloc.evaluation.rollout.Episode.summary), steps
     and predict_seconds (wall seconds in the allocator's predict(), summed over the episode's
     steps), and intruders_start (the right-most column's intruder densities it first
     observed, rows top to bottom, as text)."""

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from farm.alloc.config import INTRUDER_FIELDS, AllocConfig
-from farm.alloc.lattice import lattice_groups, warm_lattices
-from farm.alloc.policies import PolicySpec, make_policy, policy_entry
-from farm.alloc.runs import RunFolder
-from farm.alloc.scenarios import SCENARIOS
+from farm.alloc.allocators import Spec, allocator_entry, make_allocator
+from farm.alloc.game.config import INTRUDER_FIELDS, AllocConfig
+from farm.alloc.game.lattice import lattice_groups, warm_lattices
+from farm.alloc.game.scenarios import SCENARIOS
+from farm.alloc.training.runs import RunFolder
 from farm.core.checks import whole
 from farm.core.errors import ConfigError
 from farm.core.output import check_writable_folder
@@ -49,18 +49,18 @@ def _run_folder(config: SuiteConfig, scenario: str, env: AllocConfig):
             raise ConfigError(f"{field}: {run_dir} was trained on another env ({name}: {theirs.get(name)!r}, "
                               f"the scenario's {ours[name]!r})", field=field)
     try:
-        return trained_config.algo, make_policy(trained_config.algo, env, None, run=run_dir)
+        return trained_config.algo, make_allocator(trained_config.algo, env, None, run=run_dir)
     except ConfigError as e:
         raise ConfigError(f"{field}: {e}", field=field) from None
 
 
-def _plan(config: SuiteConfig) -> tuple[dict[tuple, AllocConfig], list[tuple[tuple, PolicySpec]], dict]:
+def _plan(config: SuiteConfig) -> tuple[dict[tuple, AllocConfig], list[tuple[tuple, Spec]], dict]:
     """(env settings by (scenario, intruder policy or None), [((scenario, intruders), allocator
     spec)] in leaderboard order, skipped runs)."""
     envs = {(name, intruders): config.env_of(name, intruders) for name in config.scenario_names()
             for intruders in config.intruder_axis()}
-    specs = [PolicySpec(policy_entry(name), dict(config.planner_options.get(name, {})))
-             for name in config.policy_names()]
+    specs = [Spec(allocator_entry(name), dict(config.planner_options.get(name, {})))
+             for name in config.allocator_names()]
     jobs, skipped, trained = [], {}, {}
     for key, env in envs.items():
         scenario = key[0]
@@ -72,7 +72,7 @@ def _plan(config: SuiteConfig) -> tuple[dict[tuple, AllocConfig], list[tuple[tup
                 skipped[scenario] = config.runs[scenario]
             else:
                 algo, policy = trained[scenario]
-                jobs.append((key, PolicySpec(policy_entry(algo), {"policy": policy})))
+                jobs.append((key, Spec(allocator_entry(algo), {"policy": policy})))
     return envs, jobs, skipped
 
 
@@ -193,8 +193,8 @@ def _write_suite(config: SuiteConfig, out: Path, board: pd.DataFrame, per: pd.Da
 def _check_planners(jobs: list, envs: dict) -> None:
     """Build every (scenario, planner) once, before Ray starts, so that a bad planner option
     is one line (ConfigError naming planner_options.<planner>), not a failed task
-    (farm.alloc.policies.registry.check_options)."""
-    from farm.alloc.policies.registry import check_options
+    (farm.alloc.allocators.check_options)."""
+    from farm.alloc.allocators import check_options
 
     for key, spec in jobs:
         if not spec.entry.options():
@@ -211,7 +211,7 @@ def _shown(key: tuple) -> str:
     return scenario if intruders is None else f"{scenario} against {intruders}"
 
 
-def _result(ray, ref, scenario: str, spec: PolicySpec) -> list[dict]:
+def _result(ray, ref, scenario: str, spec: Spec) -> list[dict]:
     """A task's rows; a project error it raised comes back as that error, one line naming the
     scenario and the policy (not Ray's wrapper with the worker's traceback)."""
     from farm.core.errors import SwarmFarmError
@@ -245,7 +245,7 @@ def matchup_tasks(costs: list[float], episodes: int) -> list[tuple[int, int, int
     matchup (a 3 x 3 episode takes milliseconds), and a 32 x 32 matchup, whose receding_horizon
     episodes take minutes each, runs on every worker and moves the progress bar an episode
     at a time. Episode k of a matchup is seeded seed + k whatever the cut, and is the same
-    episode (farm.alloc.rollout.play), so the cut changes no number."""
+    episode (farm.alloc.evaluation.rollout.play), so the cut changes no number."""
     tasks = []
     for matchup, cost in enumerate(costs):
         per_task = min(episodes, max(1, int(TASK_COST // max(cost, 1))))
@@ -257,9 +257,8 @@ def matchup_tasks(costs: list[float], episodes: int) -> list[tuple[int, int, int
 
 def _write_manifest(config: SuiteConfig, envs: dict, jobs: list, skipped: dict, store: Path, info: dict,
                     path: Path) -> None:
-    from workers import ENGINE_VERSION
-
     from farm.core.output import atomic_write_bytes
+    from workers import ENGINE_VERSION
 
     doc = {
         "name": config.name,
@@ -268,7 +267,7 @@ def _write_manifest(config: SuiteConfig, envs: dict, jobs: list, skipped: dict, 
             "scenarios": {name: {"description": SCENARIOS[name].description, "gym_id": SCENARIOS[name].gym_id,
                                  "env": config.env_of(name).model_dump(mode="json")}
                           for name in config.scenario_names()},
-            "policies": config.policy_names(),
+            "policies": config.allocator_names(),
             "planner_options": config.planner_options,
             "runs": {key[0]: config.runs[key[0]] for key, spec in jobs if spec.entry.kind == "learned"},
             "skipped_runs": skipped,

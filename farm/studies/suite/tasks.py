@@ -17,7 +17,7 @@ __all__ = ["remote_suite_matchup"]
 def remote_suite_matchup(config, spec, service, episodes: int, seed: int) -> list[dict]:
     """evaluate_matchup on a worker, its client built on the shared capture-time service actor
     `service` (a handle): config: the scenario's AllocConfig; spec: the allocator (a
-    farm.alloc.policies.PolicySpec); the episodes seeded seed .. seed + episodes - 1; returns
+    farm.alloc.allocators.Spec); the episodes seeded seed .. seed + episodes - 1; returns
     one dict per episode, numbered from 0. While the client waits for the actor (ray.get), Ray
     lends this task's CPU to the service's game tasks."""
     from farm.service.client import CaptureTimeClient

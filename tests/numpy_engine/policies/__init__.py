@@ -4,6 +4,14 @@ A policy returns velocities, pursuers (A, n_p, 2) or evaders (A, n_e, 2) float64
 with speeds at most ctx.v_max. Importing this package registers the built-ins.
 """
 
+from numpy_engine.policies import (  # noqa: F401  (registration side effect)
+    area_max,
+    area_min,
+    centroid,
+    constant_area,
+    pure_pursuit,
+    target,
+)
 from numpy_engine.policies.context import StepContext, unit_velocity
 from numpy_engine.policies.registry import (
     EVADER_POLICIES,
@@ -12,14 +20,6 @@ from numpy_engine.policies.registry import (
     get_evader_policy,
     get_pursuer_policy,
     pursuer_policy,
-)
-from numpy_engine.policies import (  # noqa: F401  (registration side effect)
-    area_max,
-    area_min,
-    centroid,
-    constant_area,
-    pure_pursuit,
-    target,
 )
 
 __all__ = [

@@ -7,8 +7,8 @@ from functools import cached_property
 
 import numpy as np
 
-from workers.arena import Arena
 from numpy_engine.geometry import NEIGHBOUR_EDGE_MIN, PAD, voronoi_cells
+from workers.arena import Arena
 
 HEADING_MIN = 1e-12
 

@@ -2,7 +2,13 @@
 and its resumable iteration files (loop.py), the labelled episodes it learns from
 (labels.py) and their Ray task (tasks.py). docs/training.md tells the design."""
 
-from farm.alloc.training.dagger.loop import (Pretrained, fit_actor, iteration_file, latest_iteration, pretrain,
-                                                 saved_iterations)
+from farm.alloc.training.dagger.loop import (
+                                                 Pretrained,
+                                                 fit_actor,
+                                                 iteration_file,
+                                                 latest_iteration,
+                                                 pretrain,
+                                                 saved_iterations,
+)
 
 __all__ = ["pretrain", "Pretrained", "fit_actor", "iteration_file", "saved_iterations", "latest_iteration"]

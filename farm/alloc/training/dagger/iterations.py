@@ -140,10 +140,10 @@ def check_state(state, iteration: int, policy_state: dict, maps: int) -> None:
 def resume_iteration(run_dir, digest: str, iterations: int, policy_state: dict, maps: int) -> tuple[int, dict] | None:
     """(the iteration, its state) of the newest iteration file of run_dir that read_iteration
     reads and check_state passes, or None. One that does not, or of an iteration at or beyond
-    `iterations`, is moved to pretrain/damaged/ (farm.alloc.runs.move_damaged) and said in one
+    `iterations`, is moved to pretrain/damaged/ (farm.alloc.training.runs.move_damaged) and said in one
     line on stderr, and the one before it tried. policy_state: the run's model's policy
     state_dict (the shapes a saved policy must have); maps: the maps the pretraining plays."""
-    from farm.alloc.runs import DAMAGED, move_damaged
+    from farm.alloc.training.runs import DAMAGED, move_damaged
 
     damaged, found = [], None
     for iteration in saved_iterations(run_dir):

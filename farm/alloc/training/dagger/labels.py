@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from farm.alloc.env import SwarmAllocationEnv
+from farm.alloc.envs.defenders import SwarmAllocationEnv
 
 __all__ = ["FIELDS", "play_labelled", "concat"]
 

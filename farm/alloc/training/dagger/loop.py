@@ -11,9 +11,15 @@ import time
 
 import numpy as np
 
-from farm.alloc.policies import PolicySpec, policy_entry
-from farm.alloc.training.dagger.iterations import (iteration_file, latest_iteration, resume_iteration, run_digest,
-                                                   saved_iterations, write_iteration)
+from farm.alloc.allocators import Spec, allocator_entry
+from farm.alloc.training.dagger.iterations import (
+    iteration_file,
+    latest_iteration,
+    resume_iteration,
+    run_digest,
+    saved_iterations,
+    write_iteration,
+)
 from farm.alloc.training.dagger.labels import concat, play_labelled
 
 __all__ = ["PRETRAIN_SEED_OFFSET", "FLOW_FLOOR", "MoveMap", "imitation_loss", "label_all", "fit_actor", "fit_maps",
@@ -29,7 +35,7 @@ def label_all(config, params, learner, share: float, iteration: int, seed: int, 
     """One iteration's episodes (play_labelled), in tasks of params.episodes_per_task: Ray tasks
     on the farm when client answers from the service actor (its backend has an `actor`),
     else in this process; results in task order. params: PretrainParams; seed: the run's."""
-    spec = PolicySpec(policy_entry(params.expert, "pretrain.expert"), dict(params.expert_options))
+    spec = Spec(allocator_entry(params.expert, "pretrain.expert"), dict(params.expert_options))
     first = PRETRAIN_SEED_OFFSET + seed * 100_003 + iteration * params.episodes
     seeds = list(range(first, first + params.episodes))
     tasks = [(k, seeds[s: s + params.episodes_per_task])
@@ -91,7 +97,7 @@ class MoveMap:
     def __init__(self, config):
         import torch
 
-        from farm.alloc.env import moves
+        from farm.alloc.game.dynamics import moves
 
         src, _, _ = moves(config.grid_size)
         self.src = torch.as_tensor(src)
@@ -354,7 +360,7 @@ def _learner_on(policy, env, j: int):
     moved to env's map (cell_policy.resized)."""
     if j == 0:
         return policy
-    from farm.alloc.training.cell_policy import resized
+    from farm.alloc.networks.cell_policy import resized
 
     return resized(policy, env)
 

@@ -12,7 +12,7 @@ __all__ = ["remote_label"]
 
 @ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)
 def remote_label(config, spec, learner, share: float, seeds: list[int], coin_key, service, gamma: float) -> dict:
-    """play_labelled on a worker, the expert (spec, a PolicySpec) and the engagements answered by
+    """play_labelled on a worker, the expert (spec, a Spec) and the engagements answered by
     the shared capture-time service actor `service` (a handle); learner: the learner's SB3
     policy or None. One torch thread: the task is one CPU's."""
     import torch
