@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from farm.core.checks import is_whole
 from farm.core.errors import ConfigError
 
-__all__ = ["DRAWS", "mixture_members"]
+__all__ = ["DRAWS", "mixture_members", "saved_member", "saved_generator"]
 
 DRAWS = ("episode", "step", "mean")  # a member drawn per episode or per step, or the members' mean move
 
@@ -44,3 +45,21 @@ def mixture_members(owner: str, members, weights, draw: str, key: str) -> tuple[
     if draw not in DRAWS:
         raise ConfigError(f"{owner}.draw: one of {', '.join(DRAWS)}, got {draw!r}", field=f"{owner}.draw")
     return parsed, w
+
+
+def saved_member(state: dict, n: int) -> int | None:
+    """The member an episode's saved draw (a mixture episode's get_state()) plays, as an index of
+    the n members; None for a draw per step. ValueError for a member that is not one."""
+    if "member" not in state:
+        return None
+    member = state["member"]
+    if not is_whole(member, numpy=True) or not 0 <= member < n:
+        raise ValueError(f"member: {member!r} is not one of the {n} members")
+    return int(member)
+
+
+def saved_generator(state: dict) -> np.random.Generator:
+    """The generator of an episode's saved draw per step (its get_state()'s `rng`)."""
+    rng = np.random.default_rng()
+    rng.bit_generator.state = state["rng"]
+    return rng

@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from farm.core.checks import is_whole
-from farm.core.mixture import mixture_members
+from farm.core.mixture import mixture_members, saved_generator, saved_member
 
 __all__ = ["Mixture"]
 
@@ -48,14 +47,8 @@ class Mixture:
 
     def resume_episode(self, state: dict):
         """The episode's play from its get_state(); ValueError for a member that is not one."""
-        if "member" in state:
-            member = state["member"]
-            if not is_whole(member, numpy=True) or not 0 <= member < len(self.players):
-                raise ValueError(f"member: {member!r} is not one of the {len(self.players)} members")
-            return _Member(self, int(member))
-        rng = np.random.default_rng()
-        rng.bit_generator.state = state["rng"]
-        return _Draws(self, rng)
+        member = saved_member(state, len(self.players))
+        return _Draws(self, saved_generator(state)) if member is None else _Member(self, member)
 
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
         """The members' mean move (draw mean), else a member drawn from the mixture's own generator

@@ -43,8 +43,8 @@ from farm.alloc.intruders.play import (
 from farm.core.config import error_field, first_line
 from farm.core.errors import ConfigError
 
-__all__ = ["GridEnv", "SwarmAllocationEnv", "moves", "n_actions", "check_env_arguments", "env_client", "check_state",
-           "resume_draws", "STATE_FIELDS"]
+__all__ = ["GridEnv", "SwarmAllocationEnv", "moves", "n_actions", "check_env_arguments", "env_client", "tally_step",
+           "check_state", "resume_draws", "STATE_FIELDS"]
 
 log = logging.getLogger(__name__)
 
@@ -149,6 +149,21 @@ def env_client(config: AllocConfig, store):
     return CaptureTimeClient(config.game_settings(), local_store=store)
 
 
+def tally_step(env, r: StepResult) -> tuple[float, float, int, int]:
+    """Move a one-episode env to a step's outcome r (a StepResult, B = 1): its D, I and counters
+    (breached, eliminated, engagements, estimated, steps). Returns the step's breach, eliminated
+    mass, engaged cells and estimates."""
+    env.D, env.I = r.D[0], r.I[0]
+    breach, eliminated = float(r.breach[0]), float(r.eliminated[0])
+    engaged, estimates = int(r.engaged[0]), int(r.estimates[0])
+    env.breached += breach
+    env.eliminated += eliminated
+    env.engagements += engaged
+    env.estimated += estimates
+    env.steps += 1
+    return breach, eliminated, engaged, estimates
+
+
 class GridEnv(gym.Env):
     """One episode of the grid MDP as a gymnasium env, whichever side acts in it: the part the
     defenders' env (SwarmAllocationEnv, whose docstring describes each piece) and the intruders'
@@ -211,14 +226,7 @@ class GridEnv(gym.Env):
         """Take a step's outcome, r: a StepResult of one episode (B = 1): the densities, the
         counters, the episode's end; then _prepare unless it ended. Returns step()'s (obs,
         reward: float (_reward), terminated, truncated: bool, info)."""
-        self.D, self.I = r.D[0], r.I[0]
-        breach, eliminated = float(r.breach[0]), float(r.eliminated[0])
-        engaged, estimates = int(r.engaged[0]), int(r.estimates[0])
-        self.breached += breach
-        self.eliminated += eliminated
-        self.engagements += engaged
-        self.estimated += estimates
-        self.steps += 1
+        breach, eliminated, engaged, estimates = tally_step(self, r)
         terminated, truncated = episode_end(self.config, np.array([self.steps]), r.remaining)
         terminated, truncated = bool(terminated[0]), bool(truncated[0])
         if not (terminated or truncated):

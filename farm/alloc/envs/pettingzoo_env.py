@@ -30,7 +30,7 @@ except ModuleNotFoundError as e:  # only pettingzoo itself missing: a broken ins
     raise ModuleNotFoundError("farm.alloc.envs.pettingzoo_env needs pettingzoo: pip install 'swarm-farm[marl]'",
                               name="pettingzoo") from None
 
-from farm.alloc.envs.defenders import check_env_arguments, env_client
+from farm.alloc.envs.defenders import check_env_arguments, env_client, tally_step
 from farm.alloc.game.config import AllocConfig
 from farm.alloc.game.dynamics import (
     Layout,
@@ -166,15 +166,8 @@ class _TwoSides:
         truncated, info), R the defenders' reward."""
         routing = routing_of(self.layout, route_probabilities(self.layout, self.config, action[None]))
         r = resolve(self.layout, self.config, self.model, moved[None], self.I[None], routing)
-        self.D, self.I = r.D[0], r.I[0]
         self.moved = None
-        breach, eliminated = float(r.breach[0]), float(r.eliminated[0])
-        engaged, estimates = int(r.engaged[0]), int(r.estimates[0])
-        self.breached += breach
-        self.eliminated += eliminated
-        self.engagements += engaged
-        self.estimated += estimates
-        self.steps += 1
+        breach, eliminated, engaged, estimates = tally_step(self, r)
         terminated, truncated = episode_end(self.config, np.array([self.steps]), r.remaining)
         info = self._info(breach, eliminated, engaged, estimates, float(r.remaining[0]), float(r.coverage[0]),
                           float(r.per_engaged[0]))

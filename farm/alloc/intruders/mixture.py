@@ -7,8 +7,7 @@ import numpy as np
 from farm.alloc.game.registry import INTRUDERS
 from farm.alloc.intruders.base import IntruderPolicy
 from farm.alloc.intruders.play import draw_state, for_episode
-from farm.core.checks import is_whole
-from farm.core.mixture import mixture_members
+from farm.core.mixture import mixture_members, saved_generator, saved_member
 
 __all__ = ["IntruderMixture"]
 
@@ -52,17 +51,13 @@ class IntruderMixture(IntruderPolicy):
 
     def resume_episode(self, state: dict):
         """The episode's play from its get_state(); ValueError for a member that is not one."""
-        if "member" in state:
-            member = state["member"]
-            if not is_whole(member, numpy=True) or not 0 <= member < len(self.players):
-                raise ValueError(f"member: {member!r} is not one of the {len(self.players)} members")
-            played = self.players[int(member)]
-            if state.get("played") is not None:
-                played = played.resume_episode(state["played"])
-            return _Member(self, int(member), played)
-        rng = np.random.default_rng()
-        rng.bit_generator.state = state["rng"]
-        return _Draws(self, rng)
+        member = saved_member(state, len(self.players))
+        if member is None:
+            return _Draws(self, saved_generator(state))
+        played = self.players[member]
+        if state.get("played") is not None:
+            played = played.resume_episode(state["played"])
+        return _Member(self, member, played)
 
     def routing(self, D, I):
         """The members' routings averaged with the weights (draw mean), else each row's routing by a
