@@ -1,9 +1,8 @@
 """High-level allocation: the two-player grid game of the defenders and the intruders.
 
-Its rooms, lowest first: game/ (the config, the model, the dynamics, the scenarios, the two
-sides' registries), networks/ (trained models), allocators/ and intruders/ (the two sides'
-policies, each registering into game's registries, neither importing the other), envs/ (the
-game as gymnasium and PettingZoo envs), training/ and evaluation/.
+Rooms, lowest first: game/ (model, scenarios, the two sides' registries), networks/,
+allocators/ and intruders/ (the two sides, neither importing the other), envs/, training/,
+evaluation/.
 
 Importing this package registers both sides' policies, the env (`farm/SwarmAllocation-v0`), and
 each benchmark scenario (farm.alloc.game.scenarios.SCENARIOS) as `farm/<name>-v0`:

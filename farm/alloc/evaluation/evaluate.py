@@ -123,13 +123,14 @@ def evaluate_run(run_dir, *, episodes: int = 20, seed: int = 1000, fidelity: str
 def _on_scenario(config, scenario: str | None):
     """config (a TrainConfig) with its env on scenario's map, the service's games and seed kept
     (as farm suite keeps them); config itself for scenario None. ConfigError for an unknown one."""
-    from farm.alloc.game.scenarios import SCENARIOS
+    from farm.alloc.game.scenarios import SCENARIOS, known_scenario
 
     if scenario is None:
         return config
-    if scenario not in SCENARIOS:
-        raise ConfigError(f"scenario: unknown scenario {scenario!r} (choose from {', '.join(SCENARIOS)})",
-                          field="scenario")
+    try:
+        known_scenario(scenario)
+    except ValueError as e:
+        raise ConfigError(f"scenario: {e}", field="scenario") from None
     own = config.env
     return config.model_copy(update={"env": SCENARIOS[scenario].config(games=own.games, seed=own.seed)})
 

@@ -4,19 +4,10 @@ policies (farm.alloc.allocators registers them), INTRUDERS the intruder policies
 the `search` intruders' model of the allocators) it asks the other's registry by name, so neither
 side's package imports the other's.
 
-An entry is a name, a kind and a maker. An allocator's maker is `make(config, client, **options)
--> allocator`, answering SB3's `predict(obs, state=None, episode_start=None, deterministic=True)
--> (action, state)`; an intruder policy's is `make(config, **options) -> policy`, given the
-caller's capture-time client only when it has a `client` keyword, answering `routing(D, I) ->
-(up, down)`: D, I: (B, N^2) float64 the defenders it sees and the intruders; up, down: (B, N^2)
-float64 each cell's share of intruder mass sent up-left and down-left, the rest straight left
-(farm.alloc.game.model.route_intruders_many). config is the map's AllocConfig, options the
-policy's own keywords (a planner's `horizon`, a learned policy's `run`).
-
 Entries travel to Ray workers inside the tasks that use them (a Spec holds its entry), pickled
-with cloudpickle, the maker's module by value when it is the user's own code (not farm's, not an
-installed package: a script, a notebook, a test file, which a worker could not import by name):
-a policy registered in a driver's own module is played on the farm too.
+with cloudpickle, the maker's module by value when it is the user's own code (a script, a
+notebook, a test file, which a worker could not import by name): a policy registered in a
+driver's own module is played on the farm too.
 """
 
 from __future__ import annotations
@@ -34,11 +25,19 @@ __all__ = ["Entry", "Spec", "Registry", "ALLOCATORS", "INTRUDERS"]
 
 @dataclass(frozen=True)
 class Entry:
-    """One policy of a registry: name, kind (one of the registry's kinds), make (see the module
-    doc), description, client ("always": make takes the client as its second argument; "if_taken":
+    """One policy of a registry: name, kind (one of the registry's kinds), make, description, client ("always": make takes the client as its second argument; "if_taken":
     as a `client` keyword when make has one), and reference: whether evaluations compare every
     trained allocator with it by default (a baseline or planner that is slow or needs options,
-    like `subregions`, is not)."""
+    like `subregions`, is not).
+
+    An allocator's maker is `make(config, client, **options) -> allocator`, answering SB3's
+    `predict(obs, state=None, episode_start=None, deterministic=True) -> (action, state)`; an
+    intruder policy's is `make(config, **options) -> policy` (with `client=` when it takes one),
+    answering `routing(D, I) -> (up, down)`: D, I: (B, N^2) float64 the defenders it sees and the
+    intruders; up, down: (B, N^2) float64 each cell's share of intruder mass sent up-left and
+    down-left, the rest straight left (farm.alloc.game.model.route_intruders_many). config is the
+    map's AllocConfig, options the policy's own keywords (a planner's `horizon`, a learned
+    policy's `run`)."""
 
     name: str
     kind: str

@@ -24,7 +24,8 @@ from typing import Any
 from farm.alloc.game.config import AllocConfig
 
 __all__ = ["Scenario", "SCENARIOS", "PAPER_SCENARIOS", "THEATRES", "ENTRY_POINT", "VECTOR_ENTRY_POINT",
-           "INTRUDER_ENTRY_POINT", "INTRUDER_VECTOR_ENTRY_POINT", "gym_id", "intruder_gym_id", "register_scenarios"]
+           "INTRUDER_ENTRY_POINT", "INTRUDER_VECTOR_ENTRY_POINT", "known_scenario", "gym_id", "intruder_gym_id",
+           "register_scenarios"]
 
 ENTRY_POINT = "farm.alloc.envs.defenders:SwarmAllocationEnv"  # the defenders' env of every id
 VECTOR_ENTRY_POINT = "farm.alloc.envs.vector:SwarmAllocationVectorEnv"  # the batched env of every id
@@ -123,6 +124,13 @@ _ALL = [
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in _ALL}
 PAPER_SCENARIOS = ("paper_3x3_c1_0", "paper_3x3_c1_1.5", "paper_3x3_100v100", "larger_5x5", "larger_8x8")
 THEATRES = ("theatre_8x8", "theatre_16x16", "theatre_32x32")  # the size-free learner's maps
+
+
+def known_scenario(name):
+    """name, when it is a scenario's (a key of SCENARIOS); ValueError naming the choices otherwise."""
+    if not isinstance(name, str) or name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r} (choose from {', '.join(SCENARIOS)})")
+    return name
 
 
 def register_scenarios() -> list[str]:

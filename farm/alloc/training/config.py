@@ -12,7 +12,7 @@ from pydantic import Field, field_validator, model_serializer, model_validator
 
 from farm.alloc.envs.intruders import DEFAULT_OPPONENT, REWARDS
 from farm.alloc.game.config import AllocConfig
-from farm.alloc.game.scenarios import SCENARIOS
+from farm.alloc.game.scenarios import SCENARIOS, known_scenario
 from farm.core.checks import flag, is_finite_number, is_whole, whole
 from farm.core.config import ConfigError, Strict, load_yaml_model
 from farm.core.tracking import TrackingParams
@@ -204,9 +204,7 @@ class MapParams(Strict):
     @field_validator("scenario")
     @classmethod
     def _known(cls, v):
-        if v not in SCENARIOS:
-            raise ValueError(f"unknown scenario {v!r} (choose from {', '.join(SCENARIOS)})")
-        return v
+        return known_scenario(v)
 
     @model_validator(mode="after")
     def _settings(self):
@@ -454,9 +452,7 @@ class TrainConfig(Strict):
     @field_validator("scenario")
     @classmethod
     def _known_scenario(cls, v):
-        if v is not None and v not in SCENARIOS:
-            raise ValueError(f"unknown scenario {v!r} (choose from {', '.join(SCENARIOS)})")
-        return v
+        return v if v is None else known_scenario(v)
 
 
 def check_trainable(config: TrainConfig) -> None:

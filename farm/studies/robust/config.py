@@ -99,11 +99,9 @@ class RobustConfig(StrictFile):
     @field_validator("scenario")
     @classmethod
     def _known_scenario(cls, v):
-        from farm.alloc.game.scenarios import SCENARIOS
+        from farm.alloc.game.scenarios import known_scenario
 
-        if v not in SCENARIOS:
-            raise ValueError(f"unknown scenario {v!r} (choose from {', '.join(SCENARIOS)})")
-        return v
+        return known_scenario(v)
 
     @model_validator(mode="after")
     def _members(self):
