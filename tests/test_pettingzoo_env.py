@@ -357,7 +357,8 @@ def test_nothing_else_in_farm_imports_pettingzoo_at_import_time(tmp_path):
     checked = sorted(p for p in (ROOT / "farm").rglob("*.py") if p.name != "pettingzoo_env.py")
     assert [str(p.relative_to(ROOT)) for p in checked if imports_pettingzoo_at_module_level(p)] == []
     planted = tmp_path / "planted.py"  # the check finds one
-    planted.write_text("def f():\n    import pettingzoo\n\n\nif True:\n    from farm.alloc.envs import pettingzoo_env\n")
+    planted.write_text("def f():\n    import pettingzoo\n\n\n"
+                       "if True:\n    from farm.alloc.envs import pettingzoo_env\n")
     assert imports_pettingzoo_at_module_level(planted)
     # Without pettingzoo, farm imports and pettingzoo_env says in one line what to install.
     script = ("import sys; sys.modules['pettingzoo'] = None\n"

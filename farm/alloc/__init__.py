@@ -11,9 +11,8 @@ each benchmark scenario (farm.alloc.game.scenarios.SCENARIOS) as `farm/<name>-v0
     env = gymnasium.make("farm/paper_3x3_c1_0-v0")
 and each id's batched form (farm.alloc.envs.vector.SwarmAllocationVectorEnv, B episodes in numpy):
     envs = gymnasium.make_vec("farm/paper_3x3_c1_0-v0", num_envs=16, vectorization_mode="vector_entry_point")
-The intruders' side against a frozen allocator (farm.alloc.envs.intruders), as `farm/SwarmIntruders-v0`
-and each scenario's `farm/<name>-intruders-v0`:
-    env = gymnasium.make("farm/paper_3x3_c1_0-intruders-v0", opponent="stay_at_base")
+The intruders' side against a frozen allocator (farm.alloc.envs.intruders), as each scenario's
+`farm/<name>-intruders-v0`: gymnasium.make("farm/paper_3x3_c1_0-intruders-v0", opponent="stay_at_base")
 """
 
 import gymnasium

@@ -25,8 +25,9 @@ __all__ = ["Entry", "Spec", "Registry", "ALLOCATORS", "INTRUDERS"]
 
 @dataclass(frozen=True)
 class Entry:
-    """One policy of a registry: name, kind (one of the registry's kinds), make, description, client ("always": make takes the client as its second argument; "if_taken":
-    as a `client` keyword when make has one), and reference: whether evaluations compare every
+    """One policy of a registry: name, kind (one of the registry's kinds), make, description,
+    client ("always": make takes the client as its second argument; "if_taken": as a `client`
+    keyword when make has one), and reference: whether evaluations compare every
     trained allocator with it by default (a baseline or planner that is slow or needs options,
     like `subregions`, is not).
 
