@@ -254,7 +254,7 @@ def cli_reference() -> str:
         top = help_of()
         commands = re.search(r"\{([a-z,-]+)\}", top).group(1).split(",")
         out = ["# The `farm` command line", "", "Generated from `farm.cli.build_parser` by `tools/mkdocs_hooks.py`. "
-               "Every error is one line naming the flag; `--debug` (or `FARM_DEBUG=1`) shows the traceback.", "",
+               "Every error is one line naming the flag; `--debug` (or `SWARM_FARM_DEBUG=1`) shows the traceback.", "",
                "```text", top, "```", ""]
         for command in commands:
             out += [f"## farm {command}", "", "```text", help_of(command), "```", ""]

@@ -23,15 +23,17 @@ from farm.core.checks import whole
 from farm.core.errors import ConfigError
 from workers import GameResults
 
-__all__ = ["ANIMATION_SUFFIXES", "MAX_AUTO_FRAMES", "MAX_ANIMATION_BYTES", "GAME_FIGSIZE", "GAME_DPI",
-           "check_animation_path", "check_frames", "auto_stride", "game_frame_steps", "game_frame_count",
-           "figure_frames", "game_frames", "write_animation", "read_frame_count"]
+__all__ = ["ANIMATION_SUFFIXES", "MAX_AUTO_FRAMES", "MAX_ANIMATION_BYTES", "GAME_FIGSIZE", "GAME_DPI", "FPS_RANGE",
+           "check_animation_path", "check_pace", "animation_pace", "check_frames", "auto_stride", "game_frame_steps",
+           "game_frame_count", "figure_frames", "game_frames", "write_animation", "read_frame_count"]
 
 ANIMATION_SUFFIXES = (".gif", ".mp4")
 MAX_AUTO_FRAMES = 120  # a game animated at the default stride has at most this many frames
 MAX_ANIMATION_BYTES = 2**30  # the frames of one animation, held at once to be encoded: 1 GiB
 GAME_FIGSIZE = (5.0, 5.2)  # a game's frame, in inches (game_frames)
 GAME_DPI = 80  # ... and its dots an inch
+FPS_RANGE = (0.1, 50.0)  # the frames a second an animation may be asked for
+AUTO_FPS_RANGE = (1.0, 25.0)  # a game's own pace, kept within these frames a second
 
 
 def check_animation_path(path, field: str = "animate") -> Path:
@@ -67,6 +69,25 @@ def check_game_frames(steps: int, stride: int, field: str = "frame_stride", dpi:
     fits = max(1, MAX_ANIMATION_BYTES // (width * height * 3))
     check_frames(game_frame_count(steps, stride), width, height, field,
                  f"a frame stride of at least {auto_stride(steps, fits)} fits")
+
+
+def check_pace(stride: int | None, fps: float | None) -> None:
+    """ConfigError naming frame_stride unless stride is None or >= 1, or fps unless it is None
+    or within FPS_RANGE."""
+    if stride is not None and stride < 1:
+        raise ConfigError(f"frame_stride: must be a whole number >= 1, got {stride}", field="frame_stride")
+    if fps is not None and not FPS_RANGE[0] <= fps <= FPS_RANGE[1]:
+        raise ConfigError(f"fps: must be between {FPS_RANGE[0]:g} and {FPS_RANGE[1]:g} frames a second, got {fps:g}",
+                          field="fps")
+
+
+def animation_pace(steps: int, dt: float, stride: int | None = None, fps: float | None = None) -> tuple[int, float]:
+    """(stride, fps) of a `steps`-step game's animation: stride, else auto_stride(steps); fps, else
+    the game's own pace (a frame every stride steps of dt seconds) within AUTO_FPS_RANGE."""
+    stride = stride or auto_stride(steps)
+    if fps is None:
+        fps = min(AUTO_FPS_RANGE[1], max(AUTO_FPS_RANGE[0], 1.0 / (stride * dt)))
+    return stride, fps
 
 
 def auto_stride(steps: int, max_frames: int = MAX_AUTO_FRAMES) -> int:

@@ -18,6 +18,8 @@ from matplotlib.patches import Polygon as PolygonPatch
 
 from workers import GameResults
 
+from farm.core.errors import ConfigError
+
 PURSUER_COLOR = "tab:blue"
 EVADER_COLOR = "tab:red"
 
@@ -74,6 +76,14 @@ def default_frames(res: GameResults, game: int) -> list[int]:
     return sorted({0, end // 2, end})
 
 
+def frames_at(res: GameResults, times, game: int = 0, field: str = "times") -> list[int]:
+    """The step indices of one recorded game at `times` (s), a time past the game's end at its
+    end; ConfigError naming field unless every time is finite and >= 0."""
+    if not all(np.isfinite(t) and t >= 0 for t in times):
+        raise ConfigError(f"{field}: times must be finite and >= 0", field=field)
+    return [min(int(round(t / res.dt)), int(res.steps[game])) for t in times]
+
+
 def draw_game(ax, res: GameResults, game: int, frame: int) -> None:
     """Draw one panel of a recorded game at a frame (a step index) on ax.
 
@@ -118,6 +128,16 @@ def draw_game(ax, res: GameResults, game: int, frame: int) -> None:
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal")
     ax.set_title(f"t = {frame * res.dt:.2f} s")
+
+
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def check_figure_path(path, field: str = "plot") -> Path:
+    """path as a Path when it names a .png, .pdf or .svg file, else ConfigError naming field."""
+    if Path(path).suffix.lower() not in FIGURE_SUFFIXES:
+        raise ConfigError(f"{field}: {str(path)!r} must end in .png, .pdf or .svg", field=field)
+    return Path(path)
 
 
 def plot_game(res: GameResults, path: str | Path, *, game: int = 0, frames=None, title: str | None = None) -> Path:

@@ -11,8 +11,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from farm.core.output import write_table
 from workers import Case, run_case, run_games
+
+from farm.core.errors import ConfigError
+from farm.core.output import write_table
 
 # (table, n_pursuers, pursuer policy, evader policy, the paper's mean capture time in s)
 PAPER_CASES = [
@@ -32,6 +34,28 @@ def paper_case(base: Case, n_pursuers: int, pursuer_policy: str, evader_policy: 
     """One paper case (1 evader) with the rest of the settings (speeds, r_c...) from base."""
     return replace(base, n_pursuers=n_pursuers, n_evaders=1, pursuer_policy=pursuer_policy,
                    evader_policy=evader_policy)
+
+
+MIN_GAMES = 2  # games a case at least: a confidence interval needs two
+
+
+def check_games(n_games: int) -> None:
+    """ConfigError naming games when a case would get fewer than MIN_GAMES games."""
+    if n_games < MIN_GAMES:
+        raise ConfigError(f"games: need at least {MIN_GAMES} games per case for a CI, got {n_games}", field="games")
+
+
+def paper_speeds(base: Case) -> bool:
+    """Whether base's team speeds are the paper's (1 and 1)."""
+    return base.pursuer_speed == base.evader_speed == 1.0
+
+
+def default_folder(base: Case) -> str:
+    """Where the tables at base's speeds go by default: results/pe-table at the paper's speeds,
+    else results/pe-table-speeds-P-E."""
+    if paper_speeds(base):
+        return "results/pe-table"
+    return f"results/pe-table-speeds-{base.pursuer_speed:g}-{base.evader_speed:g}"
 
 
 def pe_size(n_games: int, base: Case | None = None):

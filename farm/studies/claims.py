@@ -30,7 +30,7 @@ from farm.core.stats import format_ci, mean_ci95
 
 __all__ = ["plateau_minutes", "measure_a", "measure_b", "claims", "check_claim_runs", "PAIR_C_CAPTURE", "SeedClaims",
            "claims_over_seeds", "find_pairs",
-           "write_claims_over_seeds", "COVERAGE_THRESHOLD", "PLATEAU_MINUTES"]
+           "write_claims", "write_claims_over_seeds", "COVERAGE_THRESHOLD", "PLATEAU_MINUTES"]
 
 COVERAGE_THRESHOLD = 0.9  # (a): the lower end of the coverage CI at least this
 PLATEAU_MINUTES = 10.0  # (c): the plateau within this many minutes of training
@@ -169,6 +169,13 @@ def claims(runs_dir: Path, c0: str = "paper_3x3_c1_0", c15: str = "paper_3x3_c1_
                                f"{PLATEAU_MINUTES:g} minutes of training on 2 cores; plateau: within 5% of the range "
                                f"of evaluation returns below the best)"})
     return out
+
+
+def write_claims(runs_dir, rows: list[dict]) -> Path:
+    """Write claims()' rows to runs_dir/claims.csv; returns its path."""
+    from farm.core.output import write_table
+
+    return write_table(pd.DataFrame(rows), Path(runs_dir) / "claims", "csv")
 
 
 def _intruder_cells_at_step1(run: Path) -> int:

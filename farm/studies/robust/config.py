@@ -7,6 +7,7 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from farm.core.checks import whole
 from farm.core.config import Strict, StrictFile, load_yaml_model
 
 __all__ = ["RobustConfig", "load_robust_config", "PayoffParams", "LibraryParams", "TrainingParams", "FloorParams"]
@@ -159,6 +160,12 @@ class RobustConfig(StrictFile):
         from farm.alloc.game.scenarios import SCENARIOS
 
         return SCENARIOS[self.scenario].config(**self.env)
+
+    def with_seed(self, seed: int) -> RobustConfig:
+        """This config with the loop's seed set to seed and _s<seed> added to its name (the runs of
+        one config over seeds side by side); ConfigError naming seed unless a whole number >= 0."""
+        whole("seed", seed)
+        return self.model_copy(update={"seed": seed, "name": f"{self.name}_s{seed}"})
 
     def population(self, side: str) -> list:
         """The starting members of a side (farm.studies.robust.members.Member)."""
