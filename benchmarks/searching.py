@@ -2,7 +2,7 @@
 
 Each allocator plays the same seeded episodes (seeds 2000.. by default) of each 3 x 3 scenario:
   drift    play() against the drift law: the allocator's own planning, once a step;
-  exact    farm.alloc.intruders.search.exact_response against the allocator: one search an episode
+  exact    farm.alloc.intruders.exact_search.exact_response against the allocator: one search an episode
            (the allocator asked at every state of the intruders' tree);
   search   play() against `search` intruders modelling that allocator alone: the same routings
            (checked episode by episode), re-planned at every step from the episode's memos;
@@ -42,7 +42,7 @@ def measure(config, name: str, second: str, client, episodes: int, seed: int) ->
     search played exact's routings (the same eliminated mass, episode by episode)."""
     from farm.alloc.allocators import make_allocator
     from farm.alloc.evaluation.rollout import play
-    from farm.alloc.intruders.search import exact_response
+    from farm.alloc.intruders.exact_search import exact_response
 
     def played(env):
         return play(env, make_allocator(name, env, client), client, episodes, seed)

@@ -1,4 +1,4 @@
-"""The intruders' exact best response (farm.alloc.intruders.search, farm.studies.exploit): the search
+"""The intruders' exact best response (farm.alloc.intruders.exact_search, farm.studies.exploit): the search
 against a plain recursive enumeration written here, a replay of its routings through play() to the
 bit, its size refusal, never worse than a heuristic of the registry, and on Ray the same table as
 in process whatever the workers. Small real games (4 a case) in a store under tmp_path."""
@@ -20,7 +20,7 @@ from farm.alloc.intruders import (
     register_intruders,
     unregister_intruders,
 )
-from farm.alloc.intruders.search import (
+from farm.alloc.intruders.exact_search import (
     ScriptedIntruders,
     cell_options,
     exact_response,

@@ -183,8 +183,8 @@ def stay_action(layout):
 
 @pytest.mark.parametrize("objective", ["eliminated", "reward"])
 def test_level_values_are_exact_for_one_change(objective, rng):
-    """5x5 over the approach, a curve that does not depend on n_e: a level's value in a scenario,
-    linearised around a plan without that engagement, is exactly what the scenario's simulated
+    """5x5 over the approach, a curve that does not depend on n_e: a level's value in a course,
+    linearised around a plan without that engagement, is exactly what the course's simulated
     value gains from adding it (as receding_horizon's values)."""
     cfg = AllocConfig(grid_size=5, n_defenders=100, n_intruders=50, team_sizes="lattice", c_capture=1.5,
                       breach_penalty=2.0, max_steps=16)
@@ -195,7 +195,7 @@ def test_level_values_are_exact_for_one_change(objective, rng):
     x = np.zeros(25)
     x[10] = 100.0
     net = planner.flow_network(x, planner.cone(I, 5))
-    up, down = planner.initial_scenarios(I, 5, first=False)
+    up, down = planner.initial_courses(I, 5, first=False)
     for _ in range(5):
         choice = np.where(rng.random(net["T"]) < 0.5, rng.integers(1, net["m"] + 1, net["T"]), 0)
         i = int(rng.integers(net["T"]))
@@ -253,7 +253,7 @@ def test_deterministic():
     ({"robustness": True}, "robustness"),
     ({"objective": "return"}, "objective"),
     ({"iterations": 0}, "iterations"),
-    ({"scenarios": -1}, "scenarios"),
+    ({"courses": -1}, "courses"),
     ({"routings": 0}, "routings"),
     ({"beam": 2.5}, "beam"),
     ({"branch_levels": "all"}, "branch_levels"),

@@ -21,7 +21,7 @@ from pydantic import ValidationError
 
 from farm.alloc.allocators import make_allocator
 from farm.alloc.evaluation.rollout import play
-from farm.alloc.intruders.search import exact_response
+from farm.alloc.intruders.exact_search import exact_response
 from farm.core.config import first_line
 from farm.core.matrix_game import solve
 from farm.service.client import CaptureTimeClient

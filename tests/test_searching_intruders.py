@@ -25,7 +25,7 @@ from farm.alloc.game.dynamics import (
 from farm.alloc.game.lattice import memo_client
 from farm.alloc.game.model import EngagementModel
 from farm.alloc.intruders import make_intruders
-from farm.alloc.intruders.search import cell_options, episode_start, exact_response
+from farm.alloc.intruders.exact_search import cell_options, episode_start, exact_response
 from farm.core.config import first_line
 from farm.core.errors import ConfigError
 

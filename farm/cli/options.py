@@ -25,7 +25,7 @@ GAME_FLAG_HELP = {
     "evader_policy": f"one of {', '.join(sorted(EVADER_POLICIES))}",
     "target": "target point of `target` evaders, 'x,y'",
     "arena": "JSON file with the arena's vertices [[x, y], ...] (default: [0,10]^2 square)",
-    "exit_point": "'x,y': an evader within r_c of it escapes (model v2; default: no exit)",
+    "exit_point": "'x,y': an evader within r_c of it escapes (engagement v2; default: no exit)",
     "law": "initial positions: boxes (the paper's start boxes) or uniform",
     "pursuer_speed": "pursuers' top speed",
     "evader_speed": "evaders' top speed",

@@ -1,7 +1,7 @@
 """The level repair: a learned allocator's action moved onto the games it almost plays.
 
 Under `team_sizes: lattice` a target cell's game is a step function of its defender count
-(docs/model.md section 5, "Levels"): 27.5 defenders play a 24-defender game, 27.7 play 32.
+(docs/model.md section 7, "Levels"): 27.5 defenders play a 24-defender game, 27.7 play 32.
 receding_horizon plans each target at the least count of the level it wants (its window's low
 end, `levels().lo`, 0.1 defender inside the rounding threshold), so an allocator that imitates
 it to within 1% of a cell's mass lands on the wrong side of the threshold about half the time

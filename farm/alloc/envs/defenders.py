@@ -392,7 +392,7 @@ class SwarmAllocationEnv(GridEnv):
     `capture_score: expected` (v2's default) s_c is an expectation over all the cell's
     games: the mean over games of each game's mean over its intruders of max(0, 1 -
     t/tau), an intruder not caught within tau scoring 0 (CaptureStats.capture_score_tau).
-    Under `conditional` (v1's, the earlier rule) s_c = max(0, 1 - t_c /
+    Under `conditional` (engagement v1's) s_c = max(0, 1 - t_c /
     capture_time_norm), t_c the mean capture time of the games that caught someone (t_max
     when none did); capture_time_norm is 10 s under v1. Defaults: c_distribution 1,
     c_capture 0, breach_penalty 1.

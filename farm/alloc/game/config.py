@@ -56,7 +56,7 @@ class _AllocFields(Strict):
     epsilon: float = Field(1e-3, gt=0, lt=1)  # an episode terminates when the intruder mass falls below it
     engage_min_mass: float = Field(1e-6, ge=0)  # a cell engages only with more intruder mass than this
     team_sizes: Literal["exact", "lattice"] = "exact"  # exact: rounded; lattice: snapped to 1, 2, 3, 4, 6, 8, 12, ...
-    engagement: Literal["v1", "v2"] = "v2"  # v2: the games tied to the MDP step; v1: the earlier model
+    engagement: Literal["v1", "v2"] = "v2"  # v2: the games tied to the MDP step; v1: area_min v centroid, 5 s window
     step_seconds: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: CELL_SIDE / evader_speed
     capture_time_norm: float | None = Field(None, gt=0, allow_inf_nan=False)  # v2: tau
     capture_score: Literal["expected", "conditional"] | None = None  # v2: expected, v1: conditional
@@ -90,9 +90,9 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
     the cell's games run no longer (t_max = tau) and are the paper's Table 1 setting,
     pure pursuit against intruders heading for the exit (0, 5) that escape through it,
     and the capture score is an expectation over all of a cell's games, normalised by the
-    window (`capture_score: expected`, capture_time_norm = tau). v1 (`engagement: v1`) is
-    the earlier model, for comparison: area_min against centroid, tau 5 s, t_max 10 s, no
-    exit, capture_time_norm 10 and the earlier score (`capture_score: conditional`: the mean
+    window (`capture_score: expected`, capture_time_norm = tau). Engagement v1 (`engagement: v1`),
+    kept for comparison: area_min against centroid, tau 5 s, t_max 10 s, no exit,
+    capture_time_norm 10 and the conditional score (`capture_score: conditional`: the mean
     capture time of the games that caught someone). A value that contradicts the
     engagement's coupling is one clear error.
 

@@ -24,7 +24,7 @@ class IntruderMixture(IntruderPolicy):
     (for_episode: the envs, farm.alloc.evaluation.rollout.play).
     """
 
-    def __init__(self, config, members=None, weights=None, draw: str = "episode", seed: int = 0, client=None):
+    def __init__(self, config, client=None, members=None, weights=None, draw: str = "episode", seed: int = 0):
         super().__init__(config)
         parsed, self.weights = mixture_members("intruder_options", members, weights, draw, "intruders")
         self.names = [name for name, _ in parsed]
@@ -33,9 +33,9 @@ class IntruderMixture(IntruderPolicy):
         self._rng = np.random.default_rng(seed)
 
     @classmethod
-    def make(cls, config, members=None, weights=None, draw: str = "episode", seed: int = 0, client=None):
+    def make(cls, config, client=None, members=None, weights=None, draw: str = "episode", seed: int = 0):
         """The registry's maker (client: given to the members that take one)."""
-        return cls(config, members, weights, draw, seed, client)
+        return cls(config, client, members, weights, draw, seed)
 
     def _pick(self, rng, size=None):
         return rng.choice(len(self.players), p=self.weights, size=size)

@@ -4,7 +4,7 @@ The model is a mixture of deterministic allocators drawn once an episode; the in
 each move before they route (the follower), keep the members whose moves so far match what they
 saw and route to minimise the defenders' expected measure to the episode's end. Against a member
 of the model it is the intruders' exact best response to the mixture (with one member, it plays
-farm.alloc.intruders.search.exact_response's routings); against an allocator outside the model it
+farm.alloc.intruders.exact_search.exact_response's routings); against an allocator outside the model it
 re-plans from what it sees, the members that no longer match put back at their prior weights.
 """
 
@@ -15,7 +15,7 @@ import numpy as np
 from farm.alloc.game.dynamics import check_actions, episode_end, move_defenders, move_probabilities, observe, resolve
 from farm.alloc.game.model import EngagementModel
 from farm.alloc.intruders.base import IntruderPolicy
-from farm.alloc.intruders.search import OBJECTIVES, Routings, draws_moves
+from farm.alloc.intruders.exact_search import OBJECTIVES, Routings, draws_moves
 from farm.core.errors import ConfigError
 from farm.core.mixture import mixture_members
 
@@ -38,7 +38,7 @@ class SearchingIntruders(IntruderPolicy):
     The value of a state before the defenders move, D, I: (N^2,) float64 after t steps, with the
     matching members S, is the weighted mean over the distinct moves of S's members of the value
     after that move (the members making it); after a move D', it is the least over the routings
-    (farm.alloc.intruders.search's tie order) of the step's measure plus the value of the state
+    (farm.alloc.intruders.exact_search's tie order) of the step's measure plus the value of the state
     it leads to. A state is searched once (memoised on its bytes, t and S; the memos are a cache,
     cleared between episodes once large).
     ConfigError (one line naming intruder_options) for a bad objective, no client, or a member

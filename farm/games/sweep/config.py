@@ -108,7 +108,7 @@ class SweepConfig(Strict):
           n_evaders: 1
           pursuer_policy: area_min
           evader_policy: centroid
-          exit_point: null         # [x, y]: evaders escape there (model v2); null: no escapes
+          exit_point: null         # [x, y]: evaders escape there (engagement v2); null: no escapes
         vary:                      # each block present is one axis of a cartesian product
           grid: {n_pursuers: [1, 2, 3], evader_policy: [centroid, constant_area]}
           zip: {capture_radius: [0.2, 0.3], dt: [0.01, 0.005]}     # lists in step

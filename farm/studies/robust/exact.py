@@ -1,5 +1,5 @@
 """The intruders' exact best response in the meta-game, on maps whose search tree fits: each
-allocator's payoff against the exact search (farm.alloc.intruders.search.exact_response) on the
+allocator's payoff against the exact search (farm.alloc.intruders.exact_search.exact_response) on the
 meta-game's own episodes, kept beside the pairs' payoffs, and each iteration's allocators' mixture
 valued against it. Under `follower` a mixture drawn per episode is searched member by member, as
 if the intruders were told the member drawn (they see each move): the intruders' best gain over the
@@ -30,7 +30,7 @@ def deterministic(member: Member) -> bool:
 
 def searchable(config: AllocConfig, episodes: int, seed: int) -> bool:
     """Whether every episode's search tree fits the search's default budget of states."""
-    from farm.alloc.intruders.search import check_search, episode_start
+    from farm.alloc.intruders.exact_search import check_search, episode_start
 
     try:
         for k in range(episodes):

@@ -21,13 +21,14 @@ def iteration_experiment(config: RobustConfig, k: int, allocators: list, intrude
     (response_seeds)."""
     from farm.studies.experiments.config import ExperimentConfig
 
-    defenders = {"env.intruders": "mixture",
-                 "env.intruder_options": mixture_options(intruders, solution.reply_column()),
-                 **config.training.defenders}
-    attackers = {"side": "intruders", "opponent.name": "mixture",
-                 "opponent.options": mixture_options(allocators, solution.row), **config.training.intruders}
+    defenders_training = {"env.intruders": "mixture",
+                          "env.intruder_options": mixture_options(intruders, solution.reply_column()),
+                          **config.training.defenders}
+    intruders_training = {"side": "intruders", "opponent.name": "mixture",
+                          "opponent.options": mixture_options(allocators, solution.row), **config.training.intruders}
     shared = {f"env.{name}": value for name, value in config.env.items()}
-    trained = [{"allocators": defenders, "intruders": attackers}[side] for side in config.trained_sides()]
+    trained = [{"allocators": defenders_training, "intruders": intruders_training}[side]
+               for side in config.trained_sides()]
     points = [{k_: v for k_, v in point.items() if k_ not in shared} for point in trained]
     return ExperimentConfig(name=f"{config.name}-it{k}", scenario=config.scenario, overrides=shared, points=points,
                             seeds=response_seeds(config, k), episodes=3, eval_seed=config.payoffs.seed,

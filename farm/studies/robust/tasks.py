@@ -32,7 +32,7 @@ def remote_exact(config, allocator, service, episodes: int, seed: int, objective
     import torch
 
     from farm.alloc.allocators import make_allocator
-    from farm.alloc.intruders.search import exact_response
+    from farm.alloc.intruders.exact_search import exact_response
     from farm.service.client import CaptureTimeClient
     from farm.studies.robust.members import MEASURES
 

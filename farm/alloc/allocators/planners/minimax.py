@@ -1,5 +1,5 @@
 """The `minimax` planner (Minimax): a plan over the next H steps against the intruders' worst
-replies (scipy.optimize, HiGHS), max over the plans of the min over adversarial scenarios; the
+replies (scipy.optimize, HiGHS), max over the plans of the min over adversarial courses; the
 first step applied."""
 
 from __future__ import annotations
@@ -17,51 +17,51 @@ from farm.core.errors import ConfigError
 __all__ = ["Minimax"]
 
 _OBJECTIVES = ("eliminated", "reward")
-REPLIES = ("fewest_ahead", "least_defended", "split_away")  # the heuristic intruders whose replies are scenarios
+REPLIES = ("fewest_ahead", "least_defended", "split_away")  # the heuristic intruders whose replies are courses
 
 
 class Minimax(_Planner):
-    """Plans H steps against the intruders' worst replies: max over plans, min over scenarios.
+    """Plans H steps against the intruders' worst replies: max over plans, min over courses.
 
     The plan is RecedingHorizon's program (core.flow_network: continuous flows of the
     defenders' mass along each step's feasible moves, one level of levels() chosen at each
     target), its targets every (step, cell) some routing of the intruders can put mass on
     (cone(): a cell's mass reaches its own row and the two beside it, a column left each
-    step). A scenario is a routing of the intruders for each of the H steps, each cell's
+    step). A course is a routing of the intruders for each of the H steps, each cell's
     shares sent up-left and down-left (farm.alloc.game.model.route_intruders_many). For a fixed
-    scenario a plan's value (the mass eliminated over the horizon, or the env's reward:
+    course a plan's value (the mass eliminated over the horizon, or the env's reward:
     `objective`) is linear in the level indicators z around a nominal plan, each level
-    valued as RecedingHorizon values one (level_values): the mass M the scenario lands on
+    valued as RecedingHorizon values one (level_values): the mass M the course lands on
     the cell times what the level's game removes or scores there (the capture-time
     statistics at the n_e of that M), net of what the removed mass would have given later
-    under that scenario. The program, solved for the flows, z and t:
+    under that course. The program, solved for the flows, z and t:
 
-        max  r t + (1 - r) V_0(z)   s.t.  t <= V_s(z) for every scenario s,
+        max  r t + (1 - r) V_0(z)   s.t.  t <= V_s(z) for every course s,
 
-    with r the `robustness` and scenario 0 the config's drift law (the intruders every
-    other planner assumes): r = 1 maximises the worst case over the scenarios, r = 0 is
+    with r the `robustness` and course 0 the config's drift law (the intruders every
+    other planner assumes): r = 1 maximises the worst case over the courses, r = 0 is
     RecedingHorizon's plan for the mass eliminated, and the values between trace the
     trade-off between the two.
 
-    Scenarios, by cutting planes. At first: the drift law; every row straight; every row
+    Courses, by cutting planes. At first: the drift law; every row straight; every row
     converging on row t, for each t; and, when the defenders can meet the intruders' next
     cells, each pure routing of the intruders now on the grid followed by straight (when
-    they number at most `scenarios`). Then, after each program, the intruders' replies to
+    they number at most `courses`). Then, after each program, the intruders' replies to
     its plan, seen whole (replies()): a beam search over their pure routings (from each
     kept state every pure routing, when it has at most `routings`; the `beam` lowest totals
     kept, a state reached twice kept once) and the intruder policies named by `replies`
     answering the plan's densities step by step; the replies worse than the plan's worst
-    scenario are added, and the program is solved again around the plan just found, at
+    course are added, and the program is solved again around the plan just found, at
     most `iterations` times. The plan kept is the one whose simulated worst case (over the
-    scenarios and the replies found) and drift value, mixed by r, are best; its first step
+    courses and the replies found) and drift value, mixed by r, are best; its first step
     is applied and the next call plans again from what the intruders actually did.
 
     Why it is right for one step (H = 1): every level's value is then exact, every pure
-    routing is a scenario and the program is solved by branch and bound: the defenders'
+    routing is a course and the program is solved by branch and bound: the defenders'
     best move against the follower's worst pure routing (tested against brute force). Pure
     routings are the follower's best responses where a cell's eliminated mass is concave
     in the mass it receives, as when the removed share falls with n_e. With H > 1 the plan
-    is open loop, one plan against every scenario, a conservative model of a game in which
+    is open loop, one plan against every course, a conservative model of a game in which
     the defenders see each reply before their next move; a picket holding every row the
     intruders can reach is such a plan, and planning again at each call closes the loop.
 
@@ -72,7 +72,7 @@ class Minimax(_Planner):
     config: AllocConfig; client: a CaptureTimeClient of config.game_settings(); horizon:
     int >= 1 or None (default: until the intruders now on the grid breach, plan_horizon);
     robustness: r, a number in [0, 1] (default `0.35`); objective: "eliminated" (default)
-    or "reward"; iterations: int >= 1 (default 4); scenarios: int >= 0 (default 256);
+    or "reward"; iterations: int >= 1 (default 4); courses: int >= 0 (default 256);
     routings: int >= 1 (default 4096); beam: int >= 1 (default 8); replies: intruder
     policy names (default the heuristics fewest_ahead, least_defended and split_away);
     branch_levels: int >= 0 (default 0: branch and bound for H = 1 only); rounds: int >= 1
@@ -82,8 +82,8 @@ class Minimax(_Planner):
     is a ConfigError naming it.
 
     Attribute last: the last call's dict: horizon (int), programs (int, the LPs and branch
-    and bounds solved), scenarios (int, at the end), worst (float: the kept plan's worst
-    simulated value over the scenarios and replies found), drift (float: its value under
+    and bounds solved), courses (int, at the end), worst (float: the kept plan's worst
+    simulated value over the courses and replies found), drift (float: its value under
     the drift law), bound (float: its program's t) and levels ((H+1, N^2) int64: its level
     at each step's cells); None where no plan was made.
     """
@@ -91,7 +91,7 @@ class Minimax(_Planner):
     name = "minimax"
 
     def __init__(self, config: AllocConfig, client=None, *, horizon: int | None = None, robustness: float = 0.35,
-                 objective: str = "eliminated", iterations: int = 4, scenarios: int = 256, routings: int = 4096,
+                 objective: str = "eliminated", iterations: int = 4, courses: int = 256, routings: int = 4096,
                  beam: int = 8, replies: tuple | list = REPLIES, branch_levels: int = 0, rounds: int = 2,
                  time_limit: float = 10.0, ties: str = "split", estimates: bool = False, **unknown):
         super().__init__(config, client, unknown, ties)
@@ -104,7 +104,7 @@ class Minimax(_Planner):
             raise ConfigError(f"{self.name}: objective must be one of {', '.join(_OBJECTIVES)}, got {objective!r}")
         self.objective = objective
         self.iterations = _count(self.name, "iterations", iterations)
-        self.scenarios = _count(self.name, "scenarios", scenarios, minimum=0)
+        self.courses = _count(self.name, "courses", courses, minimum=0)
         self.routings = _count(self.name, "routings", routings)
         self.beam = _count(self.name, "beam", beam)
         self.branch_levels = _count(self.name, "branch_levels", branch_levels, minimum=0)
@@ -133,7 +133,7 @@ class Minimax(_Planner):
         """The first step of the best plan found (see the class)."""
         x = D * self.config.n_defenders
         H = plan_horizon(self.config, I, self.horizon)
-        self.last = {"horizon": H, "programs": 0, "scenarios": 0, "worst": None, "drift": None, "bound": None,
+        self.last = {"horizon": H, "programs": 0, "courses": 0, "worst": None, "drift": None, "bound": None,
                      "levels": None}
         net = self.flow_network(x, self.cone(I, H)) if H > 0 else None
         if net is None:
@@ -147,7 +147,7 @@ class Minimax(_Planner):
         """The cutting-plane loop of the class: the kept plan as a dict (flows, levels, worst,
         drift, bound), None when no program found a plan."""
         r = self.robustness
-        up, down = self.initial_scenarios(I, H, first=bool((net["targets"][:, 0] == 1).any()))
+        up, down = self.initial_courses(I, H, first=bool((net["targets"][:, 0] == 1).any()))
         keys = {self._key(u, d) for u, d in zip(up, down, strict=True)}
         nominal = np.zeros((H + 1, self.n * self.n), dtype=np.int64)
         T, m = net["T"], net["m"]
@@ -156,7 +156,7 @@ class Minimax(_Planner):
         for _ in range(self.iterations):
             W, const = self.level_values(net, nominal, up, down, I)
             extra = {"c": np.array([r]), "lower": np.array([-np.inf]), "upper": np.array([np.inf]),
-                     "rows": self._scenario_rows(net, W), "lb": np.full(len(W), -np.inf), "ub": const}
+                     "rows": self._course_rows(net, W), "lb": np.full(len(W), -np.inf), "ub": const}
             choice, flows, y = self.solve_levels(net, (1.0 - r) * W[0], exact, self.rounds, self.time_limit, extra)
             if choice is None:
                 break
@@ -180,7 +180,7 @@ class Minimax(_Planner):
             if not added and (H == 1 or np.array_equal(levels, nominal)):  # with H = 1 the values are exact
                 break
             nominal = levels
-        self.last["scenarios"] = len(up)
+        self.last["courses"] = len(up)
         if best is not None:
             self.last.update(worst=best["worst"], drift=best["drift"], bound=best["bound"], levels=best["levels"])
         return best
@@ -225,8 +225,8 @@ class Minimax(_Planner):
         down = np.vstack([np.zeros(self.n * self.n), (step == 1).astype(float)])
         return up, down
 
-    def initial_scenarios(self, I, H, first: bool) -> tuple[np.ndarray, np.ndarray]:
-        """The first scenarios, (up, down): (S, H, N^2) float64 each: scenario 0 the drift law at
+    def initial_courses(self, I, H, first: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The first courses, (up, down): (S, H, N^2) float64 each: course 0 the drift law at
         every step, then the structured routings held over the horizon, then, when `first` (the
         defenders can meet the intruders' next cells), each pure routing of I followed by
         straight (when there are at most `routings`)."""
@@ -237,7 +237,7 @@ class Minimax(_Planner):
         s_up, s_down = self.structured_routings()
         up = [np.repeat(d_up[:, None], H, axis=1), np.repeat(s_up[:, None], H, axis=1)]
         down = [np.repeat(d_down[:, None], H, axis=1), np.repeat(s_down[:, None], H, axis=1)]
-        first = self.pure_routings(I, self.scenarios) if first else None
+        first = self.pure_routings(I, self.courses) if first else None
         if first is not None:
             k = len(first[0])
             for part, lst in zip(first, (up, down), strict=True):
@@ -249,12 +249,12 @@ class Minimax(_Planner):
     def _key(self, up, down) -> bytes:
         return np.concatenate([up.reshape(-1), down.reshape(-1)]).round(12).tobytes()
 
-    # ----- the model of a plan against scenarios ------------------------------------
+    # ----- the model of a plan against courses ------------------------------------
     def engage(self, levels_k: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The removed share and score per unit of mass of the plan's games at one step.
 
         levels_k: (N^2,) int64 each cell's level (0: no game); M: (B, N^2) float64 the intruders
-        after their move in B scenarios -> (rho, score): (B, N^2) float64 each."""
+        after their move in B courses -> (rho, score): (B, N^2) float64 each."""
         rho, score = np.zeros(M.shape), np.zeros(M.shape)
         on = (levels_k[None, :] > 0) & (M > self.config.engage_min_mass)
         if on.any():
@@ -267,7 +267,7 @@ class Minimax(_Planner):
         return rho, score
 
     def step_value(self, M, rho, score, breach) -> np.ndarray:
-        """One step's value in each of B scenarios: M, rho, score: (B, N^2) float64, breach: (B,)
+        """One step's value in each of B courses: M, rho, score: (B, N^2) float64, breach: (B,)
         float64 -> (B,) float64: the mass eliminated, or the env's reward (`objective`)."""
         cfg = self.config
         if self.objective == "eliminated":
@@ -276,10 +276,10 @@ class Minimax(_Planner):
                 - cfg.breach_penalty * breach)
 
     def simulate(self, levels, up, down, I):
-        """A plan against scenarios, as the env computes them.
+        """A plan against courses, as the env computes them.
 
         levels: (H+1, N^2) int64 the plan's level at each step's cells (row 0 unused); up,
-        down: (S, H, N^2) float64 the scenarios; I: (N^2,) float64 the intruders now. Returns
+        down: (S, H, N^2) float64 the courses; I: (N^2,) float64 the intruders now. Returns
         (values: (S,) float64, M, rho, score: (S, H+1, N^2) float64 the intruders before each
         step's engagements and the removed shares and scores there; row 0 unused)."""
         S, H = up.shape[0], up.shape[1]
@@ -306,16 +306,16 @@ class Minimax(_Planner):
         return out.reshape(S, n * n)
 
     def level_values(self, net, nominal, up, down, I):
-        """Each scenario's value linear in the levels around the nominal plan.
+        """Each course's value linear in the levels around the nominal plan.
 
         nominal: (H+1, N^2) int64 the nominal plan's levels. Returns (W: (S, T, m + 1) float64
-        each target's levels' values per scenario, const: (S,) float64) such that a plan
-        choosing level l_i at target i is worth about const + sum_i W[s, i, l_i] in scenario s:
+        each target's levels' values per course, const: (S,) float64) such that a plan
+        choosing level l_i at target i is worth about const + sum_i W[s, i, l_i] in course s:
         exactly the nominal plan's value, and exactly the value of the nominal plan with one
         target's level changed when that changes no later game (RecedingHorizon.nominal).
         W is M (removed (1 - g)) for the eliminated mass, M (c_capture score - removed g) for
         the reward, g the value per unit of mass left after the engagement over the rest of
-        the horizon under the scenario's routing and the nominal plan's later games."""
+        the horizon under the course's routing and the nominal plan's later games."""
         cfg = self.config
         values, M, rho, score = self.simulate(nominal, up, down, I)
         S, H = up.shape[0], up.shape[1]
@@ -342,7 +342,7 @@ class Minimax(_Planner):
         const = values - W[:, np.arange(len(tk)), nominal[tk, tc]].sum(axis=1)
         return W, const
 
-    def _scenario_rows(self, net, W) -> sparse.csr_array:
+    def _course_rows(self, net, W) -> sparse.csr_array:
         """The rows t - sum_i W[s, i, l] z_il <= const[s] over the program's variables (edges, levels, t)."""
         S = len(W)
         return sparse.hstack([sparse.csr_array((S, net["E"])), sparse.csr_array(-W.reshape(S, -1)),

@@ -5,7 +5,7 @@ guard on its size); ExactResponse holds what it finds; cell_options lays out a c
 a share grid (1: the pure routings, each cell's whole mass along one route); tree_bound and
 check_search are the refusal it makes before searching; Routings lays out a state's routings;
 ScriptedIntruders replays a found routing sequence through farm.alloc.evaluation.rollout.play. The
-information structure is the follower's of docs/model.md section 6.
+information structure is the follower's of docs/model.md section 8.
 """
 
 from __future__ import annotations
@@ -275,7 +275,7 @@ def exact_response(config: AllocConfig, policy, client, seed: int, *, objective:
     Each step, the allocator acts on the observation as farm.alloc.evaluation.rollout.play asks it (the
     float32 observation of farm.alloc.game.dynamics.observe), the intruders see the defenders after
     their move D' with their own I and choose a routing, and farm.alloc.game.dynamics.resolve moves
-    them, engages and rewards: the follower of docs/model.md section 6, which against a
+    them, engages and rewards: the follower of docs/model.md section 8, which against a
     deterministic allocator is also the best response under `simultaneous` (the intruders can
     predict its move). The routings: every cell holding intruder mass (> 0) outside column 0
     takes one of its options on the share grid 1/shares (cell_options; shares = 1: its whole
