@@ -13,6 +13,7 @@ command keeps pending) and check_workers (the one check of a `workers` count).
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import os
 import socket
@@ -62,11 +63,38 @@ def check_reachable(address: str, timeout: float = 5.0) -> None:
                            "start one with `ray start --head` or leave the address out for a local Ray") from None
 
 
-def _same_host(a: str, b: str) -> bool:
+def _ips(host: str) -> set[str]:
+    """The IP addresses a host name resolves to ({host} itself when it does not resolve)."""
     try:
-        return {i[4][0] for i in socket.getaddrinfo(a, None)} & {i[4][0] for i in socket.getaddrinfo(b, None)} != set()
+        return {i[4][0] for i in socket.getaddrinfo(host, None)}
     except OSError:
-        return a == b
+        return {host}
+
+
+def _on_this_machine(ip: str) -> bool:
+    """Whether ip is one of this machine's own addresses: a loopback one, or one a socket binds to."""
+    try:
+        address = ipaddress.ip_address(ip.split("%", 1)[0])
+    except ValueError:
+        return False
+    if address.is_loopback:
+        return True
+    family = socket.AF_INET6 if address.version == 6 else socket.AF_INET
+    try:
+        with socket.socket(family, socket.SOCK_DGRAM) as s:
+            s.bind((ip, 0))
+        return True
+    except OSError:
+        return False
+
+
+def _same_host(a: str, b: str) -> bool:
+    """Whether two host names are one machine: they share an address, or both are this machine's
+    (127.0.0.1 and the address a Ray head on this machine advertises)."""
+    ips_a, ips_b = _ips(a), _ips(b)
+    if ips_a & ips_b:
+        return True
+    return any(map(_on_this_machine, ips_a)) and any(map(_on_this_machine, ips_b))
 
 
 def _check_running(ray, address: str | None, num_cpus: int | None, metrics_port: int | None) -> None:
