@@ -110,10 +110,11 @@ RULES = [
      "pretraining iteration file (sealed: its checksum header left out, the pickle compared): the float after "
      "the key seconds (the iteration's wall time) masked, and the policy tensors' storage keys"),
     ("*/checkpoints/rl_model_state_*_steps.pkl", "pickle",
-     {"float_keys": ["wall_seconds", "update_seconds"], "torch_storage_keys": True, "added_keys": ["pretrain"]},
+     {"float_keys": ["wall_seconds", "update_seconds", "pretrain_seconds"], "torch_storage_keys": True,
+      "added_keys": ["pretrain"]},
      "RunState pickle (sealed: its checksum header left out; the key pretrain, which the sealed RunState "
      "adds, dropped when the before side lacks it): the floats after the keys wall_seconds / update_seconds "
-     "(UpdateTimer) masked, and in "
+     "(UpdateTimer) and pretrain_seconds (the pretraining's wall time) masked, and in "
      "torch_rng's tensor (torch's legacy serialisation, a pickle inside the pickle) the storage key, which is "
      "the storage's C pointer (e.g. 94340541712288 vs 94574139369696); every other opcode and byte compared"),
     ("*.pkl", "pickle", {}, None),
