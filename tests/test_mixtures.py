@@ -117,6 +117,10 @@ def test_an_env_with_an_intruder_mixture_resumes_its_draw():
     ({"members": []}, "mixture.members: a non-empty list"),
     ({"members": ["intercept"], "weights": [1, 2]}, "mixture.weights: 1 numbers"),
     ({"members": ["intercept", "mmr"], "weights": [-1, 2]}, "mixture.weights"),
+    # booleans are not weights (refused at any depth), and a sum that overflows is no sum
+    ({"members": ["intercept", "mmr"], "weights": [True, False]}, "mixture.weights: 2 numbers"),
+    ({"members": ["intercept", "mmr"], "weights": [1e308, 1e308]}, "positive finite sum"),
+    ({"members": ["intercept", "mmr"], "weights": "0.5,0.5"}, "mixture.weights: 2 numbers"),
     ({"members": ["intercept"], "draw": "sometimes"}, "mixture.draw: one of episode, step"),
     ({"members": [{"policy": "intercept", "depth": 2}]}, "mixture.members: member 0 is not a name"),
     ({"members": ["nobody"]}, "unknown allocator 'nobody'"),
@@ -127,9 +131,11 @@ def test_a_bad_mixture_is_one_line_naming_its_field(options, words):
     assert words in str(e.value) and "\n" not in str(e.value)
 
 
-def test_a_bad_intruder_mixture_names_intruder_options():
+@pytest.mark.parametrize("weights", [[0], [True], [1e308, 1e308]])
+def test_a_bad_intruder_mixture_names_intruder_options(weights):
+    members = ["drift", "fewest_ahead"][:len(weights)]
     with pytest.raises(ConfigError, match=r"intruder_options.weights"):
-        SwarmAllocationEnv(config(intruders="mixture", intruder_options={"members": ["drift"], "weights": [0]}),
+        SwarmAllocationEnv(config(intruders="mixture", intruder_options={"members": members, "weights": weights}),
                            client=Answers())
 
 

@@ -8,7 +8,7 @@ import numpy as np
 from farm.core.checks import is_whole
 from farm.core.errors import ConfigError
 
-__all__ = ["DRAWS", "mixture_members", "saved_member", "saved_generator"]
+__all__ = ["DRAWS", "mixture_members", "mixture_weights", "saved_member", "saved_generator"]
 
 DRAWS = ("episode", "step", "mean")  # a member drawn per episode or per step, or the members' mean move
 
@@ -31,20 +31,29 @@ def mixture_members(owner: str, members, weights, draw: str, key: str) -> tuple[
             raise ConfigError(f"{owner}.members: member {i} is not a name or {{{key}: NAME, options: {{...}}}}: "
                               f"{member!r}", field=f"{owner}.members")
         parsed.append((member[key], dict(member.get("options", {}))))
-    if weights is None:
-        w = np.full(len(parsed), 1.0 / len(parsed))
-    else:
-        try:
-            w = np.asarray(weights, dtype=np.float64)
-        except (TypeError, ValueError):
-            w = np.array([np.nan])
-        if w.shape != (len(parsed),) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
-            raise ConfigError(f"{owner}.weights: {len(parsed)} numbers >= 0 with a positive sum, got {weights!r}",
-                              field=f"{owner}.weights")
-        w = w / w.sum()
+    w = np.full(len(parsed), 1.0 / len(parsed)) if weights is None else mixture_weights(owner, weights, len(parsed))
     if draw not in DRAWS:
         raise ConfigError(f"{owner}.draw: one of {', '.join(DRAWS)}, got {draw!r}", field=f"{owner}.draw")
     return parsed, w
+
+
+def mixture_weights(owner: str, weights, n: int) -> np.ndarray:
+    """n weights checked and normalised: (n,) float64 summing to 1. ConfigError (one line naming
+    owner.weights) unless weights is a list (or array) of n real numbers, not booleans, >= 0 whose
+    sum is positive and finite."""
+    if isinstance(weights, np.ndarray):
+        numbers = weights.dtype.kind in "iuf"
+    else:
+        numbers = isinstance(weights, (list, tuple)) and all(
+            isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
+            for x in weights)
+    w = np.asarray(weights, dtype=np.float64) if numbers else np.array([np.nan])
+    with np.errstate(over="ignore"):
+        total = w.sum()
+    if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0) or not (np.isfinite(total) and total > 0):
+        raise ConfigError(f"{owner}.weights: {n} numbers >= 0 with a positive finite sum, got {weights!r}",
+                          field=f"{owner}.weights")
+    return w / total
 
 
 def saved_member(state: dict, n: int) -> int | None:
