@@ -69,6 +69,15 @@ def refuse_contradictions(args, pairs) -> None:
                            f"(with --{first.replace('_', '-')}, --{second.replace('_', '-')} would be ignored)")
 
 
+def whole_numbers(text: str, field: str) -> list[int]:
+    """The whole numbers >= 0 of comma-separated text; CliError naming field for an entry that is
+    not one (0.5, nan, -1, a word) or an empty one."""
+    entries = text.split(",")
+    if not all(x.strip().isdigit() for x in entries):
+        raise CliError(f"{field}: expected comma-separated whole numbers >= 0, got {text!r}")
+    return [int(x) for x in entries]
+
+
 def floats(text: str, field: str, n: int | None = None) -> list[float]:
     """The numbers of comma- (or semicolon-) separated text; CliError naming field for an empty
     entry, a word that is not a number, or other than n numbers when n is given."""
