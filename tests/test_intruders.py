@@ -202,3 +202,11 @@ def test_an_unknown_intruder_option_names_intruder_options():
         make_intruders("fewest_ahead", AllocConfig(), depth=2)
     with pytest.raises(ConfigError, match="intruder_options: learned intruders need the run folder"):
         make_intruders("learned", AllocConfig())
+
+
+@pytest.mark.parametrize("deterministic", ["false", 0, None])
+def test_a_learned_policy_s_deterministic_is_true_or_false_not_a_truthy_value(deterministic, tmp_path):
+    from farm.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"intruder_options.deterministic: must be true or false, got"):
+        make_intruders("learned", AllocConfig(), run=str(tmp_path), deterministic=deterministic)

@@ -9,6 +9,7 @@ import numpy as np
 
 from farm.alloc.game.dynamics import observe, pure_routing, route_probabilities, routing_of
 from farm.alloc.intruders.base import IntruderPolicy
+from farm.core.checks import flag
 from farm.core.errors import ConfigError
 
 __all__ = ["LearnedIntruders"]
@@ -27,6 +28,7 @@ class LearnedIntruders(IntruderPolicy):
 
         from farm.alloc.networks.trained import load_model
 
+        self.deterministic = flag("intruder_options.deterministic", deterministic)
         if run is None:
             raise ConfigError("intruder_options: learned intruders need the run folder (run: PATH)",
                               field="intruder_options")
@@ -44,7 +46,6 @@ class LearnedIntruders(IntruderPolicy):
             trained = int(round((shape[0] / 2) ** 0.5))
             raise ConfigError(f"intruder_options: {run} was trained on a {trained}x{trained} map, not this "
                               f"{self.n}x{self.n} one", field="intruder_options")
-        self.deterministic = bool(deterministic)
 
     @classmethod
     def make(cls, config, run: str | None = None, deterministic: bool = True):
