@@ -185,6 +185,9 @@ def test_the_intruder_settings_are_written_only_when_set():
     ({"intruders": 3}, "intruders", "intruders"),
     ({"information": "telepathic"}, "information", "follower"),
     ({"intruder_options": [1]}, "intruder_options", "intruder_options"),
+    # options the policy would not take are refused, not kept and ignored (the drift law takes none)
+    ({"intruder_options": {"depth": 2}}, "intruder_options", "drift has no option 'depth' (options: none)"),
+    ({"intruders": "fewest_ahead", "intruder_options": {"depth": 2}}, "intruder_options", "no option 'depth'"),
 ])
 def test_a_bad_intruder_setting_is_one_line_naming_its_field(settings, field, words):
     from pydantic import ValidationError

@@ -133,7 +133,11 @@ class AllocConfig(create_model("_AllocGame", __base__=_AllocFields, **_GAME_FIEL
     def _coupled(self):
         from farm.alloc.game.registry import INTRUDERS
 
-        INTRUDERS.entry(self.intruders)  # an unknown policy: one line naming `intruders`
+        entry = INTRUDERS.entry(self.intruders)  # an unknown policy: one line naming `intruders`
+        unknown = sorted(set(self.intruder_options) - set(entry.options()))
+        if unknown:  # an option the policy would not take (the drift law takes none)
+            raise ValueError(f"intruder_options: {self.intruders} has no option {unknown[0]!r} "
+                             f"(options: {', '.join(entry.options()) or 'none'})")
         case = self.game()  # Case's own checks of the game's settings
         if self.engagement == "v1":
             if self.step_seconds is not None:
