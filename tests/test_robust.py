@@ -55,11 +55,44 @@ GAMES = 8  # games per capture-time case: a cold store fills in seconds
      "floor: 'fewest_ahead' is not one of the starting intruders"),
     ({"floor": {"margin": -0.1}}, "floor.margin"),
     ({"floor": {"reference": "x"}}, "floor.reference"),
+    # options and run folders checked with the registries' own checks when the config is read
+    ({"allocators": [{"name": "receding_horizon", "options": {"horizon": 0}}]}, "allocators[0]: "),
+    ({"allocators": [{"name": "intercept", "options": {"depth": 2}}]},
+     "allocators[0]: intercept has no option 'depth'"),
+    ({"allocators": [{"name": "mixture", "options": {"members": []}}]}, "allocators[0].members: a non-empty list"),
+    ({"allocators": [{"name": "mixture", "options": {"members": ["intercept", {"policy": "mmr", "options": {"x": 1}}],
+                                                      "weights": [1, 1]}}]},
+     "allocators[0].members[1]: mmr has no option 'x'"),
+    ({"allocators": [{"name": "mixture", "options": {"members": ["intercept"], "weights": [True]}}]},
+     "allocators[0].weights"),
+    ({"intruders": [{"name": "learned"}]}, "intruders[0]: a learned member needs its run folder"),
+    ({"intruders": [{"name": "learned", "options": {"run": "/nowhere"}}]}, "intruders[0]: /nowhere holds no trained"),
+    ({"allocators": [{"name": "ppo", "options": {"run": "/nowhere"}}]}, "allocators[0]: /nowhere holds no trained"),
+    ({"intruders": [{"name": "drift", "options": {"speed": 2}}]}, "intruders[0]: drift has no option 'speed'"),
 ])
 def test_a_bad_robust_config_is_one_line_naming_its_field(settings, words):
     with pytest.raises(ValidationError) as e:
         RobustConfig(**{"name": "x", "scenario": "outnumbered_3x3", **settings})
     assert words in first_line(e.value) and "\n" not in first_line(e.value)
+
+
+def test_a_run_folder_of_the_other_side_is_refused_in_one_line(tmp_path):
+    import zipfile
+
+    run = tmp_path / "run"
+    run.mkdir()
+    with zipfile.ZipFile(run / "model.zip", "w") as z:
+        z.writestr("data", "{}")
+    (run / "config.yaml").write_text("side: intruders\n")
+    with pytest.raises(ValidationError) as e:
+        RobustConfig(name="x", scenario="outnumbered_3x3", allocators=[{"name": "ppo", "options": {"run": str(run)}}])
+    assert f"allocators[0]: {run} is not a training of the defenders (its config.yaml says side: intruders)" \
+        == first_line(e.value)
+    (run / "model.zip").write_bytes(b"damaged")
+    with pytest.raises(ValidationError) as e:
+        RobustConfig(name="x", scenario="outnumbered_3x3",
+                     intruders=[{"name": "learned", "options": {"run": str(run)}}])
+    assert "holds no trained model" in first_line(e.value)
 
 
 def test_every_robust_config_of_the_project_loads():
@@ -413,3 +446,23 @@ def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(trained_
         assert killed["gains"][key] == pytest.approx(it.gains[key], abs=1e-12)
     np.testing.assert_array_equal(pd.read_csv(out / "payoffs.csv", index_col=0).to_numpy(),
                                   pd.read_csv(whole / "payoffs.csv", index_col=0).to_numpy())
+
+
+@pytest.mark.parametrize("settings, line", [
+    ({"training": {"defenders": {"ppo.n_timesteps": -1}}},
+     "training.defenders: ppo.n_timesteps: Input should be greater than or equal to 1"),
+    ({"training": {"intruders": {"ppo.n_timestepz": 5}}}, "training.intruders: ppo.n_timestepz: not a field of ppo"),
+    ({"training": {"defenders": {"ppo.n_timesteps": float("nan")}}}, "training.defenders: ppo.n_timesteps: must be"),
+    ({"training": {"defenders": {"side": "intruders"}}}, "training.defenders: side: the robust loop sets it"),
+    ({"distill": {"algo": "dqn"}}, "distill: algo: Input should be 'td3', 'ppo' or 'sac'"),
+])
+def test_the_trainings_settings_are_refused_before_ray_starts_or_a_pair_is_played(settings, line, tmp_path):
+    import yaml
+    from conftest import farm_main
+
+    config = tmp_path / "robust.yaml"
+    config.write_text(yaml.safe_dump({"name": "x", "scenario": "outnumbered_3x3", "allocators": ["intercept"],
+                                      "intruders": ["drift"], **settings}))
+    status, out, err = farm_main("robust", str(config), "--out", str(tmp_path / "out"))
+    assert status == 2 and err.startswith("farm: error: ") and line in err and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()  # nothing written, no pair played

@@ -106,17 +106,16 @@ class RobustConfig(StrictFile):
 
     @model_validator(mode="after")
     def _members(self):
-        from farm.studies.robust.members import member_of
+        from farm.studies.robust.members import check_member, member_of
 
-        self.alloc_config()  # the env settings: one line naming the field
+        env = self.alloc_config()  # the env settings: one line naming the field
         for side in ("allocators", "intruders"):
             values = getattr(self, side)
             if not values:
                 raise ValueError(f"{side}: the population needs one member at least")
-            for i, v in enumerate(values):
-                member_of(side, v, f"{side}[{i}]")
-            for i, v in enumerate(getattr(self.library, side)):
-                member_of(side, v, f"library.{side}[{i}]")
+            for field, v in [(f"{side}[{i}]", v) for i, v in enumerate(values)] + \
+                    [(f"library.{side}[{i}]", v) for i, v in enumerate(getattr(self.library, side))]:
+                check_member(member_of(side, v, field), env, field)
         if self.floor is not None:
             for side, name in (("allocators", self.floor.allocator), ("intruders", self.floor.intruders)):
                 shown = [m.shown() for m in self.population(side)]

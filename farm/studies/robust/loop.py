@@ -148,8 +148,11 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
     from farm.service.client import open_client
     from farm.service.store import default_store_path
 
+    from farm.studies.robust.oracles import check_trainings
+
     check_workers(workers)
     out = check_writable_folder(out, "out")
+    check_trainings(config)
     iterations = _load_state(out, config)
     out.mkdir(parents=True, exist_ok=True)
     store = PayoffStore(out / "payoffs")

@@ -4,12 +4,13 @@ as the registries name them, and made from those names."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from dataclasses import dataclass, field
 
 from farm.alloc.game.config import AllocConfig
 from farm.core.errors import ConfigError
 
-__all__ = ["MEASURES", "Member", "member_of", "against", "mixture_options", "play_pair"]
+__all__ = ["check_member", "check_run", "MEASURES", "Member", "member_of", "against", "mixture_options", "play_pair"]
 
 SIDES = ("allocators", "intruders")
 MEASURES = ("eliminated", "breached", "return")  # a pair's measures, kept per episode
@@ -60,6 +61,55 @@ def member_of(side: str, value, where: str) -> Member:
     (allocator_entry if side == "allocators" else intruder_entry)(value["name"], where.split("[")[0])
     return Member(side, value["name"], dict(value.get("options", {})), value.get("label", ""))
 
+
+def check_member(member: Member, config: AllocConfig, field: str) -> None:
+    """ConfigError (one line naming field) for a member its side would refuse on config's map,
+    checked before any work: an option its maker does not take, a value a baseline's or a
+    planner's own checks refuse (the registry's check_options), a mixture's members and weights
+    (each member checked so), a learned member's run folder (a trained model of this side)."""
+    from farm.alloc.game.registry import ALLOCATORS, INTRUDERS
+    from farm.core.mixture import mixture_members
+
+    registry = ALLOCATORS if member.side == "allocators" else INTRUDERS
+    entry = registry.entry(member.name, field)
+    unknown = sorted(set(member.options) - set(entry.options()))
+    if unknown:
+        raise ConfigError(f"{field}: {member.name} has no option {unknown[0]!r} (options: "
+                          f"{', '.join(entry.options()) or 'none'})", field=field)
+    if entry.kind == "mixture":
+        key = "policy" if member.side == "allocators" else "intruders"
+        parsed, _ = mixture_members(field, member.options.get("members"), member.options.get("weights"),
+                                    member.options.get("draw", "episode"), key)
+        for k, (name, options) in enumerate(parsed):
+            check_member(Member(member.side, name, options), config, f"{field}.members[{k}]")
+    elif entry.kind == "learned":
+        check_run(member.options.get("run"), member.side, field)
+    else:
+        registry.check_options(member.name, member.options, config, field)
+
+
+def check_run(run, side: str, field: str) -> None:
+    """ConfigError (one line naming field) unless run is a folder holding a trained model
+    (model.zip, a zip file) of a training of side (its config.yaml's `side`)."""
+    import zipfile
+
+    import yaml
+
+    if not isinstance(run, str) or not run:
+        raise ConfigError(f"{field}: a learned member needs its run folder (options: {{run: PATH}})", field=field)
+    model = Path(run) / "model.zip"
+    if not model.is_file() or not zipfile.is_zipfile(model):
+        raise ConfigError(f"{field}: {run} holds no trained model (model.zip); train it with farm train",
+                          field=field)
+    try:
+        values = yaml.safe_load((Path(run) / "config.yaml").read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        values = None
+    trained = values.get("side", "defenders") if isinstance(values, dict) else None
+    wanted = "defenders" if side == "allocators" else "intruders"
+    if trained != wanted:
+        raise ConfigError(f"{field}: {run} is not a training of the {wanted} (its config.yaml says side: "
+                          f"{trained})", field=field)
 
 def against(config: AllocConfig, intruders: Member) -> AllocConfig:
     """The env settings config with the intruder member as its intruders."""
