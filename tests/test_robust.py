@@ -466,3 +466,26 @@ def test_the_trainings_settings_are_refused_before_ray_starts_or_a_pair_is_playe
     status, out, err = farm_main("robust", str(config), "--out", str(tmp_path / "out"))
     assert status == 2 and err.startswith("farm: error: ") and line in err and err.count("\n") == 1, err
     assert not (tmp_path / "out").exists()  # nothing written, no pair played
+
+
+@pytest.mark.parametrize("held, command", [("exploit", "robust"), ("robust", "exploit")])
+def test_a_folder_holding_the_other_kind_of_run_is_refused_before_any_work(held, command, tmp_path):
+    import yaml
+    from conftest import farm_main
+
+    out = tmp_path / "out"
+    (out / "payoffs").mkdir(parents=True)
+    (out / f"{held}.json").write_text("{}")  # the other kind's state file, as a run of it leaves it
+    before = sorted(p.name for p in out.iterdir())
+    config = tmp_path / "c.yaml"
+    if command == "robust":
+        config.write_text(yaml.safe_dump({"name": "x", "scenario": "outnumbered_3x3", "allocators": ["intercept"],
+                                          "intruders": ["drift"], "oracle": "library", "distill": None}))
+    else:
+        config.write_text(yaml.safe_dump({"name": "x", "scenarios": ["outnumbered_3x3"], "allocators": ["intercept"],
+                                          "learned": None}))
+    status, _, err = farm_main(command, str(config), "--out", str(out))
+    article = {"exploit": "an", "robust": "a"}
+    assert (status, err) == (2, f"farm: error: --out: {out} holds {article[held]} {held} run, not {article[command]} "
+                                f"{command} one; choose another folder\n")
+    assert sorted(p.name for p in out.iterdir()) == before  # nothing written into it

@@ -30,7 +30,7 @@ from farm.core.matrix_game import solve
 from farm.core.output import atomic_write_bytes, check_writable_folder
 from farm.studies.robust.config import RobustConfig
 from farm.studies.robust.members import Member, member_of
-from farm.studies.robust.payoffs import PayoffStore, fill, payoff_key
+from farm.studies.robust.payoffs import PayoffStore, claim_folder, fill, payoff_key
 
 __all__ = ["Iteration", "run_robust", "payoff_matrix", "STATE"]
 
@@ -154,7 +154,7 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
     out = check_writable_folder(out, "out")
     check_trainings(config)
     iterations = _load_state(out, config)
-    out.mkdir(parents=True, exist_ok=True)
+    claim_folder(out, "robust")
     store = PayoffStore(out / "payoffs")
     env, p = config.alloc_config(), config.payoffs
     info = {"pairs_played": 0, "iterations_before": len(iterations), "exact_searched": 0}

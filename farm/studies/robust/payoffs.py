@@ -11,11 +11,29 @@ from pathlib import Path
 import numpy as np
 
 from farm.alloc.game.config import AllocConfig
+from farm.core.errors import ConfigError
 from farm.core.output import atomic_write_bytes
 from farm.studies.robust.members import MEASURES, Member
 
-__all__ = ["payoff_key", "PayoffStore", "fill"]
+__all__ = ["payoff_key", "PayoffStore", "fill", "claim_folder", "KIND_FILE"]
 
+KIND_FILE = ".swarm-farm-kind"  # what a folder of payoffs holds: "exploit" or "robust"
+MANIFESTS = {"exploit": "exploit.json", "robust": "robust.json"}  # each kind's own state file
+ARTICLES = {"exploit": "an", "robust": "a"}
+
+def claim_folder(out: Path, kind: str) -> None:
+    """Say that the folder out holds a run of kind ("exploit" or "robust"), before any work; a
+    ConfigError (one line naming out) when it holds the other kind (its kind file, or the other's
+    state file), whose payoffs/ would mix with this run's."""
+    said = (out / KIND_FILE).read_text().strip() if (out / KIND_FILE).is_file() else None
+    others = [k for k, manifest in MANIFESTS.items() if k != kind and (out / manifest).exists()]
+    held = said if said not in (None, kind) else (others[0] if others else None)
+    if held is not None:
+        raise ConfigError(f"out: {out} holds {ARTICLES[held]} {held} run, not {ARTICLES[kind]} {kind} one; choose "
+                          f"another folder", field="out")
+    out.mkdir(parents=True, exist_ok=True)
+    if said is None:
+        atomic_write_bytes(out / KIND_FILE, f"{kind}\n".encode())
 
 
 def payoff_key(config: AllocConfig, allocator: Member, intruders: Member, episodes: int, seed: int) -> str:
