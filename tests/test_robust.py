@@ -330,6 +330,46 @@ def test_the_trained_oracle_keeps_the_seed_gaining_most(trained_run):
         assert it.gains[key] == pytest.approx(float(gains.max()), abs=1e-12)
 
 
+@pytest.mark.ray
+@pytest.mark.slow
+def test_a_robust_folder_moved_elsewhere_resumes_on_its_own_models(trained_run, tmp_path):
+    import shutil
+
+    from farm.core.errors import ConfigError
+    from farm.studies.robust import load_robust_config
+
+    path, out, it = trained_run
+    moved = tmp_path / "elsewhere" / "run"
+    shutil.copytree(out, moved)
+    saved = json.loads((moved / "robust.json").read_text())
+    runs = [m["options"]["run"] for m in saved["iterations"][0]["responses"].values()]
+    assert runs and all(not Path(r).is_absolute() and r.startswith("iterations/0/trials/") for r in runs)
+    (again,), info = run_robust(load_robust_config(path), moved, show_progress=False)
+    assert info["pairs_played"] == 0  # every pair's payoff found under its key, the runs keyed relative to the folder
+    assert again.to_dict(moved) == it.to_dict(out)
+    assert all(Path(m.options["run"]).is_relative_to(moved) for m in again.responses.values())
+    kept = again.responses["intruders"]
+    (Path(kept.options["run"]) / "model.zip").write_bytes(b"damaged")
+    with pytest.raises(ConfigError) as e:
+        run_robust(load_robust_config(path), moved, show_progress=False)
+    assert str(e.value) == (f"{moved / 'robust.json'}: iteration 0: {kept.shown()}: {kept.options['run']} holds no "
+                            f"trained model (model.zip); train it with farm train")
+
+
+def test_a_payoff_file_under_another_pairs_name_is_no_payoff_of_that_pair(tmp_path, capsys):
+    store = PayoffStore(tmp_path / "payoffs")
+    a = {m: [0.25, 0.5] for m in ("eliminated", "breached", "return")}
+    b = {m: [0.75, 1.0] for m in a}
+    store.put("a" * 32, a)
+    store.put("b" * 32, b)
+    pa, pb = store.path("a" * 32), store.path("b" * 32)
+    da, db = pa.read_bytes(), pb.read_bytes()
+    pa.write_bytes(db)
+    pb.write_bytes(da)  # swapped: each file's values and checksum intact, under the other pair's name
+    assert store.get("a" * 32) is None and store.get("b" * 32) is None
+    assert capsys.readouterr().err.count("is damaged (ValueError); played again") == 2
+
+
 @pytest.mark.parametrize("oracle, intruders_oracle, trained", [
     ("trained", "oracle", ["allocators", "intruders"]), ("trained", "trained", ["allocators", "intruders"]),
     ("trained", "search", ["allocators"]), ("trained", "library", ["allocators"]),

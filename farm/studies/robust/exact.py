@@ -46,7 +46,8 @@ def fill_exact(store: PayoffStore, config: AllocConfig, allocators: list[Member]
     (Ray tasks on client's service actor, at most workers at once, each kept as it finishes);
     returns the searches run."""
     exact = exact_member(measure)
-    missing = [a for a in allocators if store.get(payoff_key(config, a, exact, episodes, seed)) is None]
+    missing = [a for a in allocators
+               if store.get(payoff_key(config, a, exact, episodes, seed, store.root)) is None]
     if not missing:
         return 0
     import ray
@@ -56,7 +57,7 @@ def fill_exact(store: PayoffStore, config: AllocConfig, allocators: list[Member]
 
     actor = client.backend.actor
     for a, ref in bounded(lambda a: remote_exact.remote(config, a, actor, episodes, seed, measure), missing, workers):
-        store.put(payoff_key(config, a, exact, episodes, seed), ray.get(ref))
+        store.put(payoff_key(config, a, exact, episodes, seed, store.root), ray.get(ref))
     return len(missing)
 
 
@@ -64,7 +65,8 @@ def exact_values(store: PayoffStore, config: AllocConfig, allocators: list[Membe
                  measure: str) -> np.ndarray:
     """(len(allocators),) float64: each allocator's mean measure against the search minimising it,
     every one searched already (fill_exact)."""
-    values = [store.get(payoff_key(config, a, exact_member(measure), episodes, seed)) for a in allocators]
+    values = [store.get(payoff_key(config, a, exact_member(measure), episodes, seed, store.root))
+              for a in allocators]
     if any(v is None for v in values):
         raise RuntimeError("an allocator's exact payoff is missing")
     return np.array([float(np.mean(v[measure])) for v in values])

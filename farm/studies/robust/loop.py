@@ -29,7 +29,7 @@ from farm.core.errors import ConfigError
 from farm.core.matrix_game import solve
 from farm.core.output import atomic_write_bytes, check_writable_folder
 from farm.studies.robust.config import RobustConfig
-from farm.studies.robust.members import Member, member_of
+from farm.studies.robust.members import Member, check_run, member_of
 from farm.studies.robust.payoffs import PayoffStore, claim_folder, fill, payoff_key
 
 __all__ = ["Iteration", "run_robust", "payoff_matrix", "STATE"]
@@ -61,22 +61,22 @@ class Iteration:
     exact: dict | None = None
     floor: dict | None = None
 
-    def to_dict(self) -> dict:
-        """Plain values for robust.json."""
-        return {"allocators": [m.to_dict() for m in self.allocators],
-                "intruders": [m.to_dict() for m in self.intruders],
+    def to_dict(self, root=None) -> dict:
+        """Plain values for robust.json (trained members' runs under root relative to it)."""
+        return {"allocators": [m.to_dict(root) for m in self.allocators],
+                "intruders": [m.to_dict(root) for m in self.intruders],
                 "row": self.row, "column": self.column, "value": self.value,
-                "responses": {k: m.to_dict() for k, m in self.responses.items()}, "gains": self.gains,
+                "responses": {k: m.to_dict(root) for k, m in self.responses.items()}, "gains": self.gains,
                 "nash_conv": self.nash_conv, **({"exact": self.exact} if self.exact is not None else {}),
                 **({"floor": self.floor} if self.floor is not None else {})}
 
     @classmethod
-    def from_dict(cls, d: dict) -> Iteration:
-        """An Iteration from robust.json's values."""
-        return cls([member_of("allocators", m, "allocators") for m in d["allocators"]],
-                   [member_of("intruders", m, "intruders") for m in d["intruders"]], d["row"], d["column"],
-                   d["value"], {k: member_of(k, m, k) for k, m in d["responses"].items()}, d["gains"], d["nash_conv"],
-                   d.get("exact"), d.get("floor"))
+    def from_dict(cls, d: dict, root=None) -> Iteration:
+        """An Iteration from robust.json's values (relative runs under root, the run's folder)."""
+        return cls([member_of("allocators", m, "allocators", root) for m in d["allocators"]],
+                   [member_of("intruders", m, "intruders", root) for m in d["intruders"]], d["row"], d["column"],
+                   d["value"], {k: member_of(k, m, k, root) for k, m in d["responses"].items()}, d["gains"],
+                   d["nash_conv"], d.get("exact"), d.get("floor"))
 
 
 def digest(config: RobustConfig) -> str:
@@ -100,7 +100,7 @@ def payoff_matrix(store: PayoffStore, config: RobustConfig, allocators: list, in
     M = np.empty((len(allocators), len(intruders)))
     for i, a in enumerate(allocators):
         for j, b in enumerate(intruders):
-            values = store.get(payoff_key(env, a, b, p.episodes, p.seed))
+            values = store.get(payoff_key(env, a, b, p.episodes, p.seed, store.root))
             if values is None:
                 raise RuntimeError(f"payoff of {a.shown()} v {b.shown()} missing")
             M[i, j] = float(np.mean(values[p.measure]))
@@ -114,11 +114,16 @@ def _load_state(out: Path, config: RobustConfig) -> list[Iteration]:
     saved = json.loads(path.read_text())
     if saved.get("digest") != digest(config):
         raise ConfigError(f"out: {out} holds a robust run of another config; choose another folder", field="out")
-    return [Iteration.from_dict(d) for d in saved["iterations"]]
+    iterations = [Iteration.from_dict(d, out) for d in saved["iterations"]]
+    for k, it in enumerate(iterations):  # every trained member's run, before it is played or trained against
+        for m in it.allocators + it.intruders + list(it.responses.values()):
+            if "run" in m.options:
+                check_run(m.options["run"], m.side, f"{path}: iteration {k}: {m.shown()}")
+    return iterations
 
 
 def _save_state(out: Path, config: RobustConfig, iterations: list[Iteration]) -> None:
-    state = {"name": config.name, "digest": digest(config), "iterations": [it.to_dict() for it in iterations]}
+    state = {"name": config.name, "digest": digest(config), "iterations": [it.to_dict(out) for it in iterations]}
     atomic_write_bytes(out / STATE, json.dumps(state, indent=1).encode())
 
 

@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 from farm.alloc.game.config import AllocConfig
 from farm.core.errors import ConfigError
 
-__all__ = ["check_member", "check_run", "MEASURES", "Member", "member_of", "against", "mixture_options", "play_pair"]
+__all__ = ["check_member", "check_run", "relative_run", "MEASURES", "Member", "member_of", "against",
+           "mixture_options", "play_pair"]
 
 SIDES = ("allocators", "intruders")
 MEASURES = ("eliminated", "breached", "return")  # a pair's measures, kept per episode
@@ -27,9 +28,10 @@ class Member:
     options: dict = field(default_factory=dict)
     label: str = ""
 
-    def key(self) -> dict:
-        """What identifies the member in a payoff's key: side, name and options."""
-        return {"side": self.side, "name": self.name, "options": self.options}
+    def key(self, root=None) -> dict:
+        """What identifies the member in a payoff's key: side, name and options (a `run` under root
+        relative to it: the key of a folder that moved or was copied stays the same)."""
+        return {"side": self.side, "name": self.name, "options": relative_run(self.options, root)}
 
     def shown(self) -> str:
         """The member's label, else its name (with its options when it has any)."""
@@ -41,14 +43,26 @@ class Member:
         """The member as a mixture names it: {policy|intruders: name, options: {...}}."""
         return {("policy" if self.side == "allocators" else "intruders"): self.name, "options": dict(self.options)}
 
-    def to_dict(self) -> dict:
-        """Plain values (the loop's saved state)."""
-        return {"side": self.side, "name": self.name, "options": self.options, "label": self.label}
+    def to_dict(self, root=None) -> dict:
+        """Plain values (the loop's saved state; a `run` under root relative to it)."""
+        return {"side": self.side, "name": self.name, "options": relative_run(self.options, root), "label": self.label}
 
 
-def member_of(side: str, value, where: str) -> Member:
-    """A member from a config's or a saved state's value: a name, or {name, options, label};
-    ConfigError (one line naming where) for anything else or an unknown name."""
+def relative_run(options: dict, root) -> dict:
+    """options with a `run` folder under root written relative to it (options itself otherwise)."""
+    run = options.get("run")
+    if root is None or not isinstance(run, str) or not Path(run).is_absolute():
+        return options
+    try:
+        return {**options, "run": Path(run).resolve().relative_to(Path(root).resolve()).as_posix()}
+    except ValueError:  # a run elsewhere (an exploit's learned.storage, a run given by path): as given
+        return options
+
+
+def member_of(side: str, value, where: str, root=None) -> Member:
+    """A member from a config's or a saved state's value: a name, or {name, options, label}; a
+    relative `run` is a folder under root (a saved state's folder). ConfigError (one line naming
+    where) for anything else or an unknown name."""
     from farm.alloc.allocators import allocator_entry
     from farm.alloc.intruders import intruder_entry
 
@@ -59,7 +73,10 @@ def member_of(side: str, value, where: str) -> Member:
         raise ConfigError(f"{where}: a member is a name or {{name: NAME, options: {{...}}}}, got {value!r}",
                           field=where.split("[")[0])
     (allocator_entry if side == "allocators" else intruder_entry)(value["name"], where.split("[")[0])
-    return Member(side, value["name"], dict(value.get("options", {})), value.get("label", ""))
+    options = dict(value.get("options", {}))
+    if root is not None and isinstance(options.get("run"), str) and not Path(options["run"]).is_absolute():
+        options["run"] = str(Path(root) / options["run"])
+    return Member(side, value["name"], options, value.get("label", ""))
 
 
 def check_member(member: Member, config: AllocConfig, field: str) -> None:

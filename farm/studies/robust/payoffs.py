@@ -36,21 +36,24 @@ def claim_folder(out: Path, kind: str) -> None:
         atomic_write_bytes(out / KIND_FILE, f"{kind}\n".encode())
 
 
-def payoff_key(config: AllocConfig, allocator: Member, intruders: Member, episodes: int, seed: int) -> str:
-    """The digest of everything that decides a pair's episodes: the env settings, both members,
-    the episodes and their first seed."""
-    blob = json.dumps({"env": config.model_dump(mode="json"), "allocator": allocator.key(),
-                       "intruders": intruders.key(), "episodes": episodes, "seed": seed}, sort_keys=True)
+def payoff_key(config: AllocConfig, allocator: Member, intruders: Member, episodes: int, seed: int,
+               root=None) -> str:
+    """The digest of everything that decides a pair's episodes: the env settings, both members
+    (a trained member's run under root, the run's folder, relative to it), the episodes and their
+    first seed."""
+    blob = json.dumps({"env": config.model_dump(mode="json"), "allocator": allocator.key(root),
+                       "intruders": intruders.key(root), "episodes": episodes, "seed": seed}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:32]
 
 
 class PayoffStore:
     """Pairs' per-episode measures on disk, one JSON file a pair (folder/<key>.json, written
-    atomically, with a SHA-256 of its values): a pair played once is never played again, and a
-    damaged file is said in one line and played again."""
+    atomically, with a SHA-256 of its values and its key): a pair played once is never played
+    again, and a damaged file (or one of another pair) is said in one line and played again."""
 
     def __init__(self, folder):
         self.folder = Path(folder)
+        self.root = self.folder.parent  # the run's folder: trained members' runs are keyed relative to it
 
     def path(self, key: str) -> Path:
         """The pair's file."""
@@ -64,7 +67,7 @@ class PayoffStore:
         try:
             saved = json.loads(path.read_text())
             values = saved["values"]
-            if saved["sha256"] != _digest(values):
+            if saved["sha256"] != _digest(key, values):  # a file of another pair, or one edited
                 raise ValueError("checksum")
         except (OSError, ValueError, KeyError, TypeError) as e:
             print(f"robust: payoff file {path.name} is damaged ({type(e).__name__}); played again", file=sys.stderr)
@@ -74,11 +77,13 @@ class PayoffStore:
     def put(self, key: str, values: dict) -> None:
         """Keep a pair's measures ({measure: sequence of floats})."""
         plain = {m: [float(x) for x in values[m]] for m in MEASURES}
-        atomic_write_bytes(self.path(key), json.dumps({"values": plain, "sha256": _digest(plain)}).encode())
+        atomic_write_bytes(self.path(key), json.dumps({"values": plain, "sha256": _digest(key, plain)}).encode())
 
 
-def _digest(values: dict) -> str:
-    return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()
+def _digest(key: str, values: dict) -> str:
+    """The checksum of a pair's file: its values and the pair's key, so that a file moved to another
+    pair's name is no payoff of that pair."""
+    return hashlib.sha256(json.dumps({"key": key, "values": values}, sort_keys=True).encode()).hexdigest()
 
 
 def fill(store: PayoffStore, config: AllocConfig, pairs: list[tuple[Member, Member]], episodes: int, seed: int,
@@ -86,7 +91,7 @@ def fill(store: PayoffStore, config: AllocConfig, pairs: list[tuple[Member, Memb
     """Play every pair the store lacks, as Ray tasks on client's service actor (at most workers at
     once, farm.runtime.bounded), each kept as it finishes; returns the pairs played. progress(n):
     called with each finished pair's count."""
-    missing = [(a, b) for a, b in pairs if store.get(payoff_key(config, a, b, episodes, seed)) is None]
+    missing = [(a, b) for a, b in pairs if store.get(payoff_key(config, a, b, episodes, seed, store.root)) is None]
     if not missing:
         return 0
     import ray
@@ -97,7 +102,7 @@ def fill(store: PayoffStore, config: AllocConfig, pairs: list[tuple[Member, Memb
     actor = client.backend.actor
     for (a, b), ref in bounded(lambda pair: remote_pair.remote(config, pair[0], pair[1], actor, episodes, seed),
                                missing, workers):
-        store.put(payoff_key(config, a, b, episodes, seed), ray.get(ref))
+        store.put(payoff_key(config, a, b, episodes, seed, store.root), ray.get(ref))
         if progress is not None:
             progress(1)
     return len(missing)
