@@ -18,6 +18,7 @@ import pandas as pd
 import pytest
 import yaml
 from conftest import DEADLINE, bucket_keys, cmdline, holder, kill_session, ray_workers, signal_all, wait_for
+from helpers import raises_one_line
 
 from farm.core.errors import ClusterError, ConfigError
 from farm.studies.experiments import RESULT
@@ -40,11 +41,7 @@ def smoke_config(path: Path, store: Path, **changes) -> Path:
 def one_line_error(path: Path) -> str:
     from farm.studies.experiments import load_experiment_config, plan
 
-    with pytest.raises(ConfigError) as e:
-        plan(load_experiment_config(path), str(path))
-    message = str(e.value)
-    assert "\n" not in message
-    return message
+    return raises_one_line(ConfigError, lambda: plan(load_experiment_config(path), str(path)))
 
 
 @pytest.mark.parametrize("changes, expected", [

@@ -21,7 +21,7 @@ from farm.alloc.training import TrainConfig
 from farm.core.errors import ConfigError
 
 from conftest import farm_main
-from test_learners import assert_refused_in_one_line, client, config, store  # noqa: F401 (fixtures)
+from test_learners import assert_refused_in_one_line, client, config  # noqa: F401 (fixtures)
 from test_planners import curve_client
 
 PAPER = AllocConfig(grid_size=3, n_defenders=100, n_intruders=50, c_capture=1.5, team_sizes="lattice")

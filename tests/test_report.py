@@ -5,11 +5,11 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 import tempfile
 
 import numpy as np
 import pytest
+from helpers import farm_process as farm
 
 from test_claims import STEPS, make_experiment  # a hand-built experiment folder whose numbers are known
 from workers import ENGINE_VERSION
@@ -18,11 +18,6 @@ from farm.service import CaptureTimeClient, GameSettings
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync", "--disable-quic"]
-
-
-def farm(*args):
-    return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=600)
 
 
 @pytest.fixture(scope="module")

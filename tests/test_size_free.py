@@ -7,9 +7,7 @@
 - The live engagements' coarse tasks (farm.alloc.fidelity.pack_games).
 """
 
-import contextlib
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -22,16 +20,9 @@ from farm.alloc.fidelity import pack_games
 from farm.alloc.scenarios import SCENARIOS
 from farm.alloc.training import load_train_config, train
 
-from conftest import farm_main
+from helpers import farm_in_repo as farm
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def farm(*args):
-    """`farm ARGS` from the repository's root, in this process (farm.cli.main): returncode, stdout, stderr."""
-    with contextlib.chdir(REPO):
-        status, out, err = farm_main(*args)
-    return SimpleNamespace(returncode=status, stdout=out, stderr=err)
 
 
 @pytest.fixture(scope="module")
@@ -140,7 +131,7 @@ def test_games_are_packed_into_tasks_of_about_the_target(costs, target):
 def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_path, monkeypatch):
     from farm.alloc.training.dagger import loop as pretrain_module
     from farm.alloc.training.dagger.iterations import read_iteration
-    from test_learners import Stop, assert_same
+    from helpers import Stop, assert_same_policy
 
     raw = yaml.safe_load((REPO / "configs" / "train" / "tiny_size_free.yaml").read_text())
     raw["service"]["store"] = str(tmp_path / "s.sqlite")
@@ -168,7 +159,7 @@ def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_pat
         train(cfg, tmp_path / "stopped", show_progress=False)
     monkeypatch.setattr(pretrain_module, "label_all", real)
     train(cfg, tmp_path / "stopped", resume=True, show_progress=False)
-    assert_same(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
+    assert_same_policy(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
 
 
 def test_a_curriculum_needs_a_policy_that_fits_any_map(tmp_path):
