@@ -20,6 +20,7 @@ from farm.alloc.fidelity import pack_games
 from farm.alloc.scenarios import SCENARIOS
 from farm.alloc.training import load_train_config, train
 
+from conftest import train_tiny_run
 from helpers import farm_in_repo as farm
 
 REPO = Path(__file__).resolve().parents[1]
@@ -106,12 +107,8 @@ def test_farm_eval_scenario_evaluates_the_run_on_another_map(run):
 
 
 def test_a_policy_whose_size_is_its_maps_is_refused_on_another_map(tmp_path):
-    raw = yaml.safe_load((REPO / "configs" / "train" / "tiny.yaml").read_text())
-    raw["service"]["store"] = str(tmp_path / "s.sqlite")
-    config = tmp_path / "tiny.yaml"
-    config.write_text(yaml.safe_dump(raw))
-    assert farm("train", config, "--out", tmp_path / "mlp", "--quiet").returncode == 0
-    r = farm("eval", tmp_path / "mlp", "--scenario", "theatre_16x16")
+    mlp = train_tiny_run(tmp_path)  # an MLP's input is its map's size: 3x3
+    r = farm("eval", mlp, "--scenario", "theatre_16x16")
     assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert r.stderr.startswith("farm: error: --scenario: the model was trained on a 3x3 map")
     assert "CellPolicy" in r.stderr
