@@ -369,7 +369,7 @@ def _experiment_html(folder: Path) -> str:
     """One experiment folder's part of the Experiments section."""
     from farm.core.errors import ResultsError
     from farm.studies.experiments import summary_table, summary_view
-    from farm.studies.experiments.folder import finished_trials, read_manifest
+    from farm.studies.experiment_folder import finished_trials, read_manifest
     from farm.studies.experiments.results import learning_curves_figure, point_curves
 
     try:

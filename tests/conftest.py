@@ -171,6 +171,12 @@ def rng():
     return np.random.default_rng(20261123)
 
 
+@pytest.fixture(scope="module")
+def store(tmp_path_factory) -> Path:
+    """A capture-time store file of the module's own, made by the first client that opens it."""
+    return tmp_path_factory.mktemp("store") / "store.sqlite"
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

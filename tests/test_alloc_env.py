@@ -14,11 +14,6 @@ from farm.service import CaptureTimeClient
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)
 
 
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    return str(tmp_path_factory.mktemp("alloc") / "store.sqlite")
-
-
 def make(store, **kw):
     return SwarmAllocationEnv(AllocConfig(**{**SMALL, **kw}), store=store)
 

@@ -19,11 +19,6 @@ SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, c_capture=1.5)
 NET = {"net_arch": [400, 300]}
 
 
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    return str(tmp_path_factory.mktemp("td3") / "store.sqlite")
-
-
 def make(store):
     return DummyVecEnv([lambda: Monitor(SwarmAllocationEnv(AllocConfig(**SMALL), store=store))])
 

@@ -2,21 +2,15 @@
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import pandas as pd
 import pytest
 from conftest import farm_main
+from helpers import farm_process as farm
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def farm(*args, cwd=None):
-    """`farm ARGS` as a real subprocess: returncode, stdout, stderr."""
-    return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=900, cwd=cwd)
 
 
 def farm_here(*args):

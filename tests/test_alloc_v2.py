@@ -14,11 +14,6 @@ from workers import Case, InitialLaw
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=8)
 
 
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    return str(tmp_path_factory.mktemp("v2") / "store.sqlite")
-
-
 def test_v2_is_the_default_and_couples_the_layers():
     c = AllocConfig()
     assert c.engagement == "v2"

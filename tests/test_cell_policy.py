@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from test_learners import Stop, StopAt, assert_refused_in_one_line, assert_same
 
 from farm.alloc.game.dynamics import moves, n_actions
-from farm.alloc.networks.cell_policy import CellNet
 from farm.alloc.training import TrainConfig, train
+from farm.alloc.networks.cell_policy import CellNet
+from helpers import Stop, assert_same_policy, stop_at
+from test_learners import assert_refused_in_one_line
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, team_sizes="lattice")
@@ -69,9 +70,9 @@ def test_it_trains_resumes_and_loads_as_ppos_policies_do(tmp_path):
     assert actions.shape == (4, n_actions(3))
 
     with pytest.raises(Stop):
-        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[StopAt(130)])
+        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[stop_at(130)])
     train(cfg, tmp_path / "stopped", show_progress=False, resume=True)
-    assert_same(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
+    assert_same_policy(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
 
 
 @pytest.mark.parametrize("changes, field", [

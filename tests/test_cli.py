@@ -2,20 +2,14 @@
 bad input through farm.cli.main in this process: the same one line, without an interpreter each)."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 from conftest import farm_main
+from helpers import farm_process as farm
 
-FARM = [sys.executable, "-m", "farm.cli"]
-
-
-def farm(*args, cwd=None):
-    return subprocess.run(FARM + [str(a) for a in args], capture_output=True, text=True, cwd=cwd, timeout=600)
 
 
 def test_game_from_flags_with_plot(tmp_path):

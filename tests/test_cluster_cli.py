@@ -29,16 +29,18 @@ ENV = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "
 ENV.pop("RAY_ADDRESS", None)
 ENV.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)  # real multi-node clusters: Ray's own binding (conftest)
 
-@pytest.fixture
-def config_path(tmp_path):
-    return write_sweep(tmp_path / "sweep.yaml", name="cluster-test", seed=3, games_per_point=64, shard_games=8,
-                       base={"n_evaders": 2, "t_max": 30},
+@pytest.fixture(scope="module")
+def config_path(tmp_path_factory):
+    return write_sweep(tmp_path_factory.mktemp("sweep") / "sweep.yaml", name="cluster-test", seed=3,
+                       games_per_point=64, shard_games=8, base={"n_evaders": 2, "t_max": 30},
                        vary={"grid": {"n_pursuers": [3, 5], "evader_policy": ["centroid", "constant_area"]}})
 
 
-def in_process_games(config_path, tmp_path):
+@pytest.fixture(scope="module")
+def in_process_games(config_path, tmp_path_factory):
+    """The sweep's games played uninterrupted in process, once for the tests that compare with them."""
     config = load_sweep_config(config_path)
-    out = tmp_path / "in-process"
+    out = tmp_path_factory.mktemp("in-process")
     run_sweep(config, out, use_ray=False, show_progress=False)
     return SweepRun(config, out).read_games()
 
@@ -113,26 +115,28 @@ def start_head(groups, cpus, dashboard_port=None):
     return f"127.0.0.1:{port}", pid
 
 
-def test_driver_sigkill_then_rerun_equals_uninterrupted(groups, config_path, tmp_path):
+def test_driver_sigkill_then_rerun_equals_uninterrupted(groups, config_path, in_process_games, tmp_path):
+    """`farm sweep` on a local Ray of its own SIGKILLed with its Ray once it has stored shards; the
+    same command again, in process (--no-ray: the shards it stores are the same, and no second Ray
+    starts), plays only the shards not stored, to the uninterrupted games."""
     out = tmp_path / "out"
-    farm = [sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out), "--workers", "2", "--quiet"]
+    farm = [sys.executable, "-m", "farm.cli", "sweep", str(config_path), "--out", str(out), "--quiet"]
     with ray_start_lock():  # its local Ray starts, and is up once it stores shards
-        driver = groups.popen(farm)
+        driver = groups.popen([*farm, "--workers", "2"])
         wait_for_shards(out, 4, driver)
     groups.kill(driver.pid)  # the driver and the local Ray it started
     driver.wait(timeout=60)
     stored = len(list((out / "shards").glob("*.parquet")))
     assert 4 <= stored < 32
-    with ray_start_lock():
-        rerun = subprocess.run(farm, env=ENV, capture_output=True, text=True, timeout=600)
+    rerun = subprocess.run([*farm, "--no-ray"], env=ENV, capture_output=True, text=True, timeout=600)
     assert rerun.returncode == 0, rerun.stderr
     runs = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
     assert runs[-1]["skipped"] >= stored and runs[-1]["done"] == 32 - runs[-1]["skipped"]
     got = SweepRun(load_sweep_config(config_path), out).read_games()
-    pd.testing.assert_frame_equal(got, in_process_games(config_path, tmp_path))
+    pd.testing.assert_frame_equal(got, in_process_games)
 
 
-def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
+def test_two_node_cluster_survives_losing_a_node(groups, config_path, in_process_games, tmp_path):
     """A sweep on a head and a second node (1 CPU each); the second node SIGKILLed while one of
     its workers plays a shard: the sweep finishes, every shard once, with the in-process games.
     The head's shard workers are held stopped until the second node's worker plays a shard (on a
@@ -160,7 +164,7 @@ def test_two_node_cluster_survives_losing_a_node(groups, config_path, tmp_path):
     run = json.loads((out / "runs.jsonl").read_text().splitlines()[-1])
     assert run["done"] == 32 and sum(run["nodes"].values()) == 32
     got = SweepRun(load_sweep_config(config_path), out).read_games()
-    pd.testing.assert_frame_equal(got, in_process_games(config_path, tmp_path))
+    pd.testing.assert_frame_equal(got, in_process_games)
 
 
 RUNTIME_ENV = '{"excludes": ["workers/", "farm/"]}'  # the installed, precompiled package runs

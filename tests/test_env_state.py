@@ -14,11 +14,6 @@ from farm.core.errors import ConfigError
 CFG = AllocConfig(grid_size=3, n_defenders=10, n_intruders=5, games=3)
 
 
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    return str(tmp_path_factory.mktemp("env_state") / "s.sqlite")
-
-
 def make(kind: str, store: str):
     from farm.alloc.envs.defenders import SwarmAllocationEnv
     from farm.alloc.envs.intruders import SwarmIntruderEnv, SwarmIntruderVectorEnv

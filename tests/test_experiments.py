@@ -18,6 +18,7 @@ import pandas as pd
 import pytest
 import yaml
 from conftest import DEADLINE, bucket_keys, cmdline, holder, kill_session, ray_workers, signal_all, wait_for
+from helpers import raises_one_line
 
 from farm.core.errors import ClusterError, ConfigError
 from farm.studies.experiments import RESULT
@@ -40,11 +41,7 @@ def smoke_config(path: Path, store: Path, **changes) -> Path:
 def one_line_error(path: Path) -> str:
     from farm.studies.experiments import load_experiment_config, plan
 
-    with pytest.raises(ConfigError) as e:
-        plan(load_experiment_config(path), str(path))
-    message = str(e.value)
-    assert "\n" not in message
-    return message
+    return raises_one_line(ConfigError, lambda: plan(load_experiment_config(path), str(path)))
 
 
 @pytest.mark.parametrize("changes, expected", [
@@ -496,13 +493,14 @@ def test_a_trial_in_object_storage_killed_in_its_pretraining_goes_on_after_the_b
 def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, tmp_path):
     """`farm experiments --address` (the module's Ray, 2 trials at once) SIGKILLed, with its
     trials' workers, once p0_s0 has finished while p0_s1, held stopped since its checkpoint of
-    step 150, has not; the same command again leaves the finished trial untouched, resumes the
-    other from its checkpoint, and both rows equal the uninterrupted run's. (A driver killed with
-    the local Ray it started is tests/test_cluster_cli.py's sweep case: Tune's restore is the
-    same either way, and joining the running Ray spares two Ray starts.)"""
+    step 150, has not; the same experiment again (run_experiment, in this process on the same Ray:
+    no second driver to start) leaves the finished trial untouched, resumes the other from its
+    checkpoint, and both rows equal the uninterrupted run's. (A driver killed with the local Ray
+    it started is tests/test_cluster_cli.py's sweep case: Tune's restore is the same either way,
+    and joining the running Ray spares two Ray starts.)"""
     import ray
 
-    from farm.studies.experiments import load_experiment_config, plan, trials_table
+    from farm.studies.experiments import load_experiment_config, plan, run_experiment, trials_table
 
     _, cold_trials, _, store, _, _ = cold
     mlflow_db = tmp_path / "mlflow.db"
@@ -529,13 +527,7 @@ def test_a_driver_killed_mid_experiment_then_rerun_trains_no_trial_twice(cold, t
     before = (result.read_bytes(), result.stat().st_mtime_ns, (runs[finished] / "model.zip").stat().st_mtime_ns)
     assert not (runs[unfinished] / "metrics.json").exists()
 
-    rerun = subprocess.Popen(command, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
-                             stderr=subprocess.PIPE, text=True)
-    try:
-        _, stderr = rerun.communicate(timeout=600)
-    finally:
-        kill_session(rerun)  # whatever of its Ray is left
-    assert rerun.returncode == 0, stderr[-3000:]
+    run_experiment(load_experiment_config(path), out, source=str(path), show_progress=False)
     assert (result.read_bytes(), result.stat().st_mtime_ns, (runs[finished] / "model.zip").stat().st_mtime_ns) == before
     resumed_from = json.loads((runs[unfinished] / "metrics.json").read_text())["resumed_from"]
     assert 150 <= resumed_from < 300

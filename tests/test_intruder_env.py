@@ -14,12 +14,11 @@ from pathlib import Path
 import gymnasium
 import numpy as np
 import pytest
-import torch
 import yaml
 from conftest import farm_main
+from helpers import Stop, assert_same, assert_same_policy, stop_at
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
-from stable_baselines3.common.callbacks import BaseCallback
 
 import farm.alloc
 from farm.alloc import SCENARIOS, AllocConfig, SwarmAllocationEnv
@@ -51,11 +50,6 @@ WARM_STORE = os.environ.get("SWARM_FARM_WARM_STORE")
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    return tmp_path_factory.mktemp("intruders") / "s.sqlite"
-
-
-@pytest.fixture(scope="module")
 def client(store):
     """One in-process client for every config here (their games' settings are the same), the
     lattices computed once into store."""
@@ -64,21 +58,6 @@ def client(store):
     c.get_many(sorted(set().union(*(lattice_pairs(cfg) for cfg in configs))))
     yield c
     c.close()
-
-
-def assert_same(a, b, where=""):
-    """Equal to the bit: arrays (dtype and values), object arrays element by element, dicts by key."""
-    if isinstance(a, dict):
-        assert set(a) == set(b), (where, sorted(set(a) ^ set(b)))
-        for key in a:
-            assert_same(a[key], b[key], f"{where}/{key}")
-    elif isinstance(a, np.ndarray) and a.dtype == object:
-        assert b.dtype == object and a.shape == b.shape, where
-        for x, y in zip(a, b):
-            assert (x is None and y is None) or np.array_equal(x, y), where
-    else:
-        a, b = np.asarray(a), np.asarray(b)
-        assert a.dtype == b.dtype and np.array_equal(a, b), (where, a, b)
 
 
 def run_side_by_side(batched, ref, steps, rng, sharp=True):
@@ -346,41 +325,15 @@ def intruders_run(tmp_path_factory):
     return tmp / "whole", config
 
 
-class Stop(Exception):
-    pass
-
-
-class StopAt(BaseCallback):
-    def __init__(self, step: int):
-        super().__init__()
-        self.step = step
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self.step:
-            raise Stop()
-        return True
-
-
-def policy_tensors(path: Path) -> dict:
-    from stable_baselines3 import PPO
-
-    model = PPO.load(path, device="cpu")
-    tensors = dict(model.policy.state_dict())
-    for i, state in model.policy.optimizer.state_dict()["state"].items():
-        tensors.update({f"optimizer.{i}.{k}": torch.as_tensor(v) for k, v in state.items()})
-    return tensors
-
-
 def test_a_resumed_intruders_run_is_bit_identical(intruders_run, tmp_path):
     from farm.alloc.training import train
 
     whole, config = intruders_run
     with pytest.raises(Stop):
-        train(config, tmp_path / "stopped", show_progress=False, callbacks=[StopAt(200)])
+        train(config, tmp_path / "stopped", show_progress=False, callbacks=[stop_at(200)])
     metrics = train(config, tmp_path / "stopped", resume=True, show_progress=False)
     assert metrics["resumed_from"] == 128
-    ta, tb = policy_tensors(whole / "model.zip"), policy_tensors(tmp_path / "stopped" / "model.zip")
-    assert ta.keys() == tb.keys() and [k for k in ta if not torch.equal(ta[k], tb[k])] == []
+    assert_same_policy(whole / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
     with np.load(whole / "evaluations.npz") as a, np.load(tmp_path / "stopped" / "evaluations.npz") as b:
         assert all(np.array_equal(a[k], b[k]) for k in ("timesteps", "results", "ep_lengths"))
     ma, mb = (json.loads((run / "metrics.json").read_text()) for run in (whole, tmp_path / "stopped"))

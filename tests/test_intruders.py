@@ -109,25 +109,31 @@ def ahead(D, n, r, c):
     return sum(D[r * n + k] for k in range(c))
 
 
-def fewest_ahead_by_hand(n, D):
+def pure_routing(n, row_move):
+    """The routing (up, down) in which each cell (r, c)'s intruders all move row_move(r, c) rows (-1, 0 or 1)."""
     up, down = np.zeros(n * n), np.zeros(n * n)
     for r in range(n):
         for c in range(n):
-            options = [(ahead(D, n, r + dr, c), order, dr) for order, dr in ((0, 0), (1, -1), (2, 1))
-                       if 0 <= r + dr < n]
-            dr = min(options)[2]
+            dr = row_move(r, c)
             up[r * n + c], down[r * n + c] = dr == -1, dr == 1
     return up, down
+
+
+def fewest_ahead_by_hand(n, D):
+    def row_move(r, c):
+        options = [(ahead(D, n, r + dr, c), order, dr) for order, dr in ((0, 0), (1, -1), (2, 1))
+                   if 0 <= r + dr < n]
+        return min(options)[2]
+
+    return pure_routing(n, row_move)
 
 
 def least_defended_by_hand(n, D):
-    up, down = np.zeros(n * n), np.zeros(n * n)
-    for r in range(n):
-        for c in range(n):
-            target = min(range(n), key=lambda t: (ahead(D, n, t, c), abs(t - r), t))
-            dr = int(np.sign(target - r))
-            up[r * n + c], down[r * n + c] = dr == -1, dr == 1
-    return up, down
+    def row_move(r, c):
+        target = min(range(n), key=lambda t: (ahead(D, n, t, c), abs(t - r), t))
+        return int(np.sign(target - r))
+
+    return pure_routing(n, row_move)
 
 
 def split_away_by_hand(n, D):

@@ -17,8 +17,6 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from conftest import farm_main
-from stable_baselines3.common.callbacks import BaseCallback
 
 from farm.alloc import AllocConfig
 from farm.alloc.allocators import make_allocator
@@ -29,13 +27,11 @@ from farm.alloc.training.dagger.labels import play_labelled
 from farm.alloc.training.dagger.loop import fit_actor, latest_iteration
 from farm.service import CaptureTimeClient
 
+from conftest import farm_main
+from helpers import Stop, assert_same_policy, farm_refusal, stop_at
+
 REPO = Path(__file__).resolve().parents[1]
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3, team_sizes="lattice")
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    return tmp_path_factory.mktemp("learners") / "store.sqlite"
 
 
 @pytest.fixture(scope="module")
@@ -103,7 +99,7 @@ def test_the_share_decides_who_drives(client):
 
 @pytest.mark.parametrize("algo", ["td3", "sac", "ppo"])
 def test_the_fit_brings_the_actor_to_the_labels(store, client, algo):
-    from farm.alloc.training.train import make_model, training_envs
+    from farm.alloc.training.train import training_envs, make_model
 
     cfg = config(store, algo)
     env, _, _ = training_envs(cfg, client)
@@ -137,44 +133,13 @@ def test_each_algorithm_trains_a_model_of_its_own_kind(store, tmp_path, algo):
     assert result.table["policy"].iloc[0] == algo
 
 
-class Stop(Exception):
-    pass
-
-
-class StopAt(BaseCallback):
-    def __init__(self, step: int):
-        super().__init__()
-        self.step = step
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self.step:
-            raise Stop()
-        return True
-
-
-def policy_tensors(path: Path, algo: str) -> dict:
-    import stable_baselines3
-
-    model = getattr(stable_baselines3, algo.upper()).load(path, device="cpu")
-    tensors = dict(model.policy.state_dict())
-    for i, state in model.policy.optimizer.state_dict()["state"].items() if algo == "ppo" else []:
-        tensors.update({f"optimizer.{i}.{k}": torch.as_tensor(v) for k, v in state.items()})
-    return tensors
-
-
-def assert_same(a: Path, b: Path, algo: str) -> None:
-    ta, tb = policy_tensors(a, algo), policy_tensors(b, algo)
-    assert ta.keys() == tb.keys()
-    assert [k for k in ta if not torch.equal(ta[k], tb[k])] == []
-
-
 def test_a_ppo_run_resumed_after_a_stop_is_bit_identical(store, tmp_path):
     cfg = config(store, "ppo")
     train(cfg, tmp_path / "whole", show_progress=False)
     with pytest.raises(Stop):
-        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[StopAt(200)])
+        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[stop_at(200)])
     train(cfg, tmp_path / "stopped", resume=True, show_progress=False)
-    assert_same(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
+    assert_same_policy(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
     with np.load(tmp_path / "whole" / "evaluations.npz") as a, np.load(tmp_path / "stopped" / "evaluations.npz") as b:
         np.testing.assert_array_equal(a["results"], b["results"])
         np.testing.assert_array_equal(a["timesteps"], b["timesteps"])
@@ -209,7 +174,7 @@ def test_a_pretrain_resumed_after_a_stop_is_bit_identical(store, tmp_path, monke
         for name in a["data"]:
             np.testing.assert_array_equal(a["data"][name], b["data"][name])
         assert all(torch.equal(a["policy"][p], b["policy"][p]) for p in a["policy"])
-    assert_same(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", algo)
+    assert_same_policy(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", algo)
     assert resumed["pretrain_states"] == whole["pretrain_states"]
     assert resumed["pretrained_eval_mean_return"] == whole["pretrained_eval_mean_return"]
     assert (whole["pretrain_resumed_after"], resumed["pretrain_resumed_after"]) == (None, 0)
@@ -256,10 +221,7 @@ def assert_refused_in_one_line(tmp_path: Path, raw: dict, field: str) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(raw))
     status, _, stderr = farm_main("train", path, "--out", tmp_path / "run")  # in process: the CLI's own
-    assert status != 0                                                        # process is test_alloc_train's
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in stderr, stderr
-    assert field in lines[0], lines[0]
+    farm_refusal(status, stderr, field)  # process is test_alloc_train's
     assert not (tmp_path / "run").exists()
 
 
@@ -279,7 +241,7 @@ def test_the_flows_loss_reads_actions_as_the_env_does(action_map, tmp_path):
 
 def test_the_flows_fit_moves_the_defenders_as_the_expert_does(store, client):
     from farm.alloc.training.dagger.loop import MoveMap
-    from farm.alloc.training.train import make_model, training_envs
+    from farm.alloc.training.train import training_envs, make_model
 
     cfg = config(store, "ppo")
     env, _, _ = training_envs(cfg, client)
@@ -311,8 +273,8 @@ def test_a_run_on_the_batched_env_resumed_after_a_stop_is_bit_identical(store, t
     with np.load(tmp_path / "whole" / "evaluations.npz") as e:  # every eval.freq steps, as with one env
         assert list(e["timesteps"]) == list(range(100, metrics["timesteps"] + 1, 100))
     with pytest.raises(Stop):
-        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[StopAt(200)])
+        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[stop_at(200)])
     train(cfg, tmp_path / "stopped", resume=True, show_progress=False)
-    assert_same(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", algo)
+    assert_same_policy(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", algo)
     with np.load(tmp_path / "whole" / "evaluations.npz") as a, np.load(tmp_path / "stopped" / "evaluations.npz") as b:
         np.testing.assert_array_equal(a["results"], b["results"])

@@ -9,14 +9,13 @@ import math
 
 import numpy as np
 import pytest
-from scipy.optimize import linprog
-from test_planners import cfg_of, curve_client, env_at, obs_of, realised
+from test_planners import choice_and_without, cfg_of, curve_client, env_at, fillable_levels, obs_of, realised
 
 from farm.alloc import AllocConfig
-from farm.alloc.allocators import make_allocator
-from farm.alloc.allocators.planners import Minimax, levels
 from farm.alloc.game.dynamics import Layout, step
 from farm.alloc.game.model import EngagementModel, route_intruders_many, team_sizes
+from farm.alloc.allocators import make_allocator
+from farm.alloc.allocators.planners import Minimax
 from farm.core.errors import ConfigError
 
 
@@ -70,26 +69,10 @@ def brute_force_maximin(cfg, client, D, I):
     near = np.array([[max(abs(a // n - b // n), abs(a % n - b % n)) <= 1 for b in range(n2)] for a in range(n2)])
     reach = near[D > 0].any(axis=0)  # the cells the defenders can be at after one move
     targets = np.flatnonzero((np.max(landed, axis=0) > cfg.engage_min_mass) & reach)
-    L = levels(cfg)
-    lo = np.concatenate([[0.0], L.lo])
-    hi = np.concatenate([[L.zero_hi], np.where(np.isfinite(L.hi), L.hi, 1e9)])
-    A_eq = np.zeros((n2, len(env.src)))
-    A_eq[env.src, np.arange(len(env.src))] = 1.0
-    into = np.zeros((len(targets), len(env.src)))
-    for i, t in enumerate(targets):
-        into[i, env.dst == t] = 1.0
     best = -np.inf
-    for combo in itertools.product(range(len(lo)), repeat=len(targets)):
-        combo = np.array(combo)
-        if lo[combo].sum() > cfg.n_defenders * D.sum():  # more than all the defenders: no flow fills it
-            continue
-        res = linprog(np.zeros(len(env.src)), A_ub=np.vstack([into, -into]),
-                      b_ub=np.concatenate([hi[combo], -lo[combo]]), A_eq=A_eq, b_eq=D * cfg.n_defenders,
-                      bounds=(0, None), method="highs")
-        if res.status != 0:
-            continue
+    for lowest in fillable_levels(cfg, env, targets, D * cfg.n_defenders):
         count = np.zeros(n2)
-        count[targets] = lo[combo]
+        count[targets] = lowest
         best = max(best, min(eliminated(cfg, client, I1, count) for I1 in landed))
     return best, routings
 
@@ -197,11 +180,7 @@ def test_level_values_are_exact_for_one_change(objective, rng):
     net = planner.flow_network(x, planner.cone(I, 5))
     up, down = planner.initial_courses(I, 5, first=False)
     for _ in range(5):
-        choice = np.where(rng.random(net["T"]) < 0.5, rng.integers(1, net["m"] + 1, net["T"]), 0)
-        i = int(rng.integers(net["T"]))
-        choice[i] = int(rng.integers(1, net["m"] + 1))
-        without = choice.copy()
-        without[i] = 0
+        choice, without, i = choice_and_without(net, rng)
         plan_with, plan_without = (np.zeros((6, 25), dtype=np.int64) for _ in range(2))
         plan_with[net["targets"][:, 0], net["targets"][:, 1]] = choice
         plan_without[net["targets"][:, 0], net["targets"][:, 1]] = without

@@ -5,6 +5,7 @@ on the batching."""
 import numpy as np
 import pytest
 from gymnasium.utils import seeding
+from helpers import Answers
 
 from farm.alloc.allocators import make_allocator
 from farm.alloc.envs.defenders import SwarmAllocationEnv
@@ -14,20 +15,6 @@ from farm.alloc.game.config import AllocConfig
 from farm.core.errors import ConfigError
 
 SEED, EPISODES = 1000, 8
-
-
-class Answers:
-    """A capture-time client: a third of every engaged cell removed, a half scored."""
-
-    repeatable = True
-
-    def get_many(self, pairs, estimate=False):
-        from types import SimpleNamespace
-
-        return [SimpleNamespace(frac_captured_tau=1 / 3, capture_score_tau=0.5, estimate=None) for _ in pairs]
-
-    def close(self):
-        pass
 
 
 def config(**settings):

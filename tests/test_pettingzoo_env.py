@@ -9,11 +9,11 @@ import subprocess
 import sys
 import warnings
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from gymnasium.error import ResetNeeded
+from helpers import Answers
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, seed_test
 
 from farm.alloc import SCENARIOS, AllocConfig, SwarmAllocationEnv
@@ -31,18 +31,6 @@ from farm.core.errors import ActionError, ConfigError
 ROOT = Path(__file__).resolve().parent.parent
 SMALL = {"grid_size": 3, "n_defenders": 10, "n_intruders": 5}
 NAMING = "We recommend agents to be named"  # PettingZoo's advice for names like player_0; ours are the sides
-
-
-class Answers:
-    """A client: every engaged cell loses a third of its intruders and scores one half."""
-
-    repeatable = True
-
-    def get_many(self, pairs, estimate=False):
-        return [SimpleNamespace(frac_captured_tau=1 / 3, capture_score_tau=0.5, estimate=None) for _ in pairs]
-
-    def close(self):
-        pass
 
 
 def small(**settings):

@@ -350,33 +350,46 @@ def test_rh_one_step_equals_brute_force_over_chunks():
     assert reward == pytest.approx(best_reward, abs=1e-12)
 
 
-def brute_force_levels(cfg, client, D, I):
-    """The one-step optimum over the levels: every combination of levels at the coming intruder cells,
-    kept when an LP finds flows (each cell's mass over its moves) filling every range."""
-    env = SwarmAllocationEnv(cfg, client=client)
-    n2 = cfg.grid_size ** 2
-    x = D * cfg.n_defenders
-    I1, breach = advance_intruders(I, cfg.grid_size, cfg.vertical_drift)
-    targets = np.flatnonzero(I1 > cfg.engage_min_mass)
+def choice_and_without(net, rng):
+    """A random choice of levels at net's targets with target i engaged, and without it: (choice, without, i)."""
+    choice = np.where(rng.random(net["T"]) < 0.5, rng.integers(1, net["m"] + 1, net["T"]), 0)
+    i = int(rng.integers(net["T"]))
+    choice[i] = int(rng.integers(1, net["m"] + 1))
+    without = choice.copy()
+    without[i] = 0
+    return choice, without, i
+
+
+def fillable_levels(cfg, env, targets, x):
+    """The lowest counts of each combination of levels at targets that a flow of the counts x fills (an LP)."""
     L = levels(cfg)
     lo = np.concatenate([[0.0], L.lo])
     hi = np.concatenate([[L.zero_hi], np.where(np.isfinite(L.hi), L.hi, 1e9)])
-    A_eq = np.zeros((n2, len(env.src)))
+    A_eq = np.zeros((cfg.grid_size ** 2, len(env.src)))
     A_eq[env.src, np.arange(len(env.src))] = 1.0
     into = np.zeros((len(targets), len(env.src)))
     for i, t in enumerate(targets):
         into[i, env.dst == t] = 1.0
-    best = -np.inf
     for combo in itertools.product(range(len(lo)), repeat=len(targets)):
         combo = np.array(combo)
+        if lo[combo].sum() > x.sum():  # more than all the defenders: no flow fills it
+            continue
         res = linprog(np.zeros(len(env.src)), A_ub=np.vstack([into, -into]),
                       b_ub=np.concatenate([hi[combo], -lo[combo]]), A_eq=A_eq, b_eq=x, bounds=(0, None),
                       method="highs")
-        if res.status != 0:
-            continue
-        value = sum(one_step_value(cfg, client, t, I1, lo[c])
-                    for t, c in zip(targets, combo))
-        best = max(best, value)
+        if res.status == 0:
+            yield lo[combo]
+
+
+def brute_force_levels(cfg, client, D, I):
+    """The one-step optimum over the levels: every combination of levels at the coming intruder cells,
+    kept when an LP finds flows (each cell's mass over its moves) filling every range."""
+    env = SwarmAllocationEnv(cfg, client=client)
+    I1, breach = advance_intruders(I, cfg.grid_size, cfg.vertical_drift)
+    targets = np.flatnonzero(I1 > cfg.engage_min_mass)
+    best = -np.inf
+    for lowest in fillable_levels(cfg, env, targets, D * cfg.n_defenders):
+        best = max(best, sum(one_step_value(cfg, client, t, I1, count) for t, count in zip(targets, lowest)))
     return -cfg.c_distribution * I1.sum() + best - cfg.breach_penalty * breach
 
 
@@ -416,11 +429,7 @@ def test_rh_values_one_engagement_exactly_given_the_others(drift, rng):
     assert H == 5
     net = planner.network(D * 100, I, H)
     for _ in range(5):
-        choice = np.where(rng.random(net["T"]) < 0.5, rng.integers(1, net["m"] + 1, net["T"]), 0)
-        i = int(rng.integers(net["T"]))
-        choice[i] = int(rng.integers(1, net["m"] + 1))
-        without = choice.copy()
-        without[i] = 0
+        choice, without, i = choice_and_without(net, rng)
         with_reward = planner.simulate(net, I, H, choice)[0]
         reward, rho, score = planner.simulate(net, I, H, without)
         V = planner.values(net, *planner.nominal(I, H, rho, score))

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from stable_baselines3.common.callbacks import BaseCallback
+from helpers import Stop, stop_at
 
 from farm.alloc.training import TrainConfig
 
@@ -35,11 +35,6 @@ def config(store: Path, algo: str = "td3", seed: int = 0) -> TrainConfig:
     return TrainConfig(name=f"files-{algo}", seed=seed, env=SMALL, algo=algo, **{algo: section},
                        pretrain=PRETRAIN, eval={"freq": 100, "episodes": 2}, checkpoint_freq=96,
                        service={"mode": "local", "store": str(store)})
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("pretrain_files") / "store.sqlite"
 
 
 @pytest.fixture(scope="module")
@@ -184,23 +179,6 @@ def test_every_iteration_damaged_starts_the_pretraining_again_as_exact(store, cl
 
 # ----- class 2: the pretraining's figures survive a resume from an RL checkpoint ------------------
 
-class Stop(Exception):
-    """Raised by StopAt: the run ends as if killed."""
-
-
-class StopAt(BaseCallback):
-    """Raises Stop at the step's on_step."""
-
-    def __init__(self, step: int):
-        super().__init__()
-        self.step = step
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps == self.step:
-            raise Stop()
-        return True
-
-
 FIGURES = ("pretrain_states", "pretrain_loss", "pretrained_eval_mean_return", "pretrain_resumed_after")
 
 
@@ -212,7 +190,7 @@ def test_a_run_resumed_after_its_first_checkpoint_keeps_the_pretrainings_figures
     uninterrupted = train(cfg, tmp_path / "whole", show_progress=False)
     assert all(uninterrupted[k] is not None for k in FIGURES if k != "pretrain_resumed_after")
     with pytest.raises(Stop):
-        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[StopAt(120)])
+        train(cfg, tmp_path / "stopped", show_progress=False, callbacks=[stop_at(120)])
     assert (tmp_path / "stopped" / "checkpoints").is_dir() and not (tmp_path / "stopped" / "metrics.json").exists()
     metrics = train(cfg, tmp_path / "stopped", resume=True, show_progress=False)
     assert metrics["resumed_from"] == 96

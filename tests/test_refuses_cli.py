@@ -2,39 +2,27 @@
 addresses that are not addresses, jobs too big to run blind, a damaged sweep.json; and
 negative numbers that need no '='."""
 
-import contextlib
 import json
 import subprocess
 import time
-from pathlib import Path
-from types import SimpleNamespace
 
 import pandas as pd
 import pytest
 import yaml
-from conftest import farm_main
 
 from farm.games.sizes import JobSize, check_size
 
-REPO = Path(__file__).resolve().parents[1]
+from helpers import farm_in_repo, farm_refusal
 
 
-def farm(*args):
-    """`farm ARGS` through farm.cli.main in this process, from the repository's root:
-    returncode, stdout, stderr. Every command here is refused before Ray starts or runs
-    --no-ray (conftest's RAY_ADDRESS of a closed port would fail any that joined Ray)."""
-    with contextlib.chdir(REPO):
-        status, out, err = farm_main(*args)
-    return SimpleNamespace(returncode=status, stdout=out, stderr=err)
+# `farm` in this process (farm_in_repo): every command here is refused before Ray starts or runs
+# --no-ray (conftest's RAY_ADDRESS of a closed port would fail any that joined Ray).
+farm = farm_in_repo
 
 
 def one_line_error(r, *words):
-    assert r.returncode == 2, (r.stdout, r.stderr)
-    line = r.stderr.strip()
-    assert line.startswith("farm: error: ") and "\n" not in line and "Traceback" not in line, line
-    for w in words:
-        assert w in line, line
-    return line
+    """farm's one-line refusal in r (farm_refusal), holding every word; returns the line."""
+    return farm_refusal(r.returncode, r.stderr, *words)
 
 
 @pytest.mark.parametrize("args,first,second", [

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
+from helpers import raises_one_line
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
@@ -38,13 +39,7 @@ def write(tmp_path, text, name="config.yaml"):
 
 def refused(loader, path, *fragments):
     """The loader's ConfigError for path: one line holding every fragment."""
-    with pytest.raises(ConfigError) as err:
-        loader(path)
-    message = str(err.value)
-    assert len(message.splitlines()) == 1, message
-    for f in fragments:
-        assert f in message, message
-    return message
+    return raises_one_line(ConfigError, lambda: loader(path), *fragments)
 
 
 # ----- 1. every number finite ------------------------------------------------------------

@@ -16,10 +16,12 @@ planner would ask is stood in for).
 
 import numpy as np
 import pytest
-from conftest import farm_main, train_tiny_run
 
 from farm.alloc import AllocConfig
 from farm.core.errors import ConfigError
+
+from conftest import farm_main, train_tiny_run
+from helpers import farm_refusal
 
 LONG_GAME = ("--t-max", "600", "--evader-speed", "3", "--n-pursuers", "1")  # an evader no pursuer catches
 
@@ -40,24 +42,17 @@ def no_frames(monkeypatch):
     monkeypatch.setattr(animation, "figure_frames", refuse)
 
 
-def one_line(status, err, *fragments):
-    assert status == 2, err
-    line = err.strip()
-    assert line.startswith("farm: error: ") and "\n" not in line and "Traceback" not in line, line
-    for f in fragments:
-        assert f in line, line
-
-
 def test_farm_game_refuses_more_frames_than_fit_before_the_game_is_shown(tmp_path, no_frames):
     status, out, err = farm_main("game", "--animate", tmp_path / "g.gif", "--frame-stride", "1", *LONG_GAME)
-    one_line(status, err, "--frame-stride: 60,001 frames of 400 x 416 pixels need 27.9 GiB in memory to encode, "
-                          "more than 1 GiB; a frame stride of at least 28 fits")
+    farm_refusal(status, err, "--frame-stride: 60,001 frames of 400 x 416 pixels need 27.9 GiB in memory to encode, "
+                              "more than 1 GiB; a frame stride of at least 28 fits")
     assert out == "" and not (tmp_path / "g.gif").exists()
 
 
 def test_game_frames_refuses_before_any_frame(no_frames):
-    from farm.core.game_animation import game_frames
     from workers import Case, simulate_case
+
+    from farm.core.game_animation import game_frames
 
     case = Case(1, 1, evader_speed=3.0, t_max=600.0)
     p, e = np.array([[[1.0, 1.0]]]), np.array([[[9.0, 9.0]]])
@@ -174,8 +169,8 @@ def test_a_pretraining_whose_labels_do_not_fit_is_refused_before_any_episode(tmp
                       f"service: {{mode: local, store: {tmp_path / 's.sqlite'}}}\n"
                       "pretrain: {expert: intercept, iterations: 1000, episodes: 100000000}\n")
     status, out, err = farm_main("train", config, "--out", tmp_path / "run")
-    one_line(status, err, f"{config}: pretrain.episodes: 1000 iterations of 100,000,000 episodes on 1 map(s) label "
-                          "up to ", "GiB, more than half of this machine's memory")
+    farm_refusal(status, err, f"{config}: pretrain.episodes: 1000 iterations of 100,000,000 episodes on 1 map(s) "
+                              "label up to ", "GiB, more than half of this machine's memory")
     assert not (tmp_path / "run").exists()
 
 
@@ -188,6 +183,6 @@ def test_farm_eval_refuses_more_episodes_than_its_tables_fit_before_any_episode(
     monkeypatch.setattr(evaluation, "evaluate_trained", refuse)
     run = train_tiny_run(tmp_path)
     status, out, err = farm_main("eval", run, "--episodes", 10**12, "--references", "none")
-    one_line(status, err, "--episodes: 1,000,000,000,000 episodes of 1 allocators keep up to ",
-             "GiB of tables in memory, more than half of this machine's")
+    farm_refusal(status, err, "--episodes: 1,000,000,000,000 episodes of 1 allocators keep up to ",
+                 "GiB of tables in memory, more than half of this machine's")
     assert not (run / "eval_table.csv").exists()

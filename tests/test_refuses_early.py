@@ -17,21 +17,15 @@ import copy
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import farm_main, train_tiny_run
 
 from farm.alloc import AllocConfig
 from farm.core.errors import ConfigError
 
+from conftest import farm_main, train_tiny_run
+from helpers import farm_refusal
+
 ENV = "env: {grid_size: 3, n_defenders: 10, n_intruders: 5, games: 3}\n"
 TD3 = "td3: {n_timesteps: 200, learning_starts: 50}\n"
-
-
-def one_line(status, err, *fragments):
-    assert status == 2, err
-    line = err.strip()
-    assert line.startswith("farm: error: ") and "\n" not in line and "Traceback" not in line, line
-    for f in fragments:
-        assert f in line, line
 
 
 # ----- a bad expert option, refused when the config is read ----------------------------------------
@@ -50,7 +44,7 @@ def test_farm_train_refuses_a_bad_expert_option_before_writing_anything(tmp_path
     config = tmp_path / "t.yaml"
     config.write_text(f"name: t\n{ENV}{TD3}service: {{mode: local, store: {tmp_path / 's.sqlite'}}}\n{section}\n")
     status, out, err = farm_main("train", config, "--out", tmp_path / "run")
-    one_line(status, err, f"farm: error: {config}: {message}")
+    farm_refusal(status, err, f"farm: error: {config}: {message}")
     assert not (tmp_path / "run").exists()
 
 
@@ -90,7 +84,7 @@ def test_an_experiment_refuses_a_bad_expert_option_of_a_point_before_ray_starts(
 ])
 def test_farm_eval_refuses_contradictory_references(tmp_path, references, message):
     status, out, err = farm_main("eval", tmp_path / "nothere", "--references", references)
-    one_line(status, err, message)
+    farm_refusal(status, err, message)
 
 
 @pytest.fixture(scope="module")
@@ -108,8 +102,8 @@ def test_farm_eval_never_writes_over_an_evaluation_holding_more_policies(run):
     table.to_csv(run / "eval_table.csv", index=False)
     before = (run / "eval_table.csv").read_bytes()
     status, out, err = farm_main("eval", run, "--episodes", 1, "--references", "intercept")
-    one_line(status, err, f"--references: {run / 'eval_table.csv'} holds the evaluation of stay_at_base, ",
-             "too, which this one would write over")
+    farm_refusal(status, err, f"--references: {run / 'eval_table.csv'} holds the evaluation of stay_at_base, ",
+                 "too, which this one would write over")
     assert (run / "eval_table.csv").read_bytes() == before
     assert not (run / "eval_episodes.csv").exists()
 
@@ -118,7 +112,7 @@ def test_farm_eval_never_writes_over_an_evaluation_holding_more_policies(run):
 def test_an_empty_animate_path_is_refused_by_one_rule(tmp_path, monkeypatch, command):
     monkeypatch.chdir(tmp_path)
     status, out, err = farm_main(*command, "--animate", "")
-    one_line(status, err, "--animate: an empty value; give one, or leave --animate out")
+    farm_refusal(status, err, "--animate: an empty value; give one, or leave --animate out")
     assert out == "" and list(tmp_path.iterdir()) == []
 
 
@@ -131,7 +125,7 @@ def test_an_empty_animate_path_is_refused_by_one_rule(tmp_path, monkeypatch, com
 def test_an_empty_value_of_a_flag_is_refused_never_read_as_left_out(tmp_path, monkeypatch, argv, flag):
     monkeypatch.chdir(tmp_path)
     status, out, err = farm_main(*argv)
-    one_line(status, err, f"{flag}: an empty value")
+    farm_refusal(status, err, f"{flag}: an empty value")
 
 
 # ----- set_state of a damaged generator state -------------------------------------------------------

@@ -8,24 +8,16 @@ import json
 import gymnasium
 import numpy as np
 import pytest
-from conftest import farm_main as farm_cli
-from conftest import train_tiny_run
 
 import farm.alloc as _registers_the_gymnasium_ids  # noqa: F401
 from farm.alloc import AllocConfig, SwarmAllocationEnv
+from conftest import farm_main as farm_cli, train_tiny_run
+from helpers import farm_refusal
 from farm.core.errors import ConfigError
 from farm.service import CaptureTimeClient, GameSettings
 from workers import Case, InputError, run_games
 
 SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)
-
-
-def one_line(status, err, *fragments):
-    assert status == 2, err
-    line = err.strip()
-    assert line.startswith("farm: error: ") and "\n" not in line and "Traceback" not in line, line
-    for f in fragments:
-        assert f in line, line
 
 
 @pytest.mark.parametrize("data, fragment", [
@@ -39,7 +31,7 @@ def test_a_positions_json_with_a_boolean_or_an_unknown_key_is_refused(tmp_path, 
     path = tmp_path / "p.json"
     path.write_text(json.dumps(data))
     status, out, err = farm_cli("game", "--positions", path)
-    one_line(status, err, fragment)
+    farm_refusal(status, err, fragment)
     assert out == ""  # no game was played
 
 
@@ -60,7 +52,7 @@ def test_debug_is_taken_after_the_subcommand_too():
 @pytest.mark.parametrize("port", [-5, 0, 70000])
 def test_a_metrics_port_out_of_range_is_refused_before_ray_starts(tmp_path, port):
     status, out, err = farm_cli("sweep", "configs/smoke.yaml", "--out", tmp_path / "s", "--metrics-port", port)
-    one_line(status, err, "--metrics-port: must be a TCP port from 1 to 65535", str(port))
+    farm_refusal(status, err, "--metrics-port: must be a TCP port from 1 to 65535", str(port))
     assert not (tmp_path / "s").exists()
     from farm.runtime.cluster import ray_cluster
 
@@ -137,13 +129,13 @@ def test_training_settings_under_which_nothing_is_learned_are_refused_before_any
     path = tmp_path / "train.yaml"
     path.write_text(TINY + section + "\n")
     status, out, err = farm_cli("train", path, "--out", tmp_path / "run")
-    one_line(status, err, fragment)
+    farm_refusal(status, err, fragment)
     assert not (tmp_path / "run").exists()
 
 
 def test_timesteps_on_the_command_line_below_learning_starts_is_refused(tmp_path):
     status, out, err = farm_cli("train", "configs/train/tiny.yaml", "--timesteps", 100, "--out", tmp_path / "run")
-    one_line(status, err, "--timesteps: 100 steps, but td3.learning_starts is 100")
+    farm_refusal(status, err, "--timesteps: 100 steps, but td3.learning_starts is 100")
     assert not (tmp_path / "run").exists()
 
 
@@ -159,12 +151,12 @@ def test_a_window_tau_longer_than_the_games_is_refused_where_statistics_are_made
     table = tmp_path / "t.yaml"
     table.write_text("name: t\nn_pursuers: [1, 2]\nn_evaders: [1]\nsettings: {games: 4, t_max: 10, tau: 50}\n")
     status, out, err = farm_cli("table", table, "--store", tmp_path / "s.sqlite")
-    one_line(status, err, "tau: the statistics window (50 s)")
+    farm_refusal(status, err, "tau: the statistics window (50 s)")
     assert not (tmp_path / "s.sqlite").exists()
     sweep = tmp_path / "w.yaml"
     sweep.write_text("name: w\nbase: {n_evaders: 1, t_max: 10}\nvary: {grid: {n_pursuers: [1, 2], tau: [5, 20]}}\n")
     status, out, err = farm_cli("sweep", sweep, "--out", tmp_path / "w", "--no-ray")
-    one_line(status, err, "vary: point 1 (n_pursuers=1, tau=20): tau: the statistics window (20 s)")
+    farm_refusal(status, err, "vary: point 1 (n_pursuers=1, tau=20): tau: the statistics window (20 s)")
     assert not (tmp_path / "w").exists()
 
 
@@ -174,7 +166,7 @@ def test_a_random_integer_range_without_a_whole_number_is_refused_and_draws_stay
     path = tmp_path / "r.yaml"
     path.write_text("name: r\nbase: {n_evaders: 1}\nvary: {random: {n: 3, ranges: {n_pursuers: [1.2, 1.7]}}}\n")
     status, out, err = farm_cli("sweep", path, "--out", tmp_path / "r", "--no-ray")
-    one_line(status, err, "n_pursuers: [1.2, 1.7] holds no whole number")
+    farm_refusal(status, err, "n_pursuers: [1.2, 1.7] holds no whole number")
     path.write_text("name: r\nbase: {n_evaders: 1}\nvary: {random: {n: 200, ranges: {n_pursuers: [1.5, 3.5]}}}\n")
     drawn = {p.changes["n_pursuers"] for p in load_sweep_config(path).points()}
     assert drawn == {2, 3}  # every whole number inside, none outside
@@ -193,9 +185,9 @@ def test_an_empty_store_path_is_refused_not_read_as_the_default(tmp_path, kind, 
             "suite": ("suite", path, "--out", tmp_path / "suite"),
             "experiments": ("experiments", path, "--out", tmp_path / "exp")}[kind]
     status, out, err = farm_cli(*argv)
-    one_line(status, err, "store: String should have at least 1 character")
+    farm_refusal(status, err, "store: String should have at least 1 character")
     status, out, err = farm_cli("table", "configs/table_small.yaml", "--store", "")
-    one_line(status, err, "--store: an empty value")
+    farm_refusal(status, err, "--store: an empty value")
 
 
 # ----- a run folder whose files were damaged or edited -------------------------------------
@@ -225,7 +217,7 @@ def test_claims_on_a_damaged_eval_steps_is_one_line_naming_the_file(run, tmp_pat
         (runs / name / "config.yaml").write_text(text)
     (runs / "c0" / "eval_steps.csv").write_bytes(damage)
     status, out, err = farm_cli("claims", runs, "--c0", "c0", "--c15", "c15")
-    one_line(status, err, "c0/eval_steps.csv: ", fragment, "rerun farm eval")
+    farm_refusal(status, err, "c0/eval_steps.csv: ", fragment, "rerun farm eval")
     assert not (runs / "claims.csv").exists()
 
 
@@ -237,8 +229,8 @@ def test_an_edited_run_config_whose_grid_no_longer_fits_the_model_is_one_line(ru
     (edited / "config.yaml").write_text((edited / "config.yaml").read_text().replace("grid_size: 3", "grid_size: 4"))
     before = {p.name: p.read_bytes() for p in edited.iterdir() if p.is_file()}
     status, out, err = farm_cli("eval", edited, "--episodes", 1, "--references", "none")
-    one_line(status, err, "run_dir: ", "config.yaml does not fit its model", "3x3", "4x4")
+    farm_refusal(status, err, "run_dir: ", "config.yaml does not fit its model", "3x3", "4x4")
     status, out, err = farm_cli("train", edited / "config.yaml", "--out", edited, "--resume")
-    one_line(status, err, "--resume: ", "trained on another map than config.yaml's 4x4")
+    farm_refusal(status, err, "--resume: ", "trained on another map than config.yaml's 4x4")
     after = {p.name: p.read_bytes() for p in edited.iterdir() if p.is_file()}
     assert {k: v for k, v in after.items() if k in before} == before  # nothing already computed is changed

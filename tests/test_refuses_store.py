@@ -15,8 +15,9 @@ import time
 from contextlib import contextmanager
 
 import pytest
-from conftest import immutable
 from hypothesis import HealthCheck, given, settings
+from conftest import immutable
+from helpers import one_line
 from hypothesis import strategies as st
 
 from farm.core.errors import ConfigError, StoreCorruptError
@@ -216,12 +217,6 @@ def test_an_estimate_is_a_weighted_mean_of_its_neighbours(computed, key, neighbo
 
 
 # ---------------------------------------------------------------- 3. a store path that is a folder
-def one_line(e) -> str:
-    msg = str(e.value)
-    assert "\n" not in msg
-    return msg
-
-
 def test_a_folder_is_refused_at_once_in_one_line(tmp_path, monkeypatch):
     """Today: "the capture-time store is damaged (unable to open database file); move it aside"."""
     folder = tmp_path / "results" / "x"
@@ -232,11 +227,11 @@ def test_a_folder_is_refused_at_once_in_one_line(tmp_path, monkeypatch):
                  lambda: CaptureTimeClient(SMALL, local_store="results/x"), lambda: check_store("results/x")):
         with pytest.raises(ConfigError) as e:
             make()
-        assert one_line(e) == want
+        assert one_line(e.value) == want
     with pytest.raises(ConfigError) as e:
         with open_client(SMALL, mode="local", store="results/x"):
             pass
-    assert one_line(e) == want
+    assert one_line(e.value) == want
     assert list(folder.iterdir()) == []
 
 
@@ -258,14 +253,14 @@ def test_open_client_on_ray_refuses_a_folder_before_ray_starts(tmp_path, monkeyp
     with pytest.raises(ConfigError) as e:
         with open_client(SMALL, mode="ray", store=tmp_path):
             pass
-    assert one_line(e) == f"store: {tmp_path} is a folder, not a capture-time store file"
+    assert one_line(e.value) == f"store: {tmp_path} is a folder, not a capture-time store file"
 
 
 def test_a_path_below_a_file_is_refused(tmp_path):
     (tmp_path / "f").write_text("")
     with pytest.raises(ConfigError) as e:
         StatsStore(tmp_path / "f" / "s.sqlite")
-    assert one_line(e) == f"store: {tmp_path / 'f' / 's.sqlite'}: {tmp_path / 'f'} is a file, not a folder"
+    assert one_line(e.value) == f"store: {tmp_path / 'f' / 's.sqlite'}: {tmp_path / 'f'} is a file, not a folder"
 
 
 # ---------------------------------------------------------------- 4. a read-only store
@@ -283,7 +278,7 @@ def test_a_read_only_store_file_is_refused_before_any_work(tmp_path, monkeypatch
                      lambda: check_store(path)):
             with pytest.raises(ConfigError) as e:
                 make()
-            assert one_line(e) == (f"store: {path} is read-only (the file is not writable); "
+            assert one_line(e.value) == (f"store: {path} is read-only (the file is not writable); "
                                    "make it writable or name another store")
         assert len(StatsStore(path, read_only=True).table()) == 1  # reading it is fine
     assert played == []
@@ -296,7 +291,7 @@ def test_a_store_in_a_read_only_folder_is_refused(tmp_path):
         for path in (folder / "s.sqlite", folder / "new" / "s.sqlite"):
             with pytest.raises(ConfigError) as e:
                 CaptureTimeClient(SMALL, local_store=path)
-            assert one_line(e) == (f"store: {path} is read-only (its folder {folder} is not writable); "
+            assert one_line(e.value) == (f"store: {path} is read-only (its folder {folder} is not writable); "
                                    "make it writable or name another store")
         assert list(folder.iterdir()) == []
 
@@ -311,7 +306,7 @@ def test_the_write_check_is_a_real_write(tmp_path, monkeypatch):
     with immutable(path):
         with pytest.raises(ConfigError) as e:
             StatsStore(path)
-        assert one_line(e) == (f"store: {path} is read-only (attempt to write a readonly database); "
+        assert one_line(e.value) == (f"store: {path} is read-only (attempt to write a readonly database); "
                                "make it writable or name another store")
     StatsStore(path).close()  # writable again: the check writes nothing
     assert len(StatsStore(path).load_all()) == 1
@@ -361,19 +356,19 @@ def test_get_service_refuses_in_the_driver_before_any_actor(ray_local, tmp_path)
         t0 = time.perf_counter()
         with pytest.raises(kind) as e:
             get_service(path, name="svc-refuses-driver")
-        assert one_line(e) == want and time.perf_counter() - t0 < 5
+        assert one_line(e.value) == want and time.perf_counter() - t0 < 5
         assert not _running("svc-refuses-driver")  # no actor was made
     with pytest.raises(ConfigError) as e:
         with open_client(SMALL, mode="ray", store=tmp_path):
             pass
-    assert one_line(e) == f"store: {tmp_path} is a folder, not a capture-time store file"
+    assert one_line(e.value) == f"store: {tmp_path} is a folder, not a capture-time store file"
 
     ro = tmp_path / "ro.sqlite"
     filled(ro, ((1, 1),))
     with immutable(ro):
         with pytest.raises(ConfigError) as e:
             get_service(ro, name="svc-refuses-driver")
-        assert one_line(e).startswith(f"store: {ro} is read-only")
+        assert one_line(e.value).startswith(f"store: {ro} is read-only")
     assert not _running("svc-refuses-driver")
 
 
@@ -381,9 +376,8 @@ def test_get_service_refuses_in_the_driver_before_any_actor(ray_local, tmp_path)
 def test_an_actor_dying_of_a_project_error_raises_its_line(ray_local, tmp_path, monkeypatch):
     """Where the driver cannot check the store (it runs on another node), the actor's death
     raises the project error it died of, not Ray's wrapper."""
-    import ray
-
     import farm.service.actor as actor
+    import ray
 
     monkeypatch.setattr(actor, "_driver_sees_the_store", lambda: False)
     bad = damaged_file(tmp_path / "bad.sqlite")
@@ -395,4 +389,4 @@ def test_an_actor_dying_of_a_project_error_raises_its_line(ray_local, tmp_path, 
             (tmp_path, ConfigError, f"store: {tmp_path.resolve()} is a folder, not a capture-time store file"))):
         with pytest.raises(kind) as e:
             actor.get_service(path, name=f"svc-dies-{n}")
-        assert one_line(e) == want and not isinstance(e.value, ray.exceptions.RayError)
+        assert one_line(e.value) == want and not isinstance(e.value, ray.exceptions.RayError)

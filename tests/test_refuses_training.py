@@ -14,8 +14,6 @@ Example count: 300 (about 10 s).
 
 import json
 import shutil
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -25,6 +23,7 @@ import torch
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from helpers import farm_process as farm
 from hypothesis.extra import numpy as hnp
 from stable_baselines3 import TD3
 from stable_baselines3.common.monitor import Monitor
@@ -41,11 +40,6 @@ SMALL = dict(grid_size=3, n_defenders=10, n_intruders=5, games=3)
 TINY = dict(grid_size=3, n_defenders=4, n_intruders=2, games=2)
 
 
-def farm(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=600, cwd=cwd)
-
-
 def tiny_run(store, **td3):
     """A 60-step run on a small grid (net 32-32), its td3 settings changed by td3."""
     return TrainConfig(name="tiny", env=AllocConfig(**SMALL), threads=1,
@@ -53,11 +47,6 @@ def tiny_run(store, **td3):
                             "policy_kwargs": {"net_arch": [32, 32]}, **td3},
                        eval={"freq": 30, "episodes": 1}, checkpoint_freq=60,
                        service={"mode": "local", "store": str(store)})
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    return tmp_path_factory.mktemp("refuses-training") / "store.sqlite"
 
 
 def assert_not_a_run(run):

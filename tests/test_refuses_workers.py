@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
+from helpers import raises_one_line
 from hypothesis.extra import numpy as hnp
 
 from workers import (
@@ -43,11 +44,7 @@ HEXAGON = [(5 + 5 * math.cos(a), 5 + 5 * math.sin(a)) for a in np.linspace(0, 2 
 
 def refused(call, message: str) -> str:
     """The one-line message of the InputError that call() raises; asserts it contains `message`."""
-    with pytest.raises(InputError) as err:
-        call()
-    text = str(err.value)
-    assert message in text and "\n" not in text, text
-    return text
+    return raises_one_line(InputError, call, message)
 
 
 # ---------------------------------------------------------------- 1. a bool is never a number

@@ -7,21 +7,22 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from conftest import farm_main
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_learners import assert_refused_in_one_line, client, config, store  # noqa: F401 (fixtures)
-from test_planners import curve_client
 
 from farm.alloc import AllocConfig
+from farm.alloc.game.dynamics import Layout, move_probabilities
+from farm.alloc.game.model import advance_intruders, team_sizes
 from farm.alloc.allocators import make_allocator
 from farm.alloc.allocators.planners import action_from_probabilities
 from farm.alloc.allocators.repair import REL, TOL, LevelRepair, Repaired, RepairedActions
-from farm.alloc.game.dynamics import Layout, move_probabilities
-from farm.alloc.game.model import advance_intruders, team_sizes
 from farm.alloc.game.scenarios import SCENARIOS
 from farm.alloc.training import TrainConfig
 from farm.core.errors import ConfigError
+
+from conftest import farm_main
+from test_learners import assert_refused_in_one_line, client, config  # noqa: F401 (fixtures)
+from test_planners import curve_client
 
 PAPER = AllocConfig(grid_size=3, n_defenders=100, n_intruders=50, c_capture=1.5, team_sizes="lattice")
 FEW = AllocConfig(grid_size=3, n_defenders=4, n_intruders=100, c_capture=1.5, team_sizes="lattice")

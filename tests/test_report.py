@@ -5,24 +5,19 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 import tempfile
 
 import numpy as np
 import pytest
-from test_claims import STEPS, make_experiment  # a hand-built experiment folder whose numbers are known
+from helpers import farm_process as farm
 
-from farm.service import CaptureTimeClient, GameSettings
+from test_claims import STEPS, make_experiment  # a hand-built experiment folder whose numbers are known
 from workers import ENGINE_VERSION
+from farm.service import CaptureTimeClient, GameSettings
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync", "--disable-quic"]
-
-
-def farm(*args):
-    return subprocess.run([sys.executable, "-m", "farm.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=600)
 
 
 @pytest.fixture(scope="module")
@@ -138,9 +133,9 @@ def test_the_report_shows_an_experiment(tmp_path):
     """The Experiments section: the summary over seeds, the claims over seeds and the learning
     curves (inline; learning_curves.png beside the experiment is not shown again as a game
     figure); the page's images load in Chromium."""
-    from farm.report import build_report
     from farm.studies.claims import claims_over_seeds, write_claims_over_seeds
     from farm.studies.experiments.results import write_learning_curves
+    from farm.report import build_report
 
     folder = make_experiment(tmp_path / "results" / "experiments")
     write_claims_over_seeds(folder, claims_over_seeds(folder))

@@ -442,9 +442,12 @@ def test_an_oracle_a_side_the_defenders_library_against_trained_intruders(ray_lo
 @pytest.mark.slow
 def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(trained_run, tmp_path):
     """`farm robust --address` (the shared Ray) SIGKILLed, with its trials' workers, once the first
-    of the iteration's four trials has finished; the same command again trains none of the finished
-    ones and plays no pair again, and ends with the uninterrupted run's populations and payoffs."""
+    of the iteration's four trials has finished; the same run again (run_robust, in this process
+    on the same Ray: no second driver to start) trains none of the finished ones and plays no pair
+    again, and ends with the uninterrupted run's populations and payoffs."""
     import ray
+
+    from farm.studies.robust import load_robust_config
 
     path, whole, it = trained_run
     out = tmp_path / "killed"
@@ -472,8 +475,7 @@ def test_a_driver_killed_mid_iteration_then_rerun_trains_no_trial_twice(trained_
     kept = sorted((out / "payoffs").iterdir())
     assert kept  # the starting populations' pairs, played before the trainings
     before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in done + kept}
-    rerun = subprocess.run(command, env=env, capture_output=True, text=True, timeout=900)
-    assert rerun.returncode == 0, rerun.stderr[-3000:]
+    run_robust(load_robust_config(path), out, show_progress=False)
     assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in done + kept} == before  # never trained or played again
     assert len(list(trials.glob("*/result.json"))) == 4
     (killed,) = json.loads((out / "robust.json").read_text())["iterations"]

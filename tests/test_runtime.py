@@ -9,7 +9,7 @@ import threading
 import pytest
 
 from farm.core.errors import ClusterError, ConfigError
-from farm.runtime import bounded, ray_cluster
+from farm.runtime import bounded, ray_cluster, task_result
 
 
 @pytest.mark.ray
@@ -122,6 +122,28 @@ def test_bounded_keeps_at_most_the_limit_in_flight_also_across_threads(ray_local
         t.join(timeout=120)
     assert sorted(results) == sorted(x * x for k in range(3) for x in range(k * 10, k * 10 + 6))
     assert ray.get(gauge.peak.remote()) <= 2
+
+
+@pytest.mark.ray
+def test_task_result_is_a_tasks_value_or_its_project_error_in_one_line(ray_local):
+    """A project error a task raised comes back as itself, its line prefixed with where it came from;
+    any other error as Ray raises it."""
+    import ray
+
+    @ray.remote(num_cpus=0)
+    def task(outcome: str):
+        if outcome == "project":
+            raise ConfigError("episodes: too many")
+        if outcome == "other":
+            raise ValueError("not the project's")
+        return 3
+
+    assert task_result(task.remote("value"), "episode seed 7") == 3
+    with pytest.raises(ConfigError) as e:
+        task_result(task.remote("project"), "episode seed 7")
+    assert str(e.value) == "episode seed 7: episodes: too many" and not isinstance(e.value, ray.exceptions.RayError)
+    with pytest.raises(ray.exceptions.RayTaskError, match="not the project's"):
+        task_result(task.remote("other"), "episode seed 7")
 
 
 def _farm(*args, env=None):

@@ -7,30 +7,23 @@
 - The live engagements' coarse tasks (farm.alloc.evaluation.fidelity.pack_games).
 """
 
-import contextlib
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import pytest
 import torch
 import yaml
-from conftest import farm_main
 
-from farm.alloc.evaluation.fidelity import pack_games
 from farm.alloc.game.dynamics import moves, n_actions
+from farm.alloc.evaluation.fidelity import pack_games
 from farm.alloc.game.scenarios import SCENARIOS
 from farm.alloc.training import load_train_config, train
 
+from conftest import train_tiny_run
+from helpers import farm_in_repo as farm
+
 REPO = Path(__file__).resolve().parents[1]
-
-
-def farm(*args):
-    """`farm ARGS` from the repository's root, in this process (farm.cli.main): returncode, stdout, stderr."""
-    with contextlib.chdir(REPO):
-        status, out, err = farm_main(*args)
-    return SimpleNamespace(returncode=status, stdout=out, stderr=err)
 
 
 @pytest.fixture(scope="module")
@@ -114,12 +107,8 @@ def test_farm_eval_scenario_evaluates_the_run_on_another_map(run):
 
 
 def test_a_policy_whose_size_is_its_maps_is_refused_on_another_map(tmp_path):
-    raw = yaml.safe_load((REPO / "configs" / "train" / "tiny.yaml").read_text())
-    raw["service"]["store"] = str(tmp_path / "s.sqlite")
-    config = tmp_path / "tiny.yaml"
-    config.write_text(yaml.safe_dump(raw))
-    assert farm("train", config, "--out", tmp_path / "mlp", "--quiet").returncode == 0
-    r = farm("eval", tmp_path / "mlp", "--scenario", "theatre_16x16")
+    mlp = train_tiny_run(tmp_path)  # an MLP's input is its map's size: 3x3
+    r = farm("eval", mlp, "--scenario", "theatre_16x16")
     assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert r.stderr.startswith("farm: error: --scenario: the model was trained on a 3x3 map")
     assert "CellPolicy" in r.stderr
@@ -137,10 +126,9 @@ def test_games_are_packed_into_tasks_of_about_the_target(costs, target):
 
 @pytest.mark.slow
 def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_path, monkeypatch):
-    from test_learners import Stop, assert_same
-
     from farm.alloc.training.dagger import loop as pretrain_module
     from farm.alloc.training.dagger.iterations import read_iteration
+    from helpers import Stop, assert_same_policy
 
     raw = yaml.safe_load((REPO / "configs" / "train" / "tiny_size_free.yaml").read_text())
     raw["service"]["store"] = str(tmp_path / "s.sqlite")
@@ -168,7 +156,7 @@ def test_a_curriculum_of_maps_labels_every_map_and_resumes_bit_identical(tmp_pat
         train(cfg, tmp_path / "stopped", show_progress=False)
     monkeypatch.setattr(pretrain_module, "label_all", real)
     train(cfg, tmp_path / "stopped", resume=True, show_progress=False)
-    assert_same(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
+    assert_same_policy(tmp_path / "whole" / "model.zip", tmp_path / "stopped" / "model.zip", "ppo")
 
 
 def test_a_curriculum_needs_a_policy_that_fits_any_map(tmp_path):
@@ -217,8 +205,8 @@ def test_the_games_fidelity_shows_its_steps_and_games_per_second(tmp_path, capsy
     """evaluate_fidelity's bar counts the policies' steps (max_steps each, the steps of episodes
     that ended early included at a policy's end) and shows the games played and their games/s,
     the same count as the returned live summary's."""
-    from farm.alloc.allocators import make_allocator
     from farm.alloc.evaluation.fidelity import evaluate_fidelity
+    from farm.alloc.allocators import make_allocator
     from farm.service import CaptureTimeClient
 
     config = SCENARIOS["outnumbered_3x3"].config(games=2, max_steps=4)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from stable_baselines3.common.callbacks import BaseCallback
+from helpers import Stop, stop_at
 
 from farm.core.errors import ConfigError
 
@@ -43,23 +43,6 @@ def reference(tmp_path_factory):
     config = tiny(tmp / "store.sqlite")
     train(config, tmp / "uninterrupted", show_progress=False)
     return tmp / "uninterrupted", config
-
-
-class Stop(Exception):
-    """Raised by StopAt: the run ends as if killed."""
-
-
-class StopAt(BaseCallback):
-    """Raises Stop at a step's on_step (before its transition is stored and its update)."""
-
-    def __init__(self, step: int):
-        super().__init__()
-        self.step = step
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps == self.step:
-            raise Stop(f"stopped at step {self.step}")
-        return True
 
 
 def model_tensors(path: Path) -> dict:
@@ -110,7 +93,7 @@ def test_a_run_stopped_after_a_checkpoint_and_resumed_equals_an_uninterrupted_on
     uninterrupted, config = reference
     run = tmp_path / "run"
     with pytest.raises(Stop):
-        train(config, run, show_progress=False, callbacks=[StopAt(260)])
+        train(config, run, show_progress=False, callbacks=[stop_at(260)])
     assert latest_checkpoint(run)[1] == 210
     assert np.load(run / "evaluations.npz")["timesteps"].tolist() == [50, 100, 150, 200, 250]
     metrics = train(config, run, resume=True, show_progress=False)
@@ -192,7 +175,7 @@ def test_a_resumed_intruders_run_equals_an_uninterrupted_one(reference, tmp_path
         update={"name": "greedy_nearest", "reward": "zero_sum"})})
     train(config, tmp_path / "uninterrupted", show_progress=False)
     with pytest.raises(Stop):
-        train(config, tmp_path / "run", show_progress=False, callbacks=[StopAt(260)])
+        train(config, tmp_path / "run", show_progress=False, callbacks=[stop_at(260)])
     assert train(config, tmp_path / "run", resume=True, show_progress=False)["resumed_from"] == 210
     assert_same_run(tmp_path / "uninterrupted", tmp_path / "run")
     assert yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["side"] == "intruders"

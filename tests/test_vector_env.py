@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from gymnasium.error import ResetNeeded
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
+from helpers import assert_same
 
 import farm.alloc  # noqa: F401  (registers the ids)
 from farm.alloc import SCENARIOS, AllocConfig, SwarmAllocationEnv
@@ -58,21 +59,6 @@ def actions_for(space, rng, t):
     'stay' (long engagements)."""
     a = rng.uniform(-1, 1, space.shape)
     return a * 3 if t % 3 == 0 else a
-
-
-def assert_same(a, b, where=""):
-    """Equal to the bit: arrays (dtype and values), object arrays element by element, dicts by key."""
-    if isinstance(a, dict):
-        assert set(a) == set(b), (where, sorted(set(a) ^ set(b)))
-        for key in a:
-            assert_same(a[key], b[key], f"{where}/{key}")
-    elif isinstance(a, np.ndarray) and a.dtype == object:
-        assert b.dtype == object and a.shape == b.shape, where
-        for x, y in zip(a, b):
-            assert (x is None and y is None) or np.array_equal(x, y), where
-    else:
-        a, b = np.asarray(a), np.asarray(b)
-        assert a.dtype == b.dtype and np.array_equal(a, b), (where, a, b)
 
 
 @pytest.mark.parametrize("kw", [C3, C5, DRIFT], ids=["3x3", "5x5", "5x5-drift"])

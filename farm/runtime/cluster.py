@@ -4,7 +4,8 @@ ray_cluster(): join a cluster (an address, or $RAY_ADDRESS) or start a real sing
 of its own, quiet and safe (loopback only, token authentication: its docstring says how).
 
 bounded(): submit tasks with at most a given number pending (ray.wait backpressure),
-shared by sweeps, the capture-time service and the games-fidelity evaluation.
+shared by sweeps, the capture-time service and the games-fidelity evaluation; task_result():
+a task's value, or the project error it raised in one line, not Ray's wrapper.
 
 The rules every command shares: joins_cluster / starts_local_ray (whether a command given an
 address, or none, joins a cluster or starts its own Ray), tasks_in_flight (how many tasks a
@@ -26,7 +27,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from farm.core.checks import is_whole, whole
-from farm.core.errors import ClusterError, ConfigError
+from farm.core.errors import ClusterError, ConfigError, SwarmFarmError
 
 __all__ = ["NAMESPACE", "DEFAULT_LOCAL_CPUS", "LOOPBACK_ENV", "ray_cluster", "connected", "check_reachable", "bounded",
            "joins_cluster", "starts_local_ray", "tasks_in_flight", "check_workers"]
@@ -251,3 +252,21 @@ def bounded(submit: Callable[[Any], Any], items: Iterable, max_in_flight: int, *
     finally:
         for _ in range(held):
             slots.release()
+
+
+def task_result(ref, where: str) -> Any:
+    """ray.get(ref); a project error (SwarmFarmError) the task raised comes back as that error,
+    its one line prefixed with `where: ` (not Ray's wrapper with the worker's traceback)."""
+    import ray
+
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as e:
+        cause = getattr(e, "cause", None)
+        if not isinstance(cause, SwarmFarmError):
+            raise
+        try:
+            error = type(cause)(f"{where}: {cause}")
+        except Exception:  # an error class that is not made from one message
+            error = cause
+        raise error from None

@@ -27,6 +27,7 @@ import pandas as pd
 from farm.alloc.training.runs import RunFolder
 from farm.core.errors import ResultsError
 from farm.core.stats import format_ci, mean_ci95
+from farm.studies.experiment_folder import ExperimentFolder, finished_trials, read_manifest
 
 __all__ = ["plateau_minutes", "measure_a", "measure_b", "claims", "check_claim_runs", "PAIR_C_CAPTURE", "SeedClaims",
            "claims_over_seeds", "find_pairs",
@@ -233,8 +234,6 @@ def check_claim_runs(runs_dir: Path, c0: str, c15: str, named: tuple[bool, bool]
 
 def _point_configs(folder: Path, manifest: dict) -> dict[int, dict]:
     """Each started point's training config (its first trial's run/config.yaml, plain values)."""
-    from farm.studies.experiments.folder import ExperimentFolder
-
     configs: dict[int, dict] = {}
     for t in manifest["trials"]:
         if t["point"] in configs:
@@ -378,8 +377,6 @@ def claims_over_seeds(folder, points: tuple[int, int] | None = None, policy: str
     and (b); default: the first pair find_pairs finds (none: only (c), the note says so).
     ResultsError (one line) for an unreadable manifest or a named point the experiment lacks.
     """
-    from farm.studies.experiments.folder import finished_trials, read_manifest
-
     folder = Path(folder)
     manifest = read_manifest(folder)
     finished = finished_trials(folder, manifest)

@@ -1,8 +1,8 @@
 """`farm experiments`: trainings over a grid of settings and seeds as Ray Tune trials on one
 capture-time service. The config (config.py), the plan (plan.py), one trial (trial.py; its
-Tune side, tune.py), the run (run.py), the folder (folder.py), the tables (tables.py), the
-learning curves (results.py) and the progress display (display.py). docs/experiments.md
-tells how it runs and resumes."""
+Tune side, tune.py), the run (run.py), the folder (farm.studies.experiment_folder, below the
+claims too), the tables (tables.py), the learning curves (results.py) and the progress display
+(display.py). docs/experiments.md tells how it runs and resumes."""
 
 from farm.studies.experiments.config import (
                                              RESERVED_FIELDS,
@@ -10,7 +10,7 @@ from farm.studies.experiments.config import (
                                              field_problem,
                                              load_experiment_config,
 )
-from farm.studies.experiments.folder import (
+from farm.studies.experiment_folder import (
                                              MANIFEST,
                                              RESULT,
                                              TUNE_DIR,

@@ -16,7 +16,7 @@ import numpy as np
 
 from farm.alloc.training.runs import RunFolder
 from farm.core.stats import seed_band
-from farm.studies.experiments.folder import finished_trials, read_manifest
+from farm.studies.experiment_folder import finished_trials, read_manifest
 
 __all__ = ["PointCurves", "point_curves", "learning_curves_figure", "write_learning_curves", "LEARNING_CURVES"]
 

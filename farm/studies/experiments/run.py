@@ -18,9 +18,10 @@ from farm.alloc.game.lattice import lattice_groups, warm_lattices
 from farm.alloc.training import TrainConfig
 from farm.core.errors import SwarmFarmError
 from farm.core.output import check_writable_folder
+from farm.studies.claims import claims_over_seeds, write_claims_over_seeds
 from farm.studies.experiments.config import ExperimentConfig
 from farm.studies.experiments.display import PROGRESS, Display
-from farm.studies.experiments.folder import TUNE_DIR, ExperimentFolder
+from farm.studies.experiment_folder import TUNE_DIR, ExperimentFolder
 from farm.studies.experiments.plan import Plan, plan, trial_cpus
 from farm.studies.experiments.storage import ExperimentStorage, is_uri
 from farm.studies.experiments.tables import manifest_trials, summary_table, trials_table
@@ -168,7 +169,6 @@ def _write_claims_and_curves(out: Path) -> dict:
     a C_capture 0 and 1.5 pair: farm.studies.claims.claims_over_seeds) and the learning curves
     over seeds (learning_curves.png); returns {claims: the files written, learning_curves: the
     figure's path or None}."""
-    from farm.studies.claims import claims_over_seeds, write_claims_over_seeds
     from farm.studies.experiments.results import write_learning_curves
 
     found = claims_over_seeds(out)

@@ -23,7 +23,7 @@ import tempfile
 from pathlib import Path
 
 from farm.core.errors import ConfigError, StorageError, SwarmFarmError
-from farm.studies.experiments.folder import MANIFEST, RESULT, ExperimentFolder
+from farm.studies.experiment_folder import MANIFEST, RESULT, ExperimentFolder
 
 __all__ = ["ExperimentStorage", "is_uri", "restore_run", "drop_stale_run", "checkpoint_run", "RUN_IN_CHECKPOINT",
            "NOT_UPLOADED", "SCHEMES", "PROBE_SECONDS"]

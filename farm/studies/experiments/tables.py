@@ -8,7 +8,7 @@ from pathlib import Path
 import pandas as pd
 
 from farm.core.stats import ci_columns, format_ci
-from farm.studies.experiments.folder import ExperimentFolder
+from farm.studies.experiment_folder import ExperimentFolder
 from farm.studies.experiments.plan import Plan
 
 __all__ = ["LEARNED", "trials_table", "summary_table", "summary_view", "format_summary", "manifest_trials",

@@ -24,6 +24,20 @@ def _choices(names) -> str:
     return ", ".join(names) if names else "none"
 
 
+def _known(names: list[str] | None, choices: list[str], what: str, hint=lambda name: "") -> list[str] | None:
+    """names (None: the default) checked against choices: at least one, each a choice, none twice;
+    ValueError naming the first that is not, the choices and hint(name)."""
+    if names is None:
+        return names
+    if not names:
+        raise ValueError(f"must name at least one {what} (choose from {_choices(choices)})")
+    for name in names:
+        if name not in choices:
+            raise ValueError(f"unknown {what} {name!r} (choose from {_choices(choices)}){hint(name)}")
+    _no_repeats(names)
+    return names
+
+
 class SuiteConfig(StrictFile):
     """A `farm suite` config (see the module doc); ConfigError or ValidationError, one line
     naming the field, the bad value and the choices, for bad input."""
@@ -48,46 +62,20 @@ class SuiteConfig(StrictFile):
     @field_validator("scenarios")
     @classmethod
     def _known_scenarios(cls, v):
-        if v is None:
-            return v
-        if not v:
-            raise ValueError(f"must name at least one scenario (choose from {_choices(SCENARIOS)})")
-        for name in v:
-            if name not in SCENARIOS:
-                raise ValueError(f"unknown scenario {name!r} (choose from {_choices(SCENARIOS)})")
-        _no_repeats(v)
-        return v
+        return _known(v, list(SCENARIOS), "scenario")
 
     @field_validator("policies")
     @classmethod
     def _known_policies(cls, v):
-        if v is None:
-            return v
-        choices = available_policies()
-        if not v:
-            raise ValueError(f"must name at least one policy (choose from {_choices(choices)})")
-        for name in v:
-            if name not in choices:
-                hint = "; trained runs come from `runs`" if name in allocator_names("learned") else ""
-                raise ValueError(f"unknown policy {name!r} (choose from {_choices(choices)}){hint}")
-        _no_repeats(v)
-        return v
+        return _known(v, available_policies(), "policy",
+                      hint=lambda name: "; trained runs come from `runs`" if name in allocator_names("learned") else "")
 
     @field_validator("intruders")
     @classmethod
     def _known_intruders(cls, v):
         from farm.alloc.intruders import intruder_names
 
-        if v is None:
-            return v
-        choices = intruder_names(("law", "heuristic"))
-        if not v:
-            raise ValueError(f"must name at least one intruder policy (choose from {_choices(choices)})")
-        for name in v:
-            if name not in choices:
-                raise ValueError(f"unknown intruder policy {name!r} (choose from {_choices(choices)})")
-        _no_repeats(v)
-        return v
+        return _known(v, intruder_names(("law", "heuristic")), "intruder policy")
 
     @model_validator(mode="after")
     def _consistent(self):

@@ -138,7 +138,7 @@ def _play_matchups(config: SuiteConfig, envs: dict, jobs: list, tasks: list, sto
     most tasks_in_flight at a time. Adds warmed_cases, warm_seconds, workers and
     evaluation_seconds to info."""
     from farm.core.progress import GameProgress
-    from farm.runtime import bounded, starts_local_ray, tasks_in_flight
+    from farm.runtime import bounded, starts_local_ray, task_result, tasks_in_flight
     from farm.service.client import open_client
 
     first = next(iter(envs.values()))
@@ -169,7 +169,7 @@ def _play_matchups(config: SuiteConfig, envs: dict, jobs: list, tasks: list, sto
 
             for (j, first, count), ref in bounded(submit, order, n):
                 results[j, first] = [{**row, "episode": first + row["episode"]}
-                                     for row in _result(ray, ref, _shown(jobs[j][0]), jobs[j][1])]
+                                     for row in task_result(ref, f"{_shown(jobs[j][0])}, {jobs[j][1].name}")]
                 bar.update(count)
         finally:
             bar.close()
@@ -209,24 +209,6 @@ def _shown(key: tuple) -> str:
     """A matchup's map as messages name it: the scenario, and the intruders of an adversary axis."""
     scenario, intruders = key
     return scenario if intruders is None else f"{scenario} against {intruders}"
-
-
-def _result(ray, ref, scenario: str, spec: Spec) -> list[dict]:
-    """A task's rows; a project error it raised comes back as that error, one line naming the
-    scenario and the policy (not Ray's wrapper with the worker's traceback)."""
-    from farm.core.errors import SwarmFarmError
-
-    try:
-        return ray.get(ref)
-    except ray.exceptions.RayTaskError as e:
-        cause = getattr(e, "cause", None)
-        if not isinstance(cause, SwarmFarmError):
-            raise
-        try:
-            error = type(cause)(f"{scenario}, {spec.name}: {cause}")
-        except Exception:  # an error class that is not made from one message
-            error = cause
-        raise error from None
 
 
 def _cost(env: AllocConfig) -> float:

@@ -8,7 +8,8 @@
     tune/                     Ray Tune's experiment state
 
 A trial counts as finished when its result.json exists. Readers of a damaged file get one
-line (ResultsError naming the file), never a traceback.
+line (ResultsError naming the file), never a traceback. Below both the experiments that write
+the folder (farm.studies.experiments) and the claims read over its seeds (farm.studies.claims).
 """
 
 from __future__ import annotations
