@@ -52,3 +52,36 @@ def test_subregions_on_ray_actors_plan_what_they_plan_in_process(ray_local, tmp_
     finally:
         planner.close()
         client.close()
+
+
+@pytest.mark.own_ray
+@pytest.mark.slow
+def test_subregions_band_actors_without_a_running_ray_start_the_runtimes_own_ray(tmp_path):
+    """With no Ray running, subregions' band actors start Ray through farm.runtime (a local Ray of
+    its own, in the project's namespace, stopped with the planner), never by Ray's own defaults
+    (which would join a `ray start` cluster or its stale pointer file on this machine)."""
+    import os
+    import subprocess
+    import sys
+    import textwrap
+
+    from conftest import ray_start_lock
+
+    script = textwrap.dedent(f"""
+        import numpy as np, ray
+        from farm.alloc import AllocConfig
+        from farm.alloc.allocators import make_allocator
+        from farm.service import CaptureTimeClient
+        config = AllocConfig(grid_size=6, n_defenders=24, n_intruders=40, games=2, team_sizes="lattice")
+        client = CaptureTimeClient(config.game_settings(), local_store={str(tmp_path / 's.sqlite')!r})
+        planner = make_allocator("subregions", config, client, regions=3, planner="intercept", workers=2)
+        p = planner.probabilities(np.full(36, 1 / 36), np.full(36, 0.01))
+        print(ray.get_runtime_context().namespace, int(ray.cluster_resources()["CPU"]), bool(np.isfinite(p).all()))
+        planner.close()
+        print(ray.is_initialized())
+    """)
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER")}
+    with ray_start_lock():
+        out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.split() == ["swarm-farm", "2", "True", "False"]

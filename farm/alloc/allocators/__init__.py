@@ -12,16 +12,14 @@ from farm.alloc.allocators.mixture import Mixture
 from farm.alloc.allocators.planners import Intercept, MaxMarginalReturn, Minimax, RecedingHorizon, SubRegions, Transport
 from farm.alloc.game.registry import ALLOCATORS, Entry, Spec
 
-__all__ = ["ALLOCATORS", "Entry", "Spec", "KINDS", "register_allocator", "unregister_allocator", "allocator_entry",
-           "allocator_names", "make_allocator", "check_options"]
+__all__ = ["ALLOCATORS", "Entry", "Spec", "register_allocator", "unregister_allocator", "allocator_entry",
+           "allocator_names", "make_allocator"]
 
-KINDS = ALLOCATORS.kinds
 register_allocator = ALLOCATORS.register
 unregister_allocator = ALLOCATORS.unregister
 allocator_entry = ALLOCATORS.entry
 allocator_names = ALLOCATORS.names
 make_allocator = ALLOCATORS.make
-check_options = ALLOCATORS.check_options
 
 register_allocator("stay_at_base", StayAtBase.make, kind="baseline")
 register_allocator("greedy_nearest", GreedyNearestIntruder.make, kind="baseline")

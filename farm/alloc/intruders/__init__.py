@@ -16,10 +16,9 @@ from farm.alloc.intruders.play import configured_intruders, intruder_move
 from farm.alloc.intruders.searching import SearchingIntruders
 from farm.alloc.intruders.split_away import SplitAway
 
-__all__ = ["INTRUDERS", "Entry", "Spec", "KINDS", "register_intruders", "unregister_intruders", "intruder_entry",
+__all__ = ["INTRUDERS", "Entry", "Spec", "register_intruders", "unregister_intruders", "intruder_entry",
            "intruder_names", "make_intruders", "configured_intruders", "intruder_move"]
 
-KINDS = INTRUDERS.kinds
 register_intruders = INTRUDERS.register
 unregister_intruders = INTRUDERS.unregister
 intruder_entry = INTRUDERS.entry

@@ -479,13 +479,14 @@ def check_allocators(config: TrainConfig) -> None:
     pretraining's expert refuses its options on a map the run plays (config.envs()), or the
     intruders' opponent on the run's map: each is built by its own checks, as the run will
     build it (farm.alloc.allocators.check_options), before anything is written."""
-    from farm.alloc.allocators import check_options
+    from farm.alloc.game.registry import ALLOCATORS
 
     if config.pretrain is not None:
         for env in config.envs():
-            check_options(config.pretrain.expert, config.pretrain.expert_options, env, "pretrain.expert_options")
+            ALLOCATORS.check_options(config.pretrain.expert, config.pretrain.expert_options, env,
+                                     "pretrain.expert_options")
     if config.side == "intruders":
-        check_options(config.opponent.name, config.opponent.options, config.env, "opponent.options")
+        ALLOCATORS.check_options(config.opponent.name, config.opponent.options, config.env, "opponent.options")
 
 
 LABEL_COPIES = 4  # copies of the labels a pretraining holds at most: the data set, its concatenation, its file's two

@@ -194,13 +194,13 @@ def _check_planners(jobs: list, envs: dict) -> None:
     """Build every (scenario, planner) once, before Ray starts, so that a bad planner option
     is one line (ConfigError naming planner_options.<planner>), not a failed task
     (farm.alloc.allocators.check_options)."""
-    from farm.alloc.allocators import check_options
+    from farm.alloc.allocators import ALLOCATORS
 
     for key, spec in jobs:
         if not spec.entry.options():
             continue
         try:
-            check_options(spec.name, spec.options, envs[key], f"planner_options.{spec.name}")
+            ALLOCATORS.check_options(spec.name, spec.options, envs[key], f"planner_options.{spec.name}")
         except ConfigError as e:
             raise ConfigError(f"{e} (scenario {key[0]})") from None
 

@@ -41,27 +41,20 @@ def _cpus_held() -> float:
         return 0.0
 
 
-def check_band_actors(workers: int, regions: int, started: bool = False) -> None:
+def check_band_actors(workers: int, regions: int) -> None:
     """ConfigError (one line naming workers) when the band actors of `workers` (one a band, at
     most min(workers, regions), one CPU each) can never all be scheduled: more than the CPUs of
     the Ray this process is connected to, less those this process holds itself (a Ray task or
-    actor planning with subregions keeps its own). Asked of a running Ray; with none, only when
-    started (the planner is about to plan: Ray would start a local Ray of this machine's CPUs)."""
-    import os
-
+    actor planning with subregions keeps its own). Asked of a running Ray only."""
     import ray
 
-    if ray.is_initialized():
-        total = ray.cluster_resources().get("CPU", 0.0)
-        held = _cpus_held()
-        cpus = total - held
-        where = f"the Ray this process is connected to has {total:g} CPUs" + (
-            f" and this task holds {held:g} of them" if held else "")
-    elif started:
-        cpus = float(os.cpu_count() or 1)
-        where = f"the local Ray it would start has {cpus:g} CPUs"
-    else:
+    if not ray.is_initialized():
         return
+    total = ray.cluster_resources().get("CPU", 0.0)
+    held = _cpus_held()
+    cpus = total - held
+    where = f"the Ray this process is connected to has {total:g} CPUs" + (
+        f" and this task holds {held:g} of them" if held else "")
     actors = min(workers, regions)
     if actors > cpus:
         raise ConfigError(f"subregions: workers: {workers} starts {actors} band actors of one CPU each, which can "
@@ -118,9 +111,10 @@ class SubRegions(_Planner):
     BAND_ROWS rows, so one band, the inner planner itself, up to 8 x 8); planner: the inner
     planner, a registry planner other than subregions (default receding_horizon); options:
     dict, the inner planner's options; workers: int >= 1, the Ray actors that plan the bands
-    (default 1: in this process; >= 2 needs a running Ray, and a client whose backend is the
-    capture-time service actor or a local store every actor can open; at most one actor a band
-    is started, and more actors than the Ray could ever start at once, check_band_actors, are
+    (default 1: in this process; >= 2 on Ray: the one this process is connected to, else the one
+    farm.runtime starts, a local Ray of its own or the cluster $RAY_ADDRESS names; with a client
+    whose backend is the capture-time service actor or a local store every actor can open; at
+    most one actor a band is started, and more actors than the Ray could ever start at once, check_band_actors, are
     refused). A bad value is a ConfigError naming the option.
 
     Attribute last: the last call's dict, shares (per band, its w_b).
@@ -147,6 +141,7 @@ class SubRegions(_Planner):
                                    enumerate(np.array_split(np.arange(self.n), self.regions))])
         self.band_of = np.repeat(row_band, self.n)  # (N^2,) int64 each cell's band
         self._actors: list | None = None
+        self._ray = None  # the Ray started for the band actors, when none was running
         self.last: dict = {}
 
     def shares(self, I: np.ndarray) -> np.ndarray:
@@ -176,7 +171,18 @@ class SubRegions(_Planner):
         import ray
 
         if self._actors is None:
-            check_band_actors(self.workers, self.regions, started=True)
+            if not ray.is_initialized():  # the one runtime rule: a local Ray of its own, or the cluster asked for
+                from contextlib import ExitStack
+
+                from farm.runtime import ray_cluster
+
+                self._ray = ExitStack()
+                self._ray.enter_context(ray_cluster())
+            try:
+                check_band_actors(self.workers, self.regions)
+            except ConfigError:
+                self.close()
+                raise
             from farm.alloc.allocators.planners.band_actor import BandPlanner
 
             settings, service, store = _client_recipe(self.client)
@@ -186,10 +192,13 @@ class SubRegions(_Planner):
         return ray.get(refs)
 
     def close(self) -> None:
-        """Stop the band actors (if any were started)."""
+        """Stop the band actors (if any were started), and the Ray started for them (if one was)."""
         if self._actors:
             import ray
 
             for actor in self._actors:
                 ray.kill(actor)
         self._actors = None
+        if self._ray is not None:
+            self._ray.close()
+            self._ray = None
