@@ -46,13 +46,15 @@ lint: $(STAMP)
 
 # Three xdist workers on 2 cores (a third worker fills the time the tests wait on Ray starts and processes):
 # the two shared Rays' groups on two, the `ray start` clusters' module on the third, then the modules
-# without Ray over all three (tests/conftest.py). The lint comes first: it takes seconds.
+# without Ray over all three (tests/conftest.py). The lint comes first: it takes seconds. Bytecode is
+# written (into the ignored __pycache__/) even where PYTHONDONTWRITEBYTECODE is set: every test process
+# and `farm` subprocess would otherwise compile the project and rewrite the tests' asserts anew.
 test: $(STAMP) browser lint
-	$(PY) -m pytest -q -n 3 --dist loadgroup --no-loadscope-reorder
+	PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -q -n 3 --dist loadgroup --no-loadscope-reorder
 
 # The tests marked neither `ray` nor `slow` (every module's quick ones), on the same three workers.
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -n 3 --dist loadgroup --no-loadscope-reorder -m "not ray and not slow"
+	PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -q -n 3 --dist loadgroup --no-loadscope-reorder -m "not ray and not slow"
 
 bench: $(STAMP)
 	$(PY) benchmarks/engine.py

@@ -221,7 +221,8 @@ def _compare_with_reference(P, E, pp, ep, t_max, **kw):
     return exact, total
 
 
-@pytest.mark.parametrize("pp, ep", [("pure_pursuit", "target"), ("area_min", "target"), ("area_min", "centroid")])
+@pytest.mark.parametrize("pp, ep", [("pure_pursuit", "target"), ("area_min", "target"),
+                                    pytest.param("area_min", "centroid", marks=pytest.mark.slow)])
 def test_escape_times_match_reference(pp, ep, rng):
     """Whole games with the exit at (0, 5): same outcomes as the reference, times
     identical except where round-off is amplified into a few steps' difference."""

@@ -120,7 +120,8 @@ def test_the_fit_brings_the_actor_to_the_labels(store, client, algo):
             assert torch.equal(a, b)
 
 
-@pytest.mark.parametrize("algo", ["td3", pytest.param("sac", marks=pytest.mark.slow), "ppo"])
+@pytest.mark.parametrize("algo", [pytest.param("td3", marks=pytest.mark.slow),
+                                  pytest.param("sac", marks=pytest.mark.slow), "ppo"])
 def test_each_algorithm_trains_a_model_of_its_own_kind(store, tmp_path, algo):
     import stable_baselines3
 

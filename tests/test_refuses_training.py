@@ -291,6 +291,7 @@ def test_a_model_with_nan_parameters_is_refused(run_folder, tmp_path):
         load_model(run)
 
 
+@pytest.mark.slow
 def test_farm_eval_of_a_truncated_model_is_one_line(run_folder, tmp_path):
     run = damaged(run_folder, tmp_path, "truncated")
     r = farm("eval", run, "--episodes", 1)

@@ -106,6 +106,7 @@ def test_farm_eval_scenario_evaluates_the_run_on_another_map(run):
     assert len(r.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_a_policy_whose_size_is_its_maps_is_refused_on_another_map(tmp_path):
     mlp = train_tiny_run(tmp_path)  # an MLP's input is its map's size: 3x3
     r = farm("eval", mlp, "--scenario", "theatre_16x16")

@@ -68,6 +68,7 @@ def model_members(path: Path) -> dict:
 TIMING = {"wall_seconds", "steps_per_second", "update_seconds", "outside_update_share"}
 
 
+@pytest.mark.slow
 def test_a_store_damaged_mid_run_is_one_warning_and_the_run_finishes_as_an_untracked_one(tmp_path):
     db = tmp_path / "tracking" / "mlflow.db"
     tracked, plain = tmp_path / "tracked", tmp_path / "plain"
@@ -222,6 +223,7 @@ def test_a_tracking_server_where_nothing_answers_is_refused_at_once(tmp_path):
                            f"nothing at 127.0.0.1:{port} within 5 s (")
 
 
+@pytest.mark.slow
 def test_a_tracking_server_that_never_replies_is_refused_within_seconds(tmp_path):
     """It accepts connections and says nothing: MLflow's own wait, bounded while the URI is
     checked (its default retries for minutes); the bound here leaves time to import MLflow."""
@@ -233,6 +235,7 @@ def test_a_tracking_server_that_never_replies_is_refused_within_seconds(tmp_path
     assert line.startswith(f"farm: error: tracking.mlflow.tracking_uri: MLflow cannot use 'http://127.0.0.1:{port}'")
 
 
+@pytest.mark.slow
 def test_a_tracking_server_that_never_replies_is_refused_within_seconds_by_the_api(tmp_path):
     """The same through the API: the check's wait is MLflow's timeout, once (CHECK_HTTP), and
     MLflow's settings are as they were after it."""
