@@ -170,6 +170,19 @@ def test_the_library_oracles_loop_and_its_resumed_rerun(ray_local, tmp_path):
     with pytest.raises(Exception, match="holds a robust run of another config"):
         run_robust(config.model_copy(update={"payoffs": config.payoffs.model_copy(update={"episodes": 4})}), out,
                    show_progress=False)
+    # damaged state of a finished run: a kept payoff of its final populations is played again (not a
+    # traceback), and a robust.json cut short is moved aside and its iterations computed again
+    from farm.studies.robust.loop import final_populations
+
+    a, b = (population[0] for population in final_populations(iterations))
+    store.path(payoff_key(env, a, b, p.episodes, p.seed, out)).write_text('{"values": {}, "sha')
+    redone, fourth = run_robust(config, out, show_progress=False)
+    assert fourth["pairs_played"] == 1 and [it.to_dict() for it in redone] == [it.to_dict() for it in iterations]
+    state = (out / "robust.json").read_text()
+    (out / "robust.json").write_text(state[: len(state) // 2])
+    redone, fifth = run_robust(config, out, show_progress=False)
+    assert fifth["pairs_played"] == 0 and [it.to_dict() for it in redone] == [it.to_dict() for it in iterations]
+    assert (out / "damaged" / "robust.json").read_text() == state[: len(state) // 2]
 
 
 @pytest.mark.ray
@@ -531,3 +544,20 @@ def test_a_folder_holding_the_other_kind_of_run_is_refused_before_any_work(held,
     assert (status, err) == (2, f"farm: error: --out: {out} holds {article[held]} {held} run, not {article[command]} "
                                 f"{command} one; choose another folder\n")
     assert sorted(p.name for p in out.iterdir()) == before  # nothing written into it
+
+
+@pytest.mark.parametrize("damage", ["cut short", "a digit edited", "no checksum", "another kind's"])
+def test_a_damaged_state_file_is_moved_aside_in_one_line_and_computed_again(damage, tmp_path, capsys):
+    from farm.studies.robust.payoffs import read_state, write_state
+
+    path = tmp_path / "robust.json"
+    values = {"name": "x", "digest": "0123", "iterations": [{"value": 0.625}]}
+    write_state(path, "robust", values)
+    assert read_state(path, "robust") == values
+    text = path.read_text()
+    path.write_text({"cut short": text[:40], "a digit edited": text.replace("0.625", "0.626"),
+                     "no checksum": json.dumps(values), "another kind's": text}[damage])
+    assert read_state(path, "exploit" if damage == "another kind's" else "robust") is None
+    assert not path.exists() and (tmp_path / "damaged" / "robust.json").exists()
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{path} is damaged" in err and "computed again" in err

@@ -30,7 +30,7 @@ from farm.core.matrix_game import solve
 from farm.core.output import atomic_write_bytes, check_writable_folder
 from farm.studies.robust.config import RobustConfig
 from farm.studies.robust.members import Member, check_run, member_of
-from farm.studies.robust.payoffs import PayoffStore, claim_folder, fill, payoff_key
+from farm.studies.robust.payoffs import PayoffStore, claim_folder, fill, payoff_key, read_state, write_state
 
 __all__ = ["Iteration", "run_robust", "payoff_matrix", "STATE"]
 
@@ -109,9 +109,9 @@ def payoff_matrix(store: PayoffStore, config: RobustConfig, allocators: list, in
 
 def _load_state(out: Path, config: RobustConfig) -> list[Iteration]:
     path = out / STATE
-    if not path.exists():
+    saved = read_state(path, "robust")
+    if saved is None:
         return []
-    saved = json.loads(path.read_text())
     if saved.get("digest") != digest(config):
         raise ConfigError(f"out: {out} holds a robust run of another config; choose another folder", field="out")
     iterations = [Iteration.from_dict(d, out) for d in saved["iterations"]]
@@ -124,7 +124,7 @@ def _load_state(out: Path, config: RobustConfig) -> list[Iteration]:
 
 def _save_state(out: Path, config: RobustConfig, iterations: list[Iteration]) -> None:
     state = {"name": config.name, "digest": digest(config), "iterations": [it.to_dict(out) for it in iterations]}
-    atomic_write_bytes(out / STATE, json.dumps(state, indent=1).encode())
+    write_state(out / STATE, "robust", state)
 
 
 def _library_response(side: str, config: RobustConfig, store, client, population: list, opponents: list,
@@ -174,6 +174,9 @@ def run_robust(config: RobustConfig, out, *, address: str | None = None, workers
             else config.population("allocators")
         intruders = iterations[-1].intruders + _new(iterations[-1], "intruders") if iterations \
             else config.population("intruders")
+        if iterations:  # a kept pair whose file was damaged is played again before anything reads it
+            info["pairs_played"] += fill(store, env, [(a, b) for a in allocators for b in intruders], p.episodes,
+                                         p.seed, client, n)
         while len(iterations) < config.iterations and not _converged(config, iterations):
             info["pairs_played"] += fill(store, env, [(a, b) for a in allocators for b in intruders], p.episodes,
                                          p.seed, client, n)

@@ -15,11 +15,43 @@ from farm.core.errors import ConfigError
 from farm.core.output import atomic_write_bytes
 from farm.studies.robust.members import MEASURES, Member
 
-__all__ = ["payoff_key", "PayoffStore", "fill", "claim_folder", "KIND_FILE"]
+__all__ = ["payoff_key", "PayoffStore", "fill", "claim_folder", "KIND_FILE", "write_state", "read_state"]
 
 KIND_FILE = ".swarm-farm-kind"  # what a folder of payoffs holds: "exploit" or "robust"
 MANIFESTS = {"exploit": "exploit.json", "robust": "robust.json"}  # each kind's own state file
 ARTICLES = {"exploit": "an", "robust": "a"}
+
+def _state_digest(kind: str, values: dict) -> str:
+    return hashlib.sha256(json.dumps({"kind": kind, "values": values}, sort_keys=True).encode()).hexdigest()
+
+
+def write_state(path: Path, kind: str, values: dict) -> None:
+    """A run's state file (exploit.json, robust.json): values with a SHA-256 of them and of the
+    kind of run, written atomically."""
+    atomic_write_bytes(path, json.dumps({**values, "sha256": _state_digest(kind, values)}, indent=1).encode())
+
+
+def read_state(path: Path, kind: str) -> dict | None:
+    """A state file's values (write_state's), None without one; a file that is not one whole
+    (cut short, edited, of another kind of run, written before it carried its checksum) is moved
+    into damaged/ beside it, said in one line, and None returned: its run computes it again from
+    what it keeps (the payoffs, the trainings)."""
+    from farm.alloc.training.runs import move_damaged
+
+    if not path.exists():
+        return None
+    try:
+        saved = json.loads(path.read_text())
+        values = {k: v for k, v in saved.items() if k != "sha256"}
+        if saved["sha256"] != _state_digest(kind, values):
+            raise ValueError("checksum")
+        return values
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, AttributeError) as e:
+        aside = move_damaged(path)
+        print(f"{kind}: {path} is damaged ({type(e).__name__}); moved to {aside}/ and computed again from the "
+              f"kept payoffs and trainings", file=sys.stderr)
+        return None
+
 
 def claim_folder(out: Path, kind: str) -> None:
     """Say that the folder out holds a run of kind ("exploit" or "robust"), before any work; a
