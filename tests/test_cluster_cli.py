@@ -1,6 +1,7 @@
 """The farm as a user runs it: `farm sweep` subprocesses on real Ray clusters
 started with `ray start` on loopback, a driver killed by SIGKILL, a second node
-lost mid-sweep, and `ray job submit` of a sweep and of an experiment."""
+lost mid-sweep, `ray job submit` of a sweep and of an experiment, and a head on this
+machine joined by every address form (`farm exploit` and `farm robust` among them)."""
 
 import json
 import os
@@ -9,6 +10,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import textwrap
 import time
 from pathlib import Path
 
@@ -173,12 +175,12 @@ RUNTIME_ENV = '{"excludes": ["workers/", "farm/"]}'  # the installed, precompile
 @pytest.fixture(scope="module")
 def job_head():
     """A 2-CPU head with its dashboard (the job server) on loopback, shared by the `ray job
-    submit` tests (each job's actors end with it): the job server's URL."""
+    submit` tests (each job's actors end with it): (the job server's URL, the head's address)."""
     g = Groups()
     try:
         dashboard = free_port()
-        start_head(g, cpus=2, dashboard_port=dashboard)
-        yield f"http://127.0.0.1:{dashboard}"
+        address, _ = start_head(g, cpus=2, dashboard_port=dashboard)
+        yield f"http://127.0.0.1:{dashboard}", address
     finally:
         g.close()
 
@@ -210,8 +212,9 @@ def submit_and_wait(url, job_id, *command, timeout=300) -> tuple[str, str]:
 
 
 def test_ray_job_submit_smoke_sweep(job_head, tmp_path):
+    url, _ = job_head
     out = tmp_path / "job-out"
-    status, logs = submit_and_wait(job_head, f"sweep-{os.getpid()}", "sweep", "configs/smoke.yaml", "--out", str(out),
+    status, logs = submit_and_wait(url, f"sweep-{os.getpid()}", "sweep", "configs/smoke.yaml", "--out", str(out),
                                    "--quiet")
     assert "SUCCEEDED" in status, status + logs
     assert "smoke: 4 point(s), 160 games" in logs
@@ -227,6 +230,7 @@ def test_ray_job_submit_smoke_experiment(job_head, tmp_path):
     the head ($RAY_ADDRESS) and its service actor and trials run there."""
     from ray.util.state import list_actors
 
+    url, _ = job_head
     from farm.service.actor import SERVICE_NAME
 
     raw = yaml.safe_load((REPO / "configs" / "experiments" / "smoke.yaml").read_text())
@@ -234,7 +238,7 @@ def test_ray_job_submit_smoke_experiment(job_head, tmp_path):
     config = tmp_path / "experiment.yaml"
     config.write_text(yaml.safe_dump(raw))
     out = tmp_path / "job-out"
-    status, logs = submit_and_wait(job_head, f"experiment-{os.getpid()}", "experiments", str(config), "--out",
+    status, logs = submit_and_wait(url, f"experiment-{os.getpid()}", "experiments", str(config), "--out",
                                    str(out), "--quiet")
     assert "SUCCEEDED" in status, status + logs
     assert "job-smoke: 1/1 trial(s) finished (0 before this run), 1 at once at 1 CPU each on 2 CPUs" in logs
@@ -244,7 +248,7 @@ def test_ray_job_submit_smoke_experiment(job_head, tmp_path):
     assert np.isfinite(trials["learned_return"]).all() and (trials["timesteps"] == 300).all()
     summary = pd.read_csv(out / "summary.csv")
     assert summary["seeds"].tolist() == [1] and np.isfinite(summary["return_mean"]).all()
-    services = list_actors(address=job_head, filters=[("name", "=", SERVICE_NAME)], raise_on_missing_output=False)
+    services = list_actors(address=url, filters=[("name", "=", SERVICE_NAME)], raise_on_missing_output=False)
     assert len(services) == 1, services  # the experiment's service ran on the head, not on a Ray of its own
 
 
@@ -295,3 +299,105 @@ def test_a_local_command_runs_on_a_ray_of_its_own_beside_a_ray_start_cluster_and
             pointer.unlink(missing_ok=True)
         else:
             pointer.write_text(before)
+
+
+# ----- joining a head on this machine by every address form a user has: the address the head
+# advertises (this machine's), 127.0.0.1, localhost, $RAY_ADDRESS and `auto`; `farm exploit` and
+# `farm robust` by 127.0.0.1 and by $RAY_ADDRESS; a process on one head asked for another refused.
+
+# Connects as a command does (ray_cluster, then ray_cluster again inside it, as a command's
+# capture-time client does) and prints the cluster it is connected to.
+JOIN = textwrap.dedent("""
+    import sys
+    from farm.core.errors import SwarmFarmError
+    from farm.runtime import ray_cluster
+    address = sys.argv[1] if len(sys.argv) > 1 else None
+    try:
+        with ray_cluster(address) as ray:
+            with ray_cluster(sys.argv[2] if len(sys.argv) > 2 else address) as again:
+                print(again.get_runtime_context().gcs_address)
+    except SwarmFarmError as e:
+        print(f"error: {e}")
+""")
+
+
+def start_advertising_head(groups: Groups) -> int:
+    """A 2-CPU head on this machine, advertising the machine's own address as Ray chooses
+    (no --node-ip-address); its GCS port."""
+    port = free_port()
+    temp = tempfile.mkdtemp(prefix="rt", dir="/tmp")
+    groups.temp_dirs.append(temp)
+    with ray_start_lock():
+        proc = groups.popen([str(BIN / "ray"), "start", "--head", f"--port={port}", "--num-cpus=2",
+                             f"--temp-dir={temp}", "--include-dashboard=false", "--disable-usage-stats"])
+        out, _ = proc.communicate(timeout=180)
+    assert proc.returncode == 0, out
+    return port
+
+
+@pytest.fixture(scope="module")
+def head():
+    """The head's port and the address it advertises (host:port)."""
+    g = Groups()
+    try:
+        port = start_advertising_head(g)
+        said = subprocess.run([sys.executable, "-c", "import ray, sys; ray.init(address=sys.argv[1]); "
+                               "print(ray.get_runtime_context().gcs_address)", f"127.0.0.1:{port}"],
+                              env=ENV, capture_output=True, text=True, timeout=180)
+        advertised = said.stdout.strip().splitlines()[-1]
+        assert advertised.endswith(f":{port}"), said.stdout + said.stderr
+        yield port, advertised
+    finally:
+        g.close()
+
+
+def join(*args: str, env: dict | None = None) -> str:
+    """JOIN's one line: the cluster joined, or `error: ...`."""
+    out = subprocess.run([sys.executable, "-c", JOIN, *args], cwd=REPO, env=env or ENV, capture_output=True,
+                         text=True, timeout=180)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout.strip().splitlines()[-1]
+
+
+def farm_command(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / "farm"), *args], cwd=REPO, env=env or ENV, capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_every_address_form_joins_the_same_head(head):
+    port, advertised = head
+    if advertised.startswith("127.0.0.1:"):
+        pytest.skip("this machine's Ray advertises 127.0.0.1: no second address to join by")
+    assert join(advertised) == advertised
+    assert join(f"127.0.0.1:{port}") == advertised
+    assert join(f"localhost:{port}") == advertised
+    assert join(env={**ENV, "RAY_ADDRESS": f"127.0.0.1:{port}"}) == advertised
+    # auto: the head this machine's pointer file names (the newest `ray start`); with RAY_ADDRESS
+    # set, Ray takes that one, as ray.init does.
+    assert join("auto", env={**ENV, "RAY_ADDRESS": f"127.0.0.1:{port}"}) == advertised
+
+
+def test_a_process_on_one_head_asked_for_another_is_refused_in_one_line(head, job_head):
+    port, advertised = head
+    _, other = job_head  # the job tests' head: another cluster on this machine
+    said = join(f"127.0.0.1:{port}", other)
+    assert said == (f"error: address {other}: this process is already connected to the Ray "
+                    f"cluster at {advertised}")
+
+
+def test_exploit_and_robust_join_by_loopback_and_by_ray_address(head, tmp_path):
+    port, _ = head
+    r = farm_command("exploit", "spread_evenly", "--scenario", "outnumbered_3x3", "--seeds", "none", "--episodes", "2",
+             "--exact", "never", "--address", f"127.0.0.1:{port}", "--out", str(tmp_path / "exploit"), "--quiet")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "exploit" / "table.csv").exists()
+    config = tmp_path / "robust.yaml"
+    config.write_text(yaml.safe_dump({
+        "name": "robust_join", "scenario": "outnumbered_3x3", "allocators": ["spread_evenly"],
+        "intruders": ["drift"], "iterations": 1, "payoffs": {"episodes": 2, "seed": 2000}, "oracle": "library",
+        "library": {"allocators": ["intercept"], "intruders": ["fewest_ahead"]}, "distill": None, "exact": "never",
+        "store": str(tmp_path / "capture_times.sqlite")}))
+    r = farm_command("robust", str(config), "--out", str(tmp_path / "robust"), "--quiet",
+             env={**ENV, "RAY_ADDRESS": f"127.0.0.1:{port}"})
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "robust" / "robust.json").exists()

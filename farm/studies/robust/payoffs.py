@@ -33,7 +33,7 @@ def write_state(path: Path, kind: str, values: dict) -> None:
 
 def read_state(path: Path, kind: str) -> dict | None:
     """A state file's values (write_state's), None without one; a file that is not one whole
-    (cut short, edited, of another kind of run, written before it carried its checksum) is moved
+    (cut short, edited, of another kind of run, or without its checksum) is moved
     into damaged/ beside it, said in one line, and None returned: its run computes it again from
     what it keeps (the payoffs, the trainings)."""
     from farm.alloc.training.runs import move_damaged
