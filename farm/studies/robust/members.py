@@ -71,7 +71,7 @@ def member_of(side: str, value, where: str, root=None) -> Member:
     if not isinstance(value, dict) or not isinstance(value.get("name"), str) \
             or not set(value) <= {"name", "options", "label", "side"} or not isinstance(value.get("options", {}), dict):
         raise ConfigError(f"{where}: a member is a name or {{name: NAME, options: {{...}}}}, got {value!r}",
-                          field=where.split("[")[0])
+                          field=where)
     (allocator_entry if side == "allocators" else intruder_entry)(value["name"], where.split("[")[0])
     options = dict(value.get("options", {}))
     if root is not None and isinstance(options.get("run"), str) and not Path(options["run"]).is_absolute():
