@@ -302,3 +302,35 @@ def test_an_experiment_refuses_the_same_before_ray(tmp_path):
         assert status == 2 and len(err.strip().splitlines()) == 1, err
         assert err.startswith("farm: error: tracking.mlflow.tracking_uri: ") and expected in err, err
         assert not store.exists() and not (tmp_path / "exp").exists()
+
+
+def test_a_failing_tracker_call_is_one_warning_with_the_trackers_loggers_quiet_and_the_run_ended_failed():
+    """What MLflow's own loggers say about a failure (a 40-line ERROR block) is not printed: the
+    project's one warning says it; the MLflow run is ended FAILED, once, where the store takes it."""
+    import logging
+
+    from farm.core.tracking import Guard, TrackingWarning
+
+    records, ended = [], []
+    handler = logging.Handler()
+    handler.emit = records.append
+    root = logging.getLogger("mlflow")
+    root.addHandler(handler)
+    level = root.level
+
+    def failing():
+        logging.getLogger("mlflow.store.db.utils").error("a block of forty lines")
+        logging.getLogger("sqlalchemy.engine").error("and a chained traceback")
+        raise RuntimeError("database disk image is malformed")
+
+    guard = Guard("the run", on_off=lambda: ended.append("FAILED"))
+    try:
+        with pytest.warns(TrackingWarning) as warned:
+            assert guard("logging the metrics", failing) is None
+            assert guard("logging the metrics", failing) is None  # off: skipped, not said again
+    finally:
+        root.removeHandler(handler)
+    assert [str(w.message) for w in warned] == [
+        "tracking.mlflow: MLflow failed logging the metrics (database disk image is malformed); "
+        "the run goes on untracked"]
+    assert records == [] and ended == ["FAILED"] and root.level == level

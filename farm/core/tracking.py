@@ -32,7 +32,8 @@ from farm.core.config import Strict
 from farm.core.errors import ConfigError, SwarmFarmError
 
 __all__ = ["MlflowParams", "TrackingParams", "TrackingWarning", "flat_params", "flattened", "param_text",
-           "mlflow_client", "mlflow_experiment", "open_experiment", "check_tracking_uri", "Guard", "URI_FIELD"]
+           "mlflow_client", "mlflow_experiment", "open_experiment", "check_tracking_uri", "Guard", "URI_FIELD",
+           "quiet_tracker_logs"]
 
 URI_FIELD = "tracking.mlflow.tracking_uri"
 _SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]+:")  # two letters at least: C:\ is a Windows path, not a scheme
@@ -318,22 +319,47 @@ class Guard:
     Calls run under RUN_HTTP. Tune pickles an experiment's logger, a Guard with it: a restored one
     is on again."""
 
-    def __init__(self, what: str):
-        self.what, self.off = what, False
+    def __init__(self, what: str, on_off=None):
+        self.what, self.off, self.on_off = what, False, on_off
 
     def __call__(self, doing: str, call, *args, **kwargs):
         """call(*args, **kwargs)'s value, or None when tracking is off or the call failed
-        (doing: what it does, for the warning)."""
+        (doing: what it does, for the warning). The tracker's own loggers are quiet while it
+        runs: its failure is said once, by the warning. When tracking is given up, on_off() is
+        called, once, as quietly (ending the MLflow run FAILED where the store still takes it)."""
         if self.off:
             return None
         try:
-            with mlflow_http(RUN_HTTP):
+            with mlflow_http(RUN_HTTP), quiet_tracker_logs():
                 return call(*args, **kwargs)
         except Exception as e:  # noqa: BLE001 - any failure of the tracker: the run goes on
             self.off = True
             warnings.warn(f"tracking.mlflow: MLflow failed {doing} ({reason(e)}); {self.what} goes on untracked",
                           TrackingWarning, stacklevel=2)
+            if self.on_off is not None:
+                with contextlib.suppress(Exception), mlflow_http(RUN_HTTP), quiet_tracker_logs():
+                    self.on_off()
             return None
+
+
+TRACKER_LOGGERS = ("mlflow", "alembic", "sqlalchemy", "urllib3")  # the tracker's and its libraries' loggers
+
+
+@contextlib.contextmanager
+def quiet_tracker_logs():
+    """The tracker's loggers (TRACKER_LOGGERS) silent for the block, their levels restored after:
+    what they would print about a failure the project reports itself in one line."""
+    import logging
+
+    loggers = [logging.getLogger(name) for name in TRACKER_LOGGERS]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)
 
 
 def flattened(values: dict, sep: str = ".", prefix: str = "") -> dict:

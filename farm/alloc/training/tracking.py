@@ -42,7 +42,7 @@ class MlflowRun:
         self.client, self.run_id = client, run_id
         self.logged_steps: set[int] = {int(m.step) for m in client.get_metric_history(run_id, EVAL_METRICS[0])}
         self.eval_logger = EvalLogger(self)  # the run's EvalCallback's callback_after_eval (its parent then)
-        self.guard = Guard("the run")
+        self.guard = Guard("the run", on_off=lambda: client.set_terminated(run_id, "FAILED"))
 
     @classmethod
     def open(cls, config, run_dir, resume: bool) -> MlflowRun:
