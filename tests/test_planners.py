@@ -549,6 +549,10 @@ def test_planners_beat_the_swap_on_real_games(real_client):
     ("subregions", {"options": 3}, "options"),
     ("subregions", {"options": {"horizont": 2}}, "horizont"),
     ("subregions", {"workers": 0}, "workers"),
+    # sizes bounded before the work: each iteration or round is a program solved every step
+    ("receding_horizon", {"iterations": 100000}, "iterations must be an integer from 1 to 100"),
+    ("receding_horizon", {"rounds": 101}, "rounds must be an integer from 1 to 100"),
+    ("minimax", {"iterations": 100000}, "iterations must be an integer from 1 to 100"),
 ])
 def test_bad_options_are_one_line(name, options, field):
     cfg = cfg_of()

@@ -143,10 +143,17 @@ def _positive_number(owner: str, name: str, value) -> float:
     return float(value)
 
 
-def _count(owner: str, name: str, value, minimum: int = 1) -> int:
-    """value if it is an integer >= minimum (not a bool), else ConfigError naming owner.name."""
+MAX_PLANS = 100  # a planner's iterations or rounds a step at most: each is a program solved a step
+
+
+def _count(owner: str, name: str, value, minimum: int = 1, maximum: int | None = None) -> int:
+    """value if it is an integer >= minimum (and <= maximum, when given; not a bool), else
+    ConfigError naming owner.name."""
     if not is_whole(value) or value < minimum:
         raise ConfigError(f"{owner}: {name} must be an integer >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ConfigError(f"{owner}: {name} must be an integer from {minimum} to {maximum} (each is a program "
+                          f"solved every step), got {value!r}")
     return int(value)
 
 

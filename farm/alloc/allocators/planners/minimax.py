@@ -9,7 +9,7 @@ import itertools
 import numpy as np
 from scipy import sparse
 
-from farm.alloc.allocators.planners.core import _count, _Planner, _positive_number, plan_horizon
+from farm.alloc.allocators.planners.core import MAX_PLANS, _count, _Planner, _positive_number, plan_horizon
 from farm.alloc.game.config import AllocConfig
 from farm.alloc.game.model import route_intruders_many, team_sizes
 from farm.core.errors import ConfigError
@@ -103,12 +103,12 @@ class Minimax(_Planner):
         if objective not in _OBJECTIVES:
             raise ConfigError(f"{self.name}: objective must be one of {', '.join(_OBJECTIVES)}, got {objective!r}")
         self.objective = objective
-        self.iterations = _count(self.name, "iterations", iterations)
+        self.iterations = _count(self.name, "iterations", iterations, maximum=MAX_PLANS)
         self.courses = _count(self.name, "courses", courses, minimum=0)
         self.routings = _count(self.name, "routings", routings)
         self.beam = _count(self.name, "beam", beam)
         self.branch_levels = _count(self.name, "branch_levels", branch_levels, minimum=0)
-        self.rounds = _count(self.name, "rounds", rounds)
+        self.rounds = _count(self.name, "rounds", rounds, maximum=MAX_PLANS)
         self.time_limit = _positive_number(self.name, "time_limit", time_limit)
         self.plan_on_rates(estimates)
         self.repliers = self._reply_policies(replies)

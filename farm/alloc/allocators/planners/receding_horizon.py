@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from farm.alloc.allocators.planners.core import _count, _Planner, _positive_number, plan_horizon
+from farm.alloc.allocators.planners.core import MAX_PLANS, _count, _Planner, _positive_number, plan_horizon
 from farm.alloc.game.config import AllocConfig
 from farm.alloc.game.model import team_sizes
 
@@ -71,8 +71,8 @@ class RecedingHorizon(_Planner):
                  **unknown):
         super().__init__(config, client, unknown, ties)
         self.horizon = None if horizon is None else _count("receding_horizon", "horizon", horizon)
-        self.iterations = _count("receding_horizon", "iterations", iterations)
-        self.rounds = _count("receding_horizon", "rounds", rounds)
+        self.iterations = _count("receding_horizon", "iterations", iterations, maximum=MAX_PLANS)
+        self.rounds = _count("receding_horizon", "rounds", rounds, maximum=MAX_PLANS)
         self.time_limit = _positive_number("receding_horizon", "time_limit", time_limit)
         self.plan_on_rates(estimates)
         self.last: dict = {}  # the last call: horizon, programs solved (LPs or branch and bounds), reward
