@@ -200,3 +200,22 @@ def test_bad_options_are_one_line(client, options, words):
 def test_without_a_client_they_are_refused_in_one_line():
     with pytest.raises(ConfigError, match="intruder_options: search intruders plan on a capture-time client"):
         make_intruders("search", SMALL, allocators=["intercept"])
+
+
+@pytest.mark.parametrize("scenario", ["outnumbered_5x5", "wide_front_8x8"])
+def test_on_a_map_whose_tree_does_not_fit_they_are_refused_before_a_step_and_before_a_training(scenario, tmp_path):
+    """As docs/model.md says: the env refuses them when made, and a training config when checked,
+    before anything is written."""
+    from farm.alloc.envs.defenders import SwarmAllocationEnv
+    from farm.alloc.game.scenarios import SCENARIOS
+    from farm.alloc.training.config import TrainConfig, check_trainable
+
+    n = SCENARIOS[scenario].config().grid_size
+    words = f"intruder_options: search: its tree on this {n}x{n} map could hold more than"
+    env = SCENARIOS[scenario].config(intruders="search", intruder_options={"allocators": ["intercept"]})
+    with pytest.raises(ConfigError, match=words):
+        SwarmAllocationEnv(env)
+    with pytest.raises(ConfigError, match=words):
+        intruders = {"intruders": "search", "intruder_options": {"allocators": ["intercept"]}}
+        check_trainable(TrainConfig(name="t", scenario=scenario, algo="ppo", env=intruders))
+    assert not list(tmp_path.iterdir())

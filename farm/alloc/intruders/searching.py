@@ -15,14 +15,35 @@ import numpy as np
 from farm.alloc.game.dynamics import check_actions, episode_end, move_defenders, move_probabilities, observe, resolve
 from farm.alloc.game.model import EngagementModel
 from farm.alloc.intruders.base import IntruderPolicy
-from farm.alloc.intruders.exact_search import OBJECTIVES, Routings, draws_moves
+from farm.alloc.intruders.exact_search import (
+    DEFAULT_MAX_NODES,
+    OBJECTIVES,
+    Routings,
+    check_search,
+    draws_moves,
+    episode_start,
+)
 from farm.core.errors import ConfigError
 from farm.core.mixture import mixture_members
 
-__all__ = ["SearchingIntruders"]
+__all__ = ["SearchingIntruders", "check_searchable"]
 
 _MATCH = 1e-9  # a member's predicted move matches the seen one within this, cell by cell
 _MEMO = 200_000  # the states the memos may hold before an episode's start clears them (a cache only)
+
+
+def check_searchable(config, objective: str = "eliminated") -> None:
+    """ConfigError (one line naming intruder_options) when the search's tree from an episode's start
+    on config's map could exceed its budget (exact_search.check_search: the 5 x 5 and larger maps):
+    asked when the policy is made, so an env or a training with `search` intruders there is
+    refused before its first step."""
+    try:
+        check_search(config, episode_start(config, 0)[1], objective=objective)
+    except ConfigError:
+        n = config.grid_size
+        raise ConfigError(f"intruder_options: search: its tree on this {n}x{n} map could hold more than "
+                          f"{DEFAULT_MAX_NODES:,} states (search intruders play on maps whose tree fits: the 3 x 3 "
+                          f"ones)", field="intruder_options") from None
 
 
 class SearchingIntruders(IntruderPolicy):
@@ -52,6 +73,7 @@ class SearchingIntruders(IntruderPolicy):
         if objective not in OBJECTIVES:
             raise ConfigError(f"intruder_options.objective: one of {', '.join(OBJECTIVES)}, got {objective!r}",
                               field="intruder_options.objective")
+        check_searchable(config, objective)
         if client is None:
             raise ConfigError("intruder_options: search intruders plan on a capture-time client; make them with "
                               "one (make_intruders(..., client=...))", field="intruder_options")

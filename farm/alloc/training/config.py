@@ -472,6 +472,10 @@ def check_trainable(config: TrainConfig) -> None:
                           field=field)
     check_allocators(config)
     check_pretrain_memory(config)
+    if config.env.intruders == "search":  # the search's tree on the run's map, before anything is written
+        from farm.alloc.intruders.searching import check_searchable
+
+        check_searchable(config.env, config.env.intruder_options.get("objective", "eliminated"))
 
 
 def check_allocators(config: TrainConfig) -> None:
