@@ -53,16 +53,12 @@ class Entry:
         return [p.name for p in params
                 if p.name not in ("config", "client") and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
 
-    def takes_client(self) -> bool:
-        """Whether make is given the caller's capture-time client."""
-        return self.client == "always" or "client" in inspect.signature(self.make).parameters
-
     def build(self, config, client=None, options: dict | None = None):
         """The policy for the AllocConfig config, with its options, given client as make takes it."""
         options = options or {}
         if self.client == "always":
             return self.make(config, client, **options)
-        extra = {"client": client} if self.takes_client() else {}
+        extra = {"client": client} if "client" in inspect.signature(self.make).parameters else {}
         return self.make(config, **options, **extra)
 
 
